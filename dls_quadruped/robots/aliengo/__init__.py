@@ -1,0 +1,1 @@
+"""Unitree AlienGo: MJCF model and the constants it was written from."""

@@ -1,0 +1,23 @@
+"""dls_quadruped: latent-action quadruped locomotion, RL warm starts and a batched sampling MPC."""
+
+from setuptools import find_packages, setup
+
+setup(
+    name="dls_quadruped",
+    version="0.1.0",
+    description="AlienGo in MuJoCo with a latent-action low-level controller, PPO policies and a torch sampling MPC",
+    python_requires=">=3.10",
+    packages=find_packages(include=["dls_quadruped", "dls_quadruped.*"]),
+    package_data={"dls_quadruped": ["robots/aliengo/*.xml"]},
+    install_requires=[
+        "torch>=2.4",
+        "mujoco>=4.0",
+        "gymnasium>=1.0",
+        "rsl-rl-lib>=5.0,<6",
+        "pin>=4.1",
+        "numpy>=1.26",
+        "matplotlib>=3.8",
+        "pyyaml>=6.0",
+    ],
+    extras_require={"dev": ["pytest>=8", "ruff>=0.5"]},
+)
