@@ -333,11 +333,37 @@ class ActionInterface:
             ValueError: wrong shape or non-finite entries (names robots and components).
         """
         validate_raw(raw)
-        batch = raw.shape[0]
-        for name, value, shape in (("num_stance", num_stance, (batch,)), ("base_pos_w", base_pos_w, (batch, 3)),
-                                   ("base_yaw", base_yaw, (batch,))):
+        self._check_state(raw.shape[0], num_stance, base_pos_w, base_yaw)
+        return self._references(denormalise(raw, num_stance, self.cfg), base_pos_w, base_yaw)
+
+    def from_physical(
+        self, action: LatentAction, base_pos_w: torch.Tensor, base_yaw: torch.Tensor
+    ) -> LowLevelReferences:
+        """Same pipeline for an action already in physical units (e.g. the balance controller's).
+
+        Args:
+            action: LatentAction with leading dim (B,), frame H, not yet clipped.
+            base_pos_w: (B, 3) [m]; base_yaw: (B,) [rad].
+        """
+        vec = action.to_vector()
+        validate_raw(vec)
+        batch = vec.shape[0]
+        self._check_state(batch, torch.zeros(batch), base_pos_w, base_yaw)
+        return self._references(action, base_pos_w, base_yaw)
+
+    @staticmethod
+    def _check_state(batch: int, num_stance: torch.Tensor, base_pos_w: torch.Tensor, base_yaw: torch.Tensor) -> None:
+        for name, value, shape in (
+            ("num_stance", num_stance, (batch,)),
+            ("base_pos_w", base_pos_w, (batch, 3)),
+            ("base_yaw", base_yaw, (batch,)),
+        ):
             if tuple(value.shape) != shape:
                 raise ValueError(f"{name} must have shape {shape} for a batch of {batch} actions, got {tuple(value.shape)}")
-        action, violation = clip(denormalise(raw, num_stance, self.cfg), self.cfg)
-        p_td_w, F_w = to_world(action, base_pos_w.to(raw.dtype), base_yaw.to(raw.dtype), self.terrain_height_fn, self.cfg)
-        return LowLevelReferences(action.f, action.d, p_td_w, F_w, action, violation)
+
+    def _references(self, action: LatentAction, base_pos_w: torch.Tensor, base_yaw: torch.Tensor) -> LowLevelReferences:
+        """Clip, then map to the world frame."""
+        clipped, violation = clip(action, self.cfg)
+        dtype = clipped.f.dtype
+        p_td_w, F_w = to_world(clipped, base_pos_w.to(dtype), base_yaw.to(dtype), self.terrain_height_fn, self.cfg)
+        return LowLevelReferences(clipped.f, clipped.d, p_td_w, F_w, clipped, violation)

@@ -227,3 +227,37 @@ def test_float64_and_dtype_preserved():
     out = ActionInterface()(raw, torch.full((2,), 3), torch.zeros(2, 3, dtype=torch.float64), torch.zeros(2))
     assert out.p_td_w.dtype == out.F_w.dtype == out.violation.dtype == torch.float64
     assert out.F_w[0, 0, 2].item() == pytest.approx(MG / 3, rel=1e-12)
+
+
+def test_from_physical_matches_raw_path():
+    """A physical action through from_physical equals its normalised form through __call__."""
+    g = torch.Generator().manual_seed(11)
+    raw = torch.randn(4, 28, generator=g, dtype=torch.float64) * 5
+    n = torch.tensor([4, 3, 2, 0])
+    base = torch.randn(4, 3, generator=g, dtype=torch.float64)
+    yaw = torch.randn(4, generator=g, dtype=torch.float64)
+    iface = ActionInterface()
+    a = iface(raw, n, base, yaw)
+    b = iface.from_physical(denormalise(raw, n, CFG), base, yaw)
+    torch.testing.assert_close(a.p_td_w, b.p_td_w)
+    torch.testing.assert_close(a.F_w, b.F_w)
+    torch.testing.assert_close(a.violation, b.violation)
+    bad = denormalise(raw, n, CFG)
+    bad.F_h[2, 1, 0] = float("nan")
+    with pytest.raises(ValueError, match=r"robots \[2\] in components \['F_x\[FR\]'\]"):
+        iface.from_physical(bad, base, yaw)
+
+
+def test_docs_worked_example():
+    """The worked example of docs/latent_action.md, numbers by hand."""
+    raw = torch.zeros(1, 28, dtype=torch.float64)
+    raw[0, 0], raw[0, 4], raw[0, 8], raw[0, 16], raw[0, 18] = 1.0, 15.0, 2.0, 10.0, -1.0
+    base = torch.tensor([[1.0, 2.0, 0.35]], dtype=torch.float64)
+    out = ActionInterface()(raw, torch.tensor([2]), base, torch.tensor([math.pi / 2], dtype=torch.float64))
+    assert out.f[0, 0].item() == pytest.approx(1.7) and out.d[0, 0].item() == 1.0
+    expected_v = torch.zeros(28, dtype=torch.float64)
+    expected_v[4] = 0.05 / 0.03  # d: 1.05 -> 1
+    expected_v[16] = (10 * 0.025 * MG - 0.5 * (MG / 2 - 0.1 * MG)) / (0.025 * MG)  # F_x: 60.42 -> 48.34 N = 2.0
+    torch.testing.assert_close(out.violation[0], expected_v)
+    torch.testing.assert_close(out.p_td_w[0, 0], torch.tensor([0.866, 2.2749, 0.0265], dtype=torch.float64))
+    torch.testing.assert_close(out.F_w[0, 0], torch.tensor([0.0, 48.339756, 96.679512], dtype=torch.float64))
