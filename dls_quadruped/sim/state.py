@@ -28,6 +28,8 @@ class RobotState:
         foot_force_w: (B, 4, 3) [N] contact force the ground exerts on each foot, world frame.
         phase: (B, 4) gait phase in [0, 1).
         contact_cmd: (B, 4) commanded stance flag from the gait generator (1.0 stance).
+        base_contact: (B,) bool, True while the trunk, a hip or a thigh touches the ground
+            (used by the termination manager; shanks and feet do not count).
         time: (B,) [s] simulated time since the robot's last reset.
         diverged: (B,) bool, True once the robot's simulation became invalid (NaN, MuJoCo
             error or warning); the robot is frozen until it is reset.
@@ -45,6 +47,7 @@ class RobotState:
     foot_force_w: torch.Tensor
     phase: torch.Tensor
     contact_cmd: torch.Tensor
+    base_contact: torch.Tensor
     time: torch.Tensor
     diverged: torch.Tensor
 

@@ -1,0 +1,48 @@
+# dls_quadruped: `make demo` (main job, small default), `make test`, `make bench`, `make train TASK=...`.
+# A fresh clone needs nothing but python3: the first target creates .venv and installs what it needs.
+
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+# torch is installed first and pinned: a CPU wheel of 2.13.0 is local on our dev machines.
+# Elsewhere override, e.g. `make TORCH_SPEC="torch==2.13.0" TORCH_INDEX="--index-url https://download.pytorch.org/whl/cu128"`.
+TORCH_SPEC ?= torch==2.13.0
+TORCH_INDEX ?=
+STAMP := $(VENV)/.installed
+
+NUM_ENVS ?= 64
+SECONDS_PER_PHASE ?= 5
+OUT ?= results
+
+.PHONY: install test test-all demo bench bench-env bench-mpc lint clean
+
+$(STAMP): setup.py
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q $(TORCH_INDEX) "$(TORCH_SPEC)"
+	$(PY) -m pip install -q -e ".[dev]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+test: $(STAMP)
+	$(PY) -m pytest
+
+test-all: $(STAMP)
+	$(PY) -m pytest -m "slow or not slow"
+
+lint: $(STAMP)
+	$(PY) -m ruff check dls_quadruped tests
+
+demo: $(STAMP)
+	$(PY) -m dls_quadruped.demo --num-envs $(NUM_ENVS) --seconds $(SECONDS_PER_PHASE) --out $(OUT)/demo
+
+bench: bench-env bench-mpc
+
+bench-env: $(STAMP)
+	$(PY) -m dls_quadruped.bench.env --out $(OUT)/bench
+
+bench-mpc: $(STAMP)
+	$(PY) -m dls_quadruped.bench.mpc
+
+clean:
+	rm -rf $(VENV) results .pytest_cache

@@ -1,0 +1,149 @@
+"""Low-level controller (thesis Fig. 1, 2.2.2-2.2.6; SPEC section 4), run every physics step.
+
+Inputs are world-frame latent references held between high-level updates:
+step frequency ``f`` and duty ``d`` per leg, touch-down target ``p_td_w`` and stance
+ground-reaction force ``F_w``. Per physics step and per leg:
+
+* gait generator: contact ``c = theta < d``; ``theta`` then advances by ``f dt``;
+* swing legs track the two-segment Bezier reference from the lift-off position to
+  ``p_td_w`` with feedback linearisation (SPEC 4; the sign of eq. 2.2.8 is a typo)::
+
+      tau = M J^-1 (a_ref + K_D (v_ref - v) + K_P (p_ref - p) - Jdot qdot) + h
+
+  using the 3x3 leg blocks of M, h = C qdot + G, the world-aligned foot Jacobian J and
+  the foot drift acceleration Jdot qdot, all from Pinocchio (``control/dynamics.py``);
+* stance legs apply the ground-reaction force: ``tau = -J^T F`` (eq. 2.2.9 with the
+  leg-on-ground sign);
+* torques are clipped to the motor limits.
+
+Everything is batched over B robots in float64 torch (the simulator state is float64).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from dls_quadruped.control.gait import advance_phase, contact_from_phase, swing_progress, trot_phases
+from dls_quadruped.control.swing import swing_reference
+from dls_quadruped.robots.aliengo import constants as C
+
+
+@dataclass(frozen=True)
+class LowLevelConfig:
+    """Gains and limits of the low-level controller.
+
+    Attributes:
+        kp_swing: task-space position gain [1/s^2] (x, y, z), applied as an acceleration.
+        kd_swing: task-space velocity gain [1/s] (x, y, z).
+        step_height: swing apex above the higher of lift-off and touch-down [m].
+        min_swing_duration: lower bound on T_s = (1 - d) / f [s], guards f -> inf, d -> 1.
+        jacobian_damping: Tikhonov damping of the swing-leg Jacobian inverse (near-singular legs).
+    """
+
+    kp_swing: tuple[float, float, float] = (1200.0, 1200.0, 1200.0)
+    kd_swing: tuple[float, float, float] = (60.0, 60.0, 60.0)
+    step_height: float = 0.06
+    min_swing_duration: float = 0.05
+    jacobian_damping: float = 1e-3
+
+
+@dataclass
+class LegTerms:
+    """Per-leg dynamics terms for B robots (float64 torch), from ``control/dynamics.py``.
+
+    Attributes:
+        M_leg: (B, 4, 3, 3) [kg m^2] leg blocks of the joint-space mass matrix.
+        h_leg: (B, 4, 3) [N m] leg entries of C(q, qdot) qdot + G(q).
+        J_leg: (B, 4, 3, 3) [m] foot-centre Jacobian w.r.t. the leg's joints, world-aligned.
+        Jdot_qdot: (B, 4, 3) [m/s^2] foot acceleration at zero generalized acceleration.
+        foot_pos_w: (B, 4, 3) [m] foot centres, world frame.
+        foot_vel_w: (B, 4, 3) [m/s] foot-centre velocities, world frame.
+    """
+
+    M_leg: torch.Tensor
+    h_leg: torch.Tensor
+    J_leg: torch.Tensor
+    Jdot_qdot: torch.Tensor
+    foot_pos_w: torch.Tensor
+    foot_vel_w: torch.Tensor
+
+
+class LowLevelController:
+    """Stateful batched low-level controller: gait phases and lift-off positions live here.
+
+    Args:
+        num_robots: B.
+        cfg: gains and limits.
+        dt: physics (= control) step [s].
+    """
+
+    def __init__(self, num_robots: int, cfg: LowLevelConfig = LowLevelConfig(), dt: float = 0.005):
+        self.cfg = cfg
+        self.dt = dt
+        dtype = torch.float64
+        self.phase = trot_phases(num_robots, dtype=dtype)
+        self.p_lo_w = torch.zeros(num_robots, 4, 3, dtype=dtype)
+        self.contact = torch.ones(num_robots, 4, dtype=torch.bool)
+        self._kp = torch.tensor(cfg.kp_swing, dtype=dtype)
+        self._kd = torch.tensor(cfg.kd_swing, dtype=dtype)
+        self._tau_limit = torch.as_tensor(C.TORQUE_LIMITS, dtype=dtype).view(4, 3)
+        self._eye = torch.eye(3, dtype=dtype) * cfg.jacobian_damping**2
+
+    def reset(self, ids: torch.Tensor, foot_pos_w: torch.Tensor, phase: torch.Tensor | None = None) -> None:
+        """Reset the gait phase (default: trot offsets) and lift-off positions of robots ``ids``.
+
+        Args:
+            ids: (n,) robot indices.
+            foot_pos_w: (n, 4, 3) [m] current foot positions (the lift-off point of a first swing).
+            phase: (n, 4) phases in [0, 1), or None for the trot offsets.
+        """
+        self.phase[ids] = trot_phases(len(ids), dtype=self.phase.dtype) if phase is None else phase.to(self.phase)
+        self.p_lo_w[ids] = foot_pos_w.to(self.p_lo_w)
+        self.contact[ids] = True
+
+    def compute(
+        self,
+        terms: LegTerms,
+        freq: torch.Tensor,
+        duty: torch.Tensor,
+        p_td_w: torch.Tensor,
+        F_w: torch.Tensor,
+    ) -> torch.Tensor:
+        """Joint torques for one physics step, then advance the gait phase by dt.
+
+        Args:
+            terms: dynamics of the current state.
+            freq: (B, 4) [Hz]; duty: (B, 4) in [0, 1].
+            p_td_w: (B, 4, 3) [m] touch-down targets (foot centre), world frame.
+            F_w: (B, 4, 3) [N] ground-reaction force on each stance foot, world frame.
+
+        Returns:
+            tau: (B, 12) [N m] clipped joint torques, leg-major.
+        """
+        cfg = self.cfg
+        contact = contact_from_phase(self.phase, duty)  # (B, 4)
+        # a stance foot's current position is the lift-off point of its next swing
+        self.p_lo_w = torch.where(contact.unsqueeze(-1), terms.foot_pos_w, self.p_lo_w)
+        self.contact = contact
+
+        # --- swing: feedback linearisation in task space ---
+        progress = swing_progress(self.phase, duty)
+        swing_duration = ((1.0 - duty) / freq.clamp_min(1e-6)).clamp_min(cfg.min_swing_duration)
+        p_ref, v_ref, a_ref = swing_reference(self.p_lo_w, p_td_w, cfg.step_height, progress, swing_duration)
+        # a = a_ref + K_D (v_ref - v) + K_P (p_ref - p) - Jdot qdot  (foot acceleration to realise)
+        acc = a_ref + self._kd * (v_ref - terms.foot_vel_w) + self._kp * (p_ref - terms.foot_pos_w) - terms.Jdot_qdot
+        J = terms.J_leg
+        Jt = J.transpose(-1, -2)
+        # qddot = J^-1 acc, damped: (J^T J + lambda^2 I) qddot = J^T acc
+        qdd = torch.linalg.solve(Jt @ J + self._eye, (Jt @ acc.unsqueeze(-1))).squeeze(-1)
+        tau_swing = (terms.M_leg @ qdd.unsqueeze(-1)).squeeze(-1) + terms.h_leg
+
+        # --- stance: tau = -J^T F ---
+        tau_stance = -(Jt @ F_w.unsqueeze(-1)).squeeze(-1)
+
+        tau = torch.where(contact.unsqueeze(-1), tau_stance, tau_swing)
+        tau = torch.maximum(torch.minimum(tau, self._tau_limit), -self._tau_limit)
+        self.phase = advance_phase(self.phase, freq, self.dt)
+        return tau.reshape(-1, 12)

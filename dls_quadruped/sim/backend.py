@@ -1,0 +1,318 @@
+"""Vectorised MuJoCo backend: N AlienGo robots with the low-level controller, on all cores.
+
+Design (measured in ``docs/benchmarks.md``): the robots are split into contiguous
+shards, one per worker process. Each worker owns a ``mujoco.batch.Batch`` (one thread),
+a Pinocchio model and the batched torch low-level controller, and runs the whole
+decimation loop by itself; the main process only writes commands into shared memory
+and reads the state back, once per high-level step. This spreads the Pinocchio calls,
+which hold the GIL, over the cores as well as the physics. With ``num_workers=0`` a
+single in-process shard is used (its ``Batch`` uses all threads), which is handy for
+debugging and gives bit-identical results.
+
+Usage::
+
+    sim = VecSim(mujoco.MjModel.from_xml_path(str(constants.SCENE_PATH)), num_envs=64)
+    sim.set_references(freq, duty, p_td_w, F_w)   # world-frame latent references
+    state = sim.step(4)                            # 4 physics steps at 200 Hz
+    sim.close()
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import mujoco
+import numpy as np
+import torch
+
+from dls_quadruped.control.lowlevel import LowLevelConfig
+from dls_quadruped.sim.shard import STATE_SPECS, SharedBuffers, Shard
+from dls_quadruped.sim.state import RobotState
+
+_BOOL_FIELDS = ("base_contact", "diverged")
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Backend configuration.
+
+    Attributes:
+        num_workers: worker processes; 0 runs one shard in-process, -1 uses one per CPU core.
+        nthread: threads of the in-process ``Batch`` when ``num_workers == 0`` (0: all cores).
+        control: low-level controller gains.
+    """
+
+    num_workers: int = -1
+    nthread: int = 0
+    control: LowLevelConfig = field(default_factory=LowLevelConfig)
+
+
+def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: SimConfig) -> None:
+    """Worker process loop: execute commands on one shard until 'close'."""
+    torch.set_num_threads(1)
+    try:
+        shard = Shard(model, buffers, cfg.control, nthread=1)
+        conn.send(("ok", None))
+    except Exception as err:  # report construction errors to the parent instead of hanging it
+        conn.send(("error", repr(err)))
+        return
+    while True:
+        cmd, arg = conn.recv()
+        try:
+            if cmd == "close":
+                conn.send(("ok", None))
+                return
+            if cmd == "step":
+                shard.step(arg)
+            elif cmd == "reset":
+                shard.reset(arg)
+            elif cmd == "set_lin_vel":
+                shard.set_lin_vel(arg)
+            elif cmd == "model_field":
+                shard.set_model_field(*arg)
+            conn.send(("ok", None))
+        except Exception as err:
+            conn.send(("error", f"{cmd}: {err!r}"))
+
+
+class VecSim:
+    """N robots simulated and controlled as one batch.
+
+    Args:
+        model: MuJoCo model with one AlienGo (free joint first, legs in ``constants.JOINT_NAMES``
+            order) and the ground (plane or height field). Pickled to the workers.
+        num_envs: number of robots N.
+        cfg: backend configuration.
+    """
+
+    def __init__(self, model: mujoco.MjModel, num_envs: int, cfg: SimConfig = SimConfig()):
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self.model = model
+        self.num_envs = num_envs
+        self.cfg = cfg
+        self.physics_dt = float(model.opt.timestep)
+        workers = cfg.num_workers if cfg.num_workers >= 0 else (os.cpu_count() or 1)
+        workers = min(workers, num_envs)
+        self.num_workers = workers
+        self.buf = SharedBuffers.allocate(num_envs, shared=workers > 0)
+        self._bounds = np.linspace(0, num_envs, max(workers, 1) + 1).round().astype(int)
+        self._conns: list[Any] = []
+        self._procs: list[mp.Process] = []
+        self._shard: Shard | None = None
+        self._init_commands()
+        if workers == 0:
+            self._shard = Shard(model, self.buf, cfg.control, nthread=cfg.nthread)
+        else:
+            ctx = mp.get_context("spawn")
+            for w in range(workers):
+                parent, child = ctx.Pipe()
+                rows = self.buf.rows(self._bounds[w], self._bounds[w + 1])
+                proc = ctx.Process(target=_worker_main, args=(child, model, rows, cfg), daemon=True)
+                proc.start()
+                self._conns.append(parent)
+                self._procs.append(proc)
+            self._gather("start")
+        self.state = self._make_state()
+
+    # ------------------------------------------------------------------ plumbing
+    def _init_commands(self) -> None:
+        """Default references: standing on all four legs, weight shared, feet where they are."""
+        c = self.buf.command
+        c["freq"][:] = 0.0
+        c["duty"][:] = 1.0
+        c["F_w"][:] = 0.0
+        c["F_w"][..., 2] = self.total_weight() / 4.0
+        c["reset_qpos"][:] = torch.from_numpy(self.model.key_qpos[0])
+
+    def total_weight(self) -> float:
+        """m g of the robot in this model [N]."""
+        return float(self.model.body_subtreemass[1] * -self.model.opt.gravity[2])
+
+    def _make_state(self) -> RobotState:
+        s = self.buf.state
+        kwargs = {k: s[k] for k in STATE_SPECS if k not in _BOOL_FIELDS}
+        state = RobotState(**kwargs, base_contact=s["base_contact"] > 0, diverged=s["diverged"] > 0)
+        return state
+
+    def _refresh_state(self) -> RobotState:
+        # float buffers are live views; the bool views are recomputed
+        self.state.base_contact = self.buf.state["base_contact"] > 0
+        self.state.diverged = self.buf.state["diverged"] > 0
+        return self.state
+
+    def _gather(self, what: str) -> None:
+        errors = []
+        for w, conn in enumerate(self._conns):
+            status, msg = conn.recv()
+            if status != "ok":
+                errors.append(f"worker {w}: {msg}")
+        if errors:
+            raise RuntimeError(f"simulator backend failed during {what}: " + "; ".join(errors))
+
+    def _dispatch(self, cmd: str, ids: torch.Tensor | None, payload: Any = None) -> None:
+        """Send a command to the shards owning ``ids`` (all shards for None), with shard-local ids."""
+        if self._shard is not None:
+            local = None if ids is None else ids.numpy()
+            self._run_local(cmd, local, payload)
+            return
+        busy = []
+        for w, conn in enumerate(self._conns):
+            lo, hi = self._bounds[w], self._bounds[w + 1]
+            if ids is None:
+                arg = payload
+            else:
+                mask = (ids >= lo) & (ids < hi)
+                if not mask.any():
+                    continue
+                local = (ids[mask] - lo).numpy()
+                arg = local if payload is None else (payload[0], local, payload[1][mask.numpy()])
+            conn.send((cmd, arg))
+            busy.append(conn)
+        errors = [msg for conn in busy for status, msg in [conn.recv()] if status != "ok"]
+        if errors:
+            raise RuntimeError("simulator backend failed: " + "; ".join(errors))
+
+    def _run_local(self, cmd: str, ids: np.ndarray | None, payload: Any) -> None:
+        shard = self._shard
+        if cmd == "step":
+            shard.step(payload)
+        elif cmd == "reset":
+            shard.reset(ids)
+        elif cmd == "set_lin_vel":
+            shard.set_lin_vel(ids)
+        elif cmd == "model_field":
+            shard.set_model_field(payload[0], ids, payload[1])
+
+    @staticmethod
+    def _ids(env_ids: torch.Tensor | np.ndarray | list[int]) -> torch.Tensor:
+        return torch.as_tensor(env_ids, dtype=torch.long).reshape(-1)
+
+    def _check_rows(self, name: str, value: torch.Tensor, n: int, shape: tuple[int, ...]) -> torch.Tensor:
+        value = torch.as_tensor(value, dtype=torch.float64)
+        if value.shape != (n, *shape):
+            raise ValueError(f"{name} must have shape {(n, *shape)}, got {tuple(value.shape)}")
+        if not torch.isfinite(value).all():
+            rows = torch.nonzero(~torch.isfinite(value).reshape(n, -1).all(dim=1)).flatten().tolist()
+            raise ValueError(f"{name} has non-finite values in rows {rows[:10]}")
+        return value
+
+    # ------------------------------------------------------------------ public API
+    def set_references(self, freq: torch.Tensor, duty: torch.Tensor, p_td_w: torch.Tensor, F_w: torch.Tensor) -> None:
+        """Latent references in the world frame for all robots, held until the next call.
+
+        Args:
+            freq: (N, 4) [Hz]; duty: (N, 4); p_td_w: (N, 4, 3) [m] foot-centre touch-down
+            targets; F_w: (N, 4, 3) [N] ground-reaction forces on stance feet.
+        """
+        n = self.num_envs
+        c = self.buf.command
+        c["freq"][:] = self._check_rows("freq", freq, n, (4,))
+        c["duty"][:] = self._check_rows("duty", duty, n, (4,))
+        c["p_td_w"][:] = self._check_rows("p_td_w", p_td_w, n, (4, 3))
+        c["F_w"][:] = self._check_rows("F_w", F_w, n, (4, 3))
+
+    def step(self, num_physics_steps: int = 1) -> RobotState:
+        """Advance every valid robot by ``num_physics_steps`` physics steps (control at each)."""
+        if num_physics_steps < 1:
+            raise ValueError(f"num_physics_steps must be >= 1, got {num_physics_steps}")
+        self._dispatch("step", None, int(num_physics_steps))
+        return self._refresh_state()
+
+    def reset(
+        self,
+        env_ids: torch.Tensor,
+        base_pos_w: torch.Tensor,
+        base_quat_w: torch.Tensor,
+        joint_pos: torch.Tensor,
+        joint_vel: torch.Tensor | None = None,
+        base_lin_vel_w: torch.Tensor | None = None,
+        base_ang_vel_b: torch.Tensor | None = None,
+        phase: torch.Tensor | None = None,
+    ) -> RobotState:
+        """Reset robots ``env_ids`` to the given state (velocities default to zero, phases to trot)."""
+        ids = self._ids(env_ids)
+        n = len(ids)
+        if n == 0:
+            return self.state
+        if ids.min() < 0 or ids.max() >= self.num_envs:
+            raise ValueError(f"env_ids must be in [0, {self.num_envs}), got min {ids.min()} max {ids.max()}")
+        zeros3 = torch.zeros(n, 3, dtype=torch.float64)
+        quat = self._check_rows("base_quat_w", base_quat_w, n, (4,))
+        qpos = torch.cat(
+            [self._check_rows("base_pos_w", base_pos_w, n, (3,)), quat / quat.norm(dim=1, keepdim=True),
+             self._check_rows("joint_pos", joint_pos, n, (12,))], dim=1)
+        qvel = torch.cat(
+            [zeros3 if base_lin_vel_w is None else self._check_rows("base_lin_vel_w", base_lin_vel_w, n, (3,)),
+             zeros3 if base_ang_vel_b is None else self._check_rows("base_ang_vel_b", base_ang_vel_b, n, (3,)),
+             torch.zeros(n, 12, dtype=torch.float64) if joint_vel is None
+             else self._check_rows("joint_vel", joint_vel, n, (12,))], dim=1)
+        if phase is None:
+            phase = torch.tensor([0.0, 0.5, 0.5, 0.0], dtype=torch.float64).expand(n, 4)
+        c = self.buf.command
+        c["reset_qpos"][ids] = qpos
+        c["reset_qvel"][ids] = qvel
+        c["reset_phase"][ids] = self._check_rows("phase", phase, n, (4,))
+        c["wrench_w"][ids] = 0.0
+        self._dispatch("reset", ids)
+        return self._refresh_state()
+
+    def set_external_wrench(self, env_ids: torch.Tensor, force_w: torch.Tensor, torque_w: torch.Tensor) -> None:
+        """Constant external force [N] and torque [N m] on the base (world frame) until changed."""
+        ids = self._ids(env_ids)
+        n = len(ids)
+        self.buf.command["wrench_w"][ids] = torch.cat(
+            [self._check_rows("force_w", force_w, n, (3,)), self._check_rows("torque_w", torque_w, n, (3,))], dim=1)
+
+    def set_base_velocity(self, env_ids: torch.Tensor, lin_vel_w: torch.Tensor) -> RobotState:
+        """Set the base linear velocity (world frame) of robots ``env_ids``: a push."""
+        ids = self._ids(env_ids)
+        self.buf.command["set_lin_vel_w"][ids] = self._check_rows("lin_vel_w", lin_vel_w, len(ids), (3,))
+        self._dispatch("set_lin_vel", ids)
+        return self._refresh_state()
+
+    def set_model_field(self, name: str, env_ids: torch.Tensor, values: torch.Tensor | np.ndarray) -> None:
+        """Per-robot model values, e.g. ``geom_friction`` (n, ngeom, 3) or ``body_mass`` (n, nbody).
+
+        Written through ``mujoco.batch.Batch.expand``; the controller's Pinocchio model stays
+        nominal (randomisation is unmodelled dynamics for the controller).
+        """
+        from mujoco.batch import MODEL_FIELDS
+
+        if name not in MODEL_FIELDS:
+            raise ValueError(f"unknown model field {name!r}; allowed: mujoco.batch.MODEL_FIELDS")
+        ids = self._ids(env_ids)
+        values = np.asarray(values, dtype=np.float64)
+        if len(values) != len(ids):
+            raise ValueError(f"values must have one row per env id ({len(ids)}), got {len(values)}")
+        self._dispatch("model_field", ids, (name, values))
+
+    def close(self) -> None:
+        """Stop the worker processes (idempotent)."""
+        for conn in self._conns:
+            try:
+                conn.send(("close", None))
+                conn.recv()
+            except (BrokenPipeError, EOFError, OSError):
+                pass
+        for proc in self._procs:
+            proc.join(timeout=5)
+            if proc.is_alive():
+                proc.terminate()
+        self._conns, self._procs = [], []
+
+    def __enter__(self) -> "VecSim":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:
+            pass
+

@@ -1,0 +1,235 @@
+"""One shard of robots: a ``mujoco.batch.Batch`` + Pinocchio dynamics + the low-level controller.
+
+A shard runs the whole physics/control loop for a contiguous block of robots. The
+backend (``sim/backend.py``) runs one shard in-process or one per worker process;
+shards talk to the backend only through the shared buffers in :class:`SharedBuffers`,
+so the same code serves both modes.
+
+Per physics step (200 Hz): Pinocchio terms at the current state (one library call per
+robot: Pinocchio gives nothing batched) -> low-level torques (batched torch) ->
+``Batch.step`` on the robots that are still valid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import torch
+from mujoco.batch import Batch, SimulationError
+
+from dls_quadruped.control.dynamics import LegDynamics
+from dls_quadruped.control.lowlevel import LegTerms, LowLevelConfig, LowLevelController
+from dls_quadruped.robots.aliengo import constants as C
+
+MAX_ABS_QVEL = 1.0e3
+"""Generalized velocities beyond this [m/s, rad/s] mark a robot as diverged."""
+
+STATE_SPECS: dict[str, tuple[int, ...]] = {
+    "base_pos_w": (3,),
+    "base_quat_w": (4,),
+    "base_lin_vel_w": (3,),
+    "base_ang_vel_b": (3,),
+    "joint_pos": (12,),
+    "joint_vel": (12,),
+    "joint_torque": (12,),
+    "foot_pos_w": (4, 3),
+    "foot_vel_w": (4, 3),
+    "foot_force_w": (4, 3),
+    "phase": (4,),
+    "contact_cmd": (4,),
+    "base_contact": (),
+    "time": (),
+    "diverged": (),
+}
+"""Shapes (after the batch dim) of the float32 state buffers, named as RobotState fields."""
+
+COMMAND_SPECS: dict[str, tuple[int, ...]] = {
+    "freq": (4,),
+    "duty": (4,),
+    "p_td_w": (4, 3),
+    "F_w": (4, 3),
+    # reset targets, read for the ids of a reset command
+    "reset_qpos": (19,),
+    "reset_qvel": (18,),
+    "reset_phase": (4,),
+    # constant base wrench (world frame) and base-velocity overrides (pushes)
+    "wrench_w": (6,),
+    "set_lin_vel_w": (3,),
+}
+"""Shapes of the float64 command buffers written by the backend and read by shards."""
+
+
+@dataclass
+class SharedBuffers:
+    """Named float tensors for all robots; shards use row slices of them."""
+
+    state: dict[str, torch.Tensor]
+    command: dict[str, torch.Tensor]
+
+    @staticmethod
+    def allocate(num_robots: int, shared: bool) -> "SharedBuffers":
+        """Zeroed buffers; ``shared=True`` puts them in shared memory for worker processes."""
+        state = {k: torch.zeros((num_robots, *s), dtype=torch.float32) for k, s in STATE_SPECS.items()}
+        command = {k: torch.zeros((num_robots, *s), dtype=torch.float64) for k, s in COMMAND_SPECS.items()}
+        if shared:
+            for t in (*state.values(), *command.values()):
+                t.share_memory_()
+        return SharedBuffers(state, command)
+
+    def rows(self, start: int, stop: int) -> "SharedBuffers":
+        """Views of rows [start, stop)."""
+        return SharedBuffers(
+            {k: v[start:stop] for k, v in self.state.items()}, {k: v[start:stop] for k, v in self.command.items()}
+        )
+
+
+class Shard:
+    """Simulates robots [start, stop) of the backend.
+
+    Args:
+        model: MuJoCo model containing one AlienGo (names from ``constants``).
+        buffers: the rows of the shared buffers that belong to this shard.
+        ctrl_cfg: low-level controller configuration.
+        nthread: threads of this shard's ``Batch`` (1 in a worker process).
+    """
+
+    def __init__(self, model: mujoco.MjModel, buffers: SharedBuffers, ctrl_cfg: LowLevelConfig, nthread: int):
+        self.model = model
+        self.buf = buffers
+        n = buffers.state["time"].shape[0]
+        self.n = n
+        self.batch = Batch(model, n, nthread=nthread)
+        self.qpos = self.batch.bind("qpos")
+        self.qvel = self.batch.bind("qvel")
+        self.ctrl = self.batch.bind("ctrl")
+        self.time = self.batch.bind("time")
+        self.xfrc = self.batch.bind("xfrc_applied")
+        self.sensordata = self.batch.bind("sensordata")
+        self.dynamics = LegDynamics(model_path=C.MJCF_PATH)
+        self.controller = LowLevelController(n, ctrl_cfg, dt=model.opt.timestep)
+        self.base_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)
+        self.joint_qpos_adr = self._joint_adr(model)
+        self._sensor_slices = self._sensor_layout(model)
+        self.diverged = np.zeros(n, dtype=bool)
+        self.tau = torch.zeros(n, 12, dtype=torch.float64)
+        self.batch.reset(keyframe=np.zeros(n, dtype=np.int32))
+        self._terms = self._dynamics_terms()
+        self.controller.reset(torch.arange(n), self._terms.foot_pos_w)
+        self.publish()
+
+    # ------------------------------------------------------------------ layout
+    @staticmethod
+    def _joint_adr(model: mujoco.MjModel) -> np.ndarray:
+        """qpos addresses of the 12 leg joints in constants.JOINT_NAMES order (must be 7..18)."""
+        adr = np.array([model.jnt_qposadr[model.joint(name).id] for name in C.JOINT_NAMES])
+        if not np.array_equal(adr, np.arange(7, 19)) or model.nq != 19 or model.nv != 18:
+            raise ValueError(
+                "the scene must contain exactly one AlienGo with its free joint first and legs in "
+                f"{C.JOINT_NAMES} order (qpos addresses 7..18); got nq={model.nq}, addresses {adr.tolist()}"
+            )
+        return adr
+
+    @staticmethod
+    def _sensor_layout(model: mujoco.MjModel) -> dict[str, slice]:
+        out = {}
+        for name in (*(f"{leg}_foot_contact" for leg in C.LEG_NAMES), "trunk_contact",
+                     *(f"{leg}_thigh_contact" for leg in C.LEG_NAMES)):
+            s = model.sensor(name)
+            out[name] = slice(int(s.adr[0]), int(s.adr[0] + s.dim[0]))
+        return out
+
+    # ------------------------------------------------------------------ stepping
+    def _dynamics_terms(self) -> LegTerms:
+        d = self.dynamics.compute(self.qpos, self.qvel)
+        f = torch.from_numpy
+        return LegTerms(f(d.M_leg), f(d.h_leg), f(d.J_leg), f(d.Jdot_qdot), f(d.foot_pos_w), f(d.foot_vel_w))
+
+    def step(self, num_steps: int) -> None:
+        """Run ``num_steps`` physics steps with low-level control at every step."""
+        cmd = self.buf.command
+        freq, duty, p_td_w, F_w = cmd["freq"], cmd["duty"], cmd["p_td_w"], cmd["F_w"]
+        self.xfrc[:, self.base_body, :] = cmd["wrench_w"].numpy()
+        for _ in range(num_steps):
+            terms = self._terms
+            self.tau = self.controller.compute(terms, freq, duty, p_td_w, F_w)
+            tau = self.tau.numpy()
+            tau[self.diverged] = 0.0
+            self.ctrl[:] = tau
+            alive = np.flatnonzero(~self.diverged)
+            if len(alive) == 0:
+                break
+            try:
+                self.batch.step(ids=alive if len(alive) < self.n else None)
+            except SimulationError as err:
+                self.diverged[err.ids if len(alive) == self.n else alive[err.ids]] = True
+            self._check_divergence()
+            self._terms = self._dynamics_terms()
+        self.publish()
+
+    def _check_divergence(self) -> None:
+        bad = ~np.isfinite(self.qpos).all(axis=1) | ~np.isfinite(self.qvel).all(axis=1)
+        bad |= np.abs(self.qvel).max(axis=1) > MAX_ABS_QVEL
+        if bad.any():
+            self.diverged |= bad
+            # keep the arrays finite so Pinocchio and the controller stay well defined
+            self.qpos[bad] = self.model.key_qpos[0]
+            self.qvel[bad] = 0.0
+
+    # ------------------------------------------------------------------ commands
+    def reset(self, ids: np.ndarray) -> None:
+        """Reset robots ``ids`` (shard-local) to the states in the reset command buffers."""
+        if len(ids) == 0:
+            return
+        cmd = self.buf.command
+        self.batch.reset(ids=ids, keyframe=np.zeros(len(ids), dtype=np.int32), stage=mujoco.mjtStage.mjSTAGE_NONE)
+        self.qpos[ids] = cmd["reset_qpos"][ids].numpy()
+        self.qvel[ids] = cmd["reset_qvel"][ids].numpy()
+        self.time[ids] = 0.0
+        self.batch.forward(ids=ids)
+        self.diverged[ids] = False
+        self._terms = self._dynamics_terms()
+        tids = torch.from_numpy(ids)
+        self.controller.reset(tids, self._terms.foot_pos_w[tids], cmd["reset_phase"][tids])
+        self.tau[tids] = 0.0
+        self.publish()
+
+    def set_lin_vel(self, ids: np.ndarray) -> None:
+        """Override the base linear velocity (world frame) of robots ``ids`` (pushes)."""
+        self.qvel[ids, 0:3] = self.buf.command["set_lin_vel_w"][ids].numpy()
+        self._terms = self._dynamics_terms()
+        self.publish()
+
+    def set_model_field(self, name: str, ids: np.ndarray, values: np.ndarray) -> None:
+        """Per-robot model values (randomisation) through ``Batch.expand``; the controller keeps the nominal model."""
+        field = self.batch.expand(name)
+        field[ids] = values
+
+    # ------------------------------------------------------------------ output
+    def publish(self) -> None:
+        """Write the current state into the shared float32 state buffers."""
+        s = self.buf.state
+        qpos, qvel = self.qpos, self.qvel
+        s["base_pos_w"][:] = torch.from_numpy(qpos[:, 0:3])
+        s["base_quat_w"][:] = torch.from_numpy(qpos[:, 3:7])
+        s["base_lin_vel_w"][:] = torch.from_numpy(qvel[:, 0:3])
+        s["base_ang_vel_b"][:] = torch.from_numpy(qvel[:, 3:6])
+        s["joint_pos"][:] = torch.from_numpy(qpos[:, 7:19])
+        s["joint_vel"][:] = torch.from_numpy(qvel[:, 6:18])
+        s["joint_torque"][:] = self.tau
+        s["foot_pos_w"][:] = self._terms.foot_pos_w
+        s["foot_vel_w"][:] = self._terms.foot_vel_w
+        sd = self.sensordata
+        for i, leg in enumerate(C.LEG_NAMES):
+            # the netforce sensor reports the foot's force on the ground: negate for the reaction
+            sl = self._sensor_slices[f"{leg}_foot_contact"]
+            s["foot_force_w"][:, i] = -torch.from_numpy(np.array(sd[:, sl.start + 1 : sl.stop]))
+        body = sd[:, self._sensor_slices["trunk_contact"]][:, 0] > 0
+        for leg in C.LEG_NAMES:
+            body |= sd[:, self._sensor_slices[f"{leg}_thigh_contact"]][:, 0] > 0
+        s["base_contact"][:] = torch.from_numpy(body.astype(np.float32))
+        s["phase"][:] = self.controller.phase
+        s["contact_cmd"][:] = self.controller.phase < self.buf.command["duty"]
+        s["time"][:] = torch.from_numpy(self.time)
+        s["diverged"][:] = torch.from_numpy(self.diverged.astype(np.float32))
