@@ -1,0 +1,182 @@
+"""Manager-based locomotion env implementing rsl-rl-lib 5.x's ``VecEnv``.
+
+Step order (IsaacLab's ``ManagerBasedRLEnv.step``):
+
+1. action manager: raw (B, 28) -> world references -> ``VecSim.set_references``;
+2. ``VecSim.step(decimation)``: 4 physics steps at 200 Hz, low-level control at every one;
+3. episode counters += 1; termination manager -> dones (terminated | time_outs);
+4. reward manager -> reward (weights x dt);
+5. reset the done envs: curriculum (reads their episode data) -> reset events (placement,
+   joint randomisation, wrench) -> every manager's reset (episode logs) -> counters = 0;
+6. command manager: resample expired commands; interval events (pushes);
+7. observation manager -> TensorDict of groups.
+
+Returns ``(obs, reward, dones, extras)`` with ``extras["time_outs"]`` (time limits, bootstrapped
+by PPO) and ``extras["log"]`` (episode means, curriculum values). The last observation of a
+reset env is the first one of its new episode (as in IsaacLab).
+
+What terms see (``env.<attr>``): ``state`` (RobotState on ``device``), ``num_envs``, ``device``,
+``step_dt`` [s], ``max_episode_length`` [steps], ``max_episode_length_s``, ``episode_length_buf``,
+``robot_weight`` [N], and the managers ``scene``, ``action_manager``, ``command_manager``,
+``reward_manager``, ``curriculum_manager``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from rsl_rl.env import VecEnv
+from tensordict import TensorDict
+
+from dls_quadruped.envs.config import (
+    TaskConfig,
+    dataclass_from_dict,
+    load_task,
+    save_resolved,
+)
+from dls_quadruped.envs.managers.action import ActionManager
+from dls_quadruped.envs.managers.command import CommandManager
+from dls_quadruped.envs.managers.curriculum import CurriculumManager
+from dls_quadruped.envs.managers.event import EventManager
+from dls_quadruped.envs.managers.observation import ObservationManager
+from dls_quadruped.envs.managers.reward import RewardManager
+from dls_quadruped.envs.managers.scene import SceneManager
+from dls_quadruped.envs.managers.termination import TerminationManager
+from dls_quadruped.envs.mdp import events as event_mdp
+from dls_quadruped.sim.state import RobotState
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """``env`` section: num_envs, episode_length_s [s] (15), decimation (4 physics steps per policy
+    step), seed."""
+
+    num_envs: int = 64
+    episode_length_s: float = 15.0
+    decimation: int = 4
+    seed: int = 0
+
+
+class LocomotionEnv(VecEnv):
+    """N AlienGo robots with the latent action, managed as in IsaacLab.
+
+    Args:
+        task: task name, YAML path or loaded ``TaskConfig``.
+        num_envs: overrides ``env.num_envs``.
+        device: torch device of observations, rewards and actions.
+        seed: overrides ``env.seed``.
+        run_dir: if given, the resolved config is written to ``run_dir/task.yaml``.
+        verbose: print the resolved term tables.
+    """
+
+    def __init__(self, task: str | Path | TaskConfig, num_envs: int | None = None, device: str = "cpu",
+                 seed: int | None = None, run_dir: Path | None = None, verbose: bool = True):
+        self.task = task if isinstance(task, TaskConfig) else load_task(task)
+        self.env_cfg = dataclass_from_dict(EnvConfig, self.task.section("env"), self.task, "env")
+        self.num_envs = int(num_envs or self.env_cfg.num_envs)
+        self.device = torch.device(device)
+        self.seed = self.env_cfg.seed if seed is None else seed
+        torch.manual_seed(self.seed)
+        self.cfg = self.task.data
+        self.scene = SceneManager(self.task, self)
+        self.physics_dt = self.scene.sim.physics_dt
+        self.decimation = self.env_cfg.decimation
+        self.step_dt = self.physics_dt * self.decimation
+        self.max_episode_length_s = self.env_cfg.episode_length_s
+        self.max_episode_length = math.ceil(self.max_episode_length_s / self.step_dt)
+        self.robot_weight = self.scene.sim.total_weight()
+        self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
+        self.common_step_counter = 0
+        self._state = self._to_device(self.scene.sim.state)
+        self.command_manager = CommandManager(self.task, self)
+        self.action_manager = ActionManager(self.task, self)
+        self.num_actions = self.action_manager.num_actions
+        self.observation_manager = ObservationManager(self.task, self)
+        self.reward_manager = RewardManager(self.task, self)
+        self.termination_manager = TerminationManager(self.task, self)
+        self.event_manager = EventManager(self.task, self)
+        self.curriculum_manager = CurriculumManager(self.task, self)
+        if not any(t.func is event_mdp.reset_robot and t.extra["mode"] == "reset" for t in self.event_manager.terms):
+            raise self.task.error("events", "a 'reset' mode event with func reset_robot is required (it places robots)")
+        self.extras: dict = {"log": {}}
+        self.event_manager.apply("startup")
+        self.curriculum_manager.start()
+        self._reset_idx(torch.arange(self.num_envs, device=self.device))
+        self.obs_buf = self.observation_manager.compute()
+        if run_dir is not None:
+            save_resolved(self.task, Path(run_dir) / "task.yaml")
+        if verbose:
+            print(self.summary())
+
+    # ------------------------------------------------------------------ state
+    def _to_device(self, state: RobotState) -> RobotState:
+        if self.device.type == "cpu":
+            return state
+        return RobotState(**{k: v.to(self.device) for k, v in vars(state).items()})
+
+    @property
+    def state(self) -> RobotState:
+        """Latest robot state on ``self.device`` (refreshed after each simulator call)."""
+        return self._state
+
+    def _refresh(self) -> None:
+        self._state = self._to_device(self.scene.sim.state)
+
+    @property
+    def obs_dims(self) -> dict[str, int]:
+        return {g: v.shape[1] for g, v in self.obs_buf.items()}
+
+    # ------------------------------------------------------------------ VecEnv
+    def get_observations(self) -> TensorDict:
+        return self.obs_buf
+
+    def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        self.action_manager.process(actions.to(self.device))
+        self.scene.sim.step(self.decimation)
+        self._refresh()
+        self.episode_length_buf += 1
+        self.common_step_counter += 1
+        dones = self.termination_manager.compute()
+        reward = self.reward_manager.compute(self.step_dt)
+        time_outs = self.termination_manager.time_outs.clone()
+        self.extras = {"log": {}}
+        reset_ids = torch.nonzero(dones).flatten()
+        if len(reset_ids):
+            self._reset_idx(reset_ids)
+        self.command_manager.compute(self.step_dt)
+        self.event_manager.apply("interval", dt=self.step_dt)
+        self._refresh()
+        self.obs_buf = self.observation_manager.compute()
+        self.extras["time_outs"] = time_outs
+        return self.obs_buf, reward, dones.long(), self.extras
+
+    def reset(self) -> tuple[TensorDict, dict]:
+        """Reset every env (gymnasium-style); returns (obs, extras)."""
+        self._reset_idx(torch.arange(self.num_envs, device=self.device))
+        self.obs_buf = self.observation_manager.compute()
+        return self.obs_buf, self.extras
+
+    def _reset_idx(self, env_ids: torch.Tensor) -> None:
+        log = self.extras.setdefault("log", {})
+        log.update(self.curriculum_manager.compute(env_ids))
+        self.event_manager.apply("reset", env_ids)
+        self._refresh()
+        for manager in (self.reward_manager, self.termination_manager, self.action_manager, self.command_manager):
+            log.update(manager.reset(env_ids))
+        self.episode_length_buf[env_ids] = 0
+
+    def close(self) -> None:
+        self.scene.close()
+
+    def summary(self) -> str:
+        head = (f"[env] task={self.task.name} ({self.task.path}) num_envs={self.num_envs} device={self.device} "
+                f"physics_dt={self.physics_dt} decimation={self.decimation} step_dt={self.step_dt} "
+                f"episode={self.max_episode_length_s}s ({self.max_episode_length} steps) "
+                f"terrain={self.scene.terrain_cfg.types} obs={self.obs_dims}")
+        parts = [head] + [m.summary() for m in (self.observation_manager, self.action_manager, self.command_manager,
+                                                 self.reward_manager, self.termination_manager, self.event_manager,
+                                                 self.curriculum_manager)]
+        return "\n".join(parts)

@@ -1,0 +1,59 @@
+"""Action manager: the latent action (f, d, p, F) of SPEC 5.
+
+Raw (B, 28) network output -> ``control.latent_action.ActionInterface`` (normalise, clip, frame H ->
+world, touch-down z from the terrain's exact height lookup) -> ``VecSim.set_references``.
+Task file: ``actions: {latent: {<LatentActionConfig field>: value, ...}}``.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from dls_quadruped.control.latent_action import (
+    ACTION_DIM,
+    ActionInterface,
+    LatentActionConfig,
+)
+from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
+from dls_quadruped.envs.managers.base import format_table
+from dls_quadruped.sim.height_scan import yaw_from_quat
+
+
+class ActionManager:
+    """Holds the raw, previous raw, applied (network units) and applied physical actions, (B, 28) each."""
+
+    def __init__(self, task: TaskConfig, env):
+        self.env = env
+        section = task.section("actions")
+        unknown = sorted(set(section) - {"latent"})
+        if unknown:
+            raise task.error(f"actions.{unknown[0]}", "unknown action term; allowed: ['latent']")
+        self.cfg = dataclass_from_dict(LatentActionConfig, section.get("latent") or {}, task, "actions.latent")
+        self.interface = ActionInterface(self.cfg, env.scene.terrain.height_at)
+        n, dev = env.num_envs, env.device
+        self.num_actions = ACTION_DIM
+        self.raw_action = torch.zeros(n, ACTION_DIM, device=dev)
+        self.prev_raw_action = torch.zeros_like(self.raw_action)
+        self.applied_action = torch.zeros_like(self.raw_action)
+        self.violation = torch.zeros_like(self.raw_action)
+        self.applied_physical = torch.zeros_like(self.raw_action)
+
+    def process(self, raw: torch.Tensor) -> None:
+        """Convert and send the references to the simulator (held for the ``decimation`` physics steps)."""
+        self.prev_raw_action[:] = self.raw_action
+        self.raw_action[:] = raw.to(self.raw_action)
+        s = self.env.state
+        num_stance = s.contact_cmd.sum(dim=-1)
+        refs = self.interface(self.raw_action, num_stance, s.base_pos_w, yaw_from_quat(s.base_quat_w))
+        self.violation[:] = refs.violation
+        self.applied_action[:] = self.raw_action - refs.violation
+        self.applied_physical[:] = refs.action.to_vector()
+        self.env.scene.sim.set_references(refs.f.cpu(), refs.d.cpu(), refs.p_td_w.cpu(), refs.F_w.cpu())
+
+    def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
+        for buf in (self.raw_action, self.prev_raw_action, self.applied_action, self.violation, self.applied_physical):
+            buf[env_ids] = 0.0
+        return {}
+
+    def summary(self) -> str:
+        return format_table("actions", ("term", "dim", "config"), [("latent", ACTION_DIM, "LatentActionConfig")])

@@ -1,0 +1,31 @@
+"""Curriculum manager: terms ``term(env, env_ids, **params) -> float`` run for the envs being reset
+(before the other managers clear their episode data); values are logged as ``Curriculum/<term>``."""
+
+from __future__ import annotations
+
+import torch
+
+from dls_quadruped.envs.config import TaskConfig
+from dls_quadruped.envs.managers.base import format_table, resolve_terms
+from dls_quadruped.envs.mdp import curriculum as cur_mdp
+
+
+class CurriculumManager:
+    def __init__(self, task: TaskConfig, env):
+        self.env = env
+        self.terms = resolve_terms(task, "curriculum", cur_mdp, {}, positional=("env", "env_ids"))
+        self.state: dict = {}
+        self.values: dict[str, float] = {}
+
+    def start(self) -> None:
+        """Build-time call with no env (terms set their initial state)."""
+        self.compute(torch.zeros(0, dtype=torch.long, device=self.env.device))
+
+    def compute(self, env_ids: torch.Tensor) -> dict[str, float]:
+        for t in self.terms:
+            self.values[t.name] = t(self.env, env_ids)
+        return {f"Curriculum/{k}": v for k, v in self.values.items()}
+
+    def summary(self) -> str:
+        return format_table("curriculum", ("term", "function", "params"),
+                            [(t.name, t.func.__name__, t.params) for t in self.terms])

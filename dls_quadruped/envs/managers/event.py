@@ -1,0 +1,54 @@
+"""Event manager: terms run at ``startup`` (once), at ``reset`` (for the reset envs) or on an
+``interval`` (per-env timer drawn from ``interval_s`` [s], e.g. pushes every 8-12 s)."""
+
+from __future__ import annotations
+
+import torch
+
+from dls_quadruped.envs.config import TaskConfig
+from dls_quadruped.envs.managers.base import format_table, resolve_terms
+from dls_quadruped.envs.mdp import events as event_mdp
+
+MODES = ("startup", "reset", "interval")
+
+
+class EventManager:
+    def __init__(self, task: TaskConfig, env):
+        self.env = env
+        self.terms = resolve_terms(task, "events", event_mdp, {"mode": ..., "interval_s": None},
+                                   positional=("env", "env_ids"))
+        self.timers: dict[str, torch.Tensor] = {}
+        for t in self.terms:
+            key = f"events.{t.name}"
+            if t.extra["mode"] not in MODES:
+                raise task.error(f"{key}.mode", f"unknown mode {t.extra['mode']!r}; allowed: {list(MODES)}")
+            if t.extra["mode"] == "interval":
+                if t.extra["interval_s"] is None or len(t.extra["interval_s"]) != 2:
+                    raise task.error(f"{key}.interval_s", "interval events need interval_s: [low, high] seconds")
+                self.timers[t.name] = self._draw(t, env.num_envs)
+
+    def _draw(self, term, n: int) -> torch.Tensor:
+        lo, hi = term.extra["interval_s"]
+        return torch.empty(n, device=self.env.device).uniform_(float(lo), float(hi))
+
+    def apply(self, mode: str, env_ids: torch.Tensor | None = None, dt: float = 0.0) -> None:
+        """Run the terms of ``mode``; ``env_ids`` for reset, ``dt`` [s] advances interval timers."""
+        all_ids = torch.arange(self.env.num_envs, device=self.env.device)
+        for t in self.terms:
+            if t.extra["mode"] != mode:
+                continue
+            if mode == "interval":
+                timer = self.timers[t.name]
+                timer -= dt
+                ids = torch.nonzero(timer <= 0.0).flatten()
+                if len(ids):
+                    timer[ids] = self._draw(t, len(ids))
+                    t(self.env, ids)
+            elif mode == "startup":
+                t(self.env, all_ids)
+            elif env_ids is not None and len(env_ids):
+                t(self.env, env_ids)
+
+    def summary(self) -> str:
+        rows = [(t.name, t.func.__name__, t.extra["mode"], t.extra["interval_s"] or "", t.params) for t in self.terms]
+        return format_table("events", ("term", "function", "mode", "interval_s", "params"), rows)

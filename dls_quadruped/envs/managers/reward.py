@@ -1,0 +1,62 @@
+"""Reward manager: r = sum_i w_i r_i dt (IsaacLab convention: weights are per second).
+
+Weights are mutable (``self.weights``) so a curriculum can switch terms on. Episode sums per term
+are logged at reset as ``Episode_Reward/<term>`` (sum over the episode / episode length in s).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from dls_quadruped.envs.config import TaskConfig
+from dls_quadruped.envs.managers.base import format_table, resolve_terms
+from dls_quadruped.envs.mdp import rewards as reward_mdp
+
+
+class RewardManager:
+    def __init__(self, task: TaskConfig, env):
+        self.env = env
+        self.terms = resolve_terms(task, "rewards", reward_mdp, {"weight": ...})
+        for t in self.terms:
+            if not isinstance(t.extra["weight"], (int, float)):
+                raise task.error(f"rewards.{t.name}.weight", "must be a number")
+        self.weights = {t.name: float(t.extra["weight"]) for t in self.terms}
+        self.episode_sums = {t.name: torch.zeros(env.num_envs, device=env.device) for t in self.terms}
+        self.step_reward = torch.zeros(env.num_envs, len(self.terms), device=env.device)
+
+    def compute(self, dt: float) -> torch.Tensor:
+        """(B,) total reward of this policy step; non-finite term values count as 0 (and are logged)."""
+        total = torch.zeros(self.env.num_envs, device=self.env.device)
+        for i, term in enumerate(self.terms):
+            w = self.weights[term.name]
+            if w == 0.0:
+                self.step_reward[:, i] = 0.0
+                continue
+            value = term(self.env).float()
+            value = torch.nan_to_num(value, nan=0.0, posinf=0.0, neginf=0.0)
+            r = value * w * dt
+            self.step_reward[:, i] = r
+            self.episode_sums[term.name] += r
+            total += r
+        return total
+
+    def episode_fraction(self, name: str, env_ids: torch.Tensor) -> float:
+        """Mean episode sum of ``name`` over ``env_ids`` divided by its maximum weight x episode length
+        (1.0 = a bounded kernel at its maximum for the whole episode)."""
+        if name not in self.weights:
+            raise KeyError(f"unknown reward term {name!r}; allowed: {sorted(self.weights)}")
+        w = self.weights[name]
+        if w == 0.0 or len(env_ids) == 0:
+            return 0.0
+        return float(self.episode_sums[name][env_ids].mean() / (w * self.env.max_episode_length_s))
+
+    def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
+        logs = {}
+        for name, s in self.episode_sums.items():
+            logs[f"Episode_Reward/{name}"] = float(s[env_ids].mean() / self.env.max_episode_length_s)
+            s[env_ids] = 0.0
+        return logs
+
+    def summary(self) -> str:
+        rows = [(t.name, t.func.__name__, self.weights[t.name], t.params) for t in self.terms]
+        return format_table("rewards", ("term", "function", "weight", "params"), rows)

@@ -1,0 +1,73 @@
+"""Scene manager: terrain + MuJoCo model + vectorised simulator, terrain levels and spawn origins.
+
+Task file::
+
+    terrain: {types: [flat, rugged, ...], num_rows: 10, ...}   # TerrainConfig fields
+    scene: {num_workers: -1, max_init_level: 0}
+
+Each env owns a terrain tile: row = level (difficulty), column = type (envs spread evenly over
+the columns). Robots reset onto their tile origin; the terrain curriculum moves rows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import torch
+
+from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
+from dls_quadruped.robots.aliengo import constants as C
+from dls_quadruped.sim.backend import SimConfig, VecSim
+from dls_quadruped.sim.height_scan import HeightScanConfig, scan_pattern
+from dls_quadruped.sim.terrain import TERRAIN_GEOM_NAME, TerrainConfig, build_scene
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """num_workers: simulator worker processes (-1 one per core, 0 in-process);
+    max_init_level: envs start on rows U{0..max_init_level}."""
+
+    num_workers: int = -1
+    max_init_level: int = 0
+
+
+class SceneManager:
+    def __init__(self, task: TaskConfig, env):
+        self.env = env
+        self.cfg = dataclass_from_dict(SceneConfig, task.section("scene"), task, "scene")
+        self.terrain_cfg = dataclass_from_dict(TerrainConfig, task.section("terrain"), task, "terrain")
+        self.model, self.terrain = build_scene(self.terrain_cfg)
+        self.sim = VecSim(self.model, env.num_envs, SimConfig(num_workers=self.cfg.num_workers))
+        self.scan_cfg = HeightScanConfig()
+        dev = env.device
+        self.scan_pattern = scan_pattern(self.scan_cfg, dev)
+        n = env.num_envs
+        rows, cols = self.terrain.num_rows, self.terrain.num_cols
+        self.tile_origins = torch.as_tensor(self.terrain.tile_origins_w, dtype=torch.float32, device=dev)
+        self.terrain_types = torch.arange(n, device=dev) % cols
+        max_init = min(self.cfg.max_init_level, rows - 1)
+        self.terrain_levels = torch.randint(0, max_init + 1, (n,), device=dev)
+        self.env_origins = self.tile_origins[self.terrain_levels, self.terrain_types].clone()
+        names = [TERRAIN_GEOM_NAME if self.model.nhfield else "floor", *C.FOOT_GEOM_NAMES]
+        self.friction_geom_ids = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in names]
+
+    @property
+    def difficulty(self) -> torch.Tensor:
+        """(B,) terrain difficulty in [0, 1] (row / (rows - 1))."""
+        return self.terrain_levels.float() / max(self.terrain.num_rows - 1, 1)
+
+    def update_levels(self, env_ids: torch.Tensor, delta: torch.Tensor) -> None:
+        """Move envs by ``delta`` rows; beyond the last row -> a random row; below 0 -> 0."""
+        rows = self.terrain.num_rows
+        lv = self.terrain_levels[env_ids] + delta
+        lv = torch.where(lv >= rows, torch.randint_like(lv, 0, rows), lv.clamp(min=0))
+        self.terrain_levels[env_ids] = lv
+        self.env_origins[env_ids] = self.tile_origins[lv, self.terrain_types[env_ids]]
+
+    def reset_robots(self, env_ids: torch.Tensor, base_pos_w: torch.Tensor, base_quat_w: torch.Tensor,
+                     joint_pos: torch.Tensor) -> None:
+        self.sim.reset(env_ids.cpu(), base_pos_w.cpu(), base_quat_w.cpu(), joint_pos.cpu())
+
+    def close(self) -> None:
+        self.sim.close()

@@ -1,0 +1,40 @@
+"""Termination manager: dones = any term; ``time_out`` terms are reported separately as time-outs."""
+
+from __future__ import annotations
+
+import torch
+
+from dls_quadruped.envs.config import TaskConfig
+from dls_quadruped.envs.managers.base import format_table, resolve_terms
+from dls_quadruped.envs.mdp import terminations as term_mdp
+
+
+class TerminationManager:
+    def __init__(self, task: TaskConfig, env):
+        self.env = env
+        self.terms = resolve_terms(task, "terminations", term_mdp, {"time_out": False})
+        n = env.num_envs
+        self.terminated = torch.zeros(n, dtype=torch.bool, device=env.device)
+        self.time_outs = torch.zeros(n, dtype=torch.bool, device=env.device)
+        self.term_dones = {t.name: torch.zeros(n, dtype=torch.bool, device=env.device) for t in self.terms}
+
+    def compute(self) -> torch.Tensor:
+        """(B,) bool dones = terminated | time_outs (a robot that fails on its last step is terminated)."""
+        self.terminated[:] = False
+        self.time_outs[:] = False
+        for t in self.terms:
+            d = t(self.env).bool()
+            self.term_dones[t.name][:] = d
+            if t.extra["time_out"]:
+                self.time_outs |= d
+            else:
+                self.terminated |= d
+        self.time_outs &= ~self.terminated
+        return self.terminated | self.time_outs
+
+    def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
+        return {f"Episode_Termination/{name}": float(d[env_ids].float().sum()) for name, d in self.term_dones.items()}
+
+    def summary(self) -> str:
+        rows = [(t.name, t.func.__name__, t.extra["time_out"], t.params) for t in self.terms]
+        return format_table("terminations", ("term", "function", "time_out", "params"), rows)

@@ -1,0 +1,80 @@
+"""Event terms (thesis 4.3.2): ``event(env, env_ids, **params)``, applied only to ``env_ids``.
+
+Modes (set per term in the task file): ``startup`` (once, all envs), ``reset`` (envs being reset),
+``interval`` (per-env timer drawn from ``interval_s``). "High" values are in ``tasks/rough.yaml``;
+"low" ones (one third of the variation) in ``tasks/_low_perturbation.yaml``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import torch
+
+from dls_quadruped.envs.mdp.frames import quat_from_yaw
+from dls_quadruped.robots.aliengo import constants as C
+
+
+def _uniform(shape, rng, device) -> torch.Tensor:
+    return torch.empty(shape, device=device).uniform_(float(rng[0]), float(rng[1]))
+
+
+def reset_robot(env, env_ids: torch.Tensor, joint_scale: tuple[float, float] = (1.0, 1.0),
+                yaw: tuple[float, float] = (-math.pi, math.pi), xy_offset: float = 0.0,
+                height: float = C.STANDING_BASE_HEIGHT + 0.02) -> None:
+    """Place robots on their terrain origin: random yaw, xy offset in [-xy_offset, xy_offset] [m],
+    base ``height`` [m] above the terrain, joints = nominal x U(joint_scale) (0.8-1.2 in "high")."""
+    n, dev = len(env_ids), env.device
+    origins = env.scene.env_origins[env_ids]
+    xy = origins[:, :2] + _uniform((n, 2), (-xy_offset, xy_offset), dev)
+    z = env.scene.terrain.height_at(xy[:, 0], xy[:, 1]) + height
+    nominal = torch.as_tensor(C.NOMINAL_JOINT_POS, dtype=torch.float32, device=dev)
+    q = nominal * _uniform((n, 12), joint_scale, dev)
+    lim = torch.as_tensor(C.JOINT_RANGES, dtype=torch.float32, device=dev)
+    q = torch.clamp(q, lim[:, 0], lim[:, 1])
+    env.scene.reset_robots(env_ids, torch.cat([xy, z[:, None]], dim=-1), quat_from_yaw(_uniform(n, yaw, dev)), q)
+
+
+def randomize_friction(env, env_ids: torch.Tensor, friction_range: tuple[float, float]) -> None:
+    """Sliding friction of the feet and the ground, U(friction_range) per env.
+
+    MuJoCo has one Coulomb coefficient per contact (the max of the two geoms' by default), so the
+    thesis' static/dynamic pair (mu_s in [0.6, 0.8], mu_d in [0.4, 0.6]) maps to one mu in
+    [0.4, 0.8] ("high"); the same value is written to every foot geom and to the ground geom.
+    """
+    model = env.scene.model
+    ids = env.scene.friction_geom_ids
+    mu = _uniform((len(env_ids),), friction_range, "cpu").numpy()
+    values = np.repeat(model.geom_friction[None].copy(), len(env_ids), axis=0)  # (n, ngeom, 3)
+    values[:, ids, 0] = mu[:, None]
+    env.scene.sim.set_model_field("geom_friction", env_ids.cpu(), values)
+
+
+def randomize_base_mass(env, env_ids: torch.Tensor, scale_range: tuple[float, float]) -> None:
+    """Trunk mass x U(scale_range) per env (0.85-1.15 "high"); the controller keeps the nominal model."""
+    model = env.scene.model
+    bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)
+    scale = _uniform((len(env_ids),), scale_range, "cpu").numpy()
+    values = np.repeat(model.body_mass[None].copy(), len(env_ids), axis=0)
+    values[:, bid] *= scale
+    env.scene.sim.set_model_field("body_mass", env_ids.cpu(), values)
+
+
+def external_wrench(env, env_ids: torch.Tensor, force_range: tuple[float, float],
+                    torque_range: tuple[float, float]) -> None:
+    """Constant force [N] and torque [N m] on the base, each world component U(range), until the next call."""
+    n = len(env_ids)
+    force = _uniform((n, 3), force_range, "cpu")
+    torque = _uniform((n, 3), torque_range, "cpu")
+    env.scene.sim.set_external_wrench(env_ids.cpu(), force, torque)
+
+
+def push_robot(env, env_ids: torch.Tensor, velocity_range: tuple[float, float]) -> None:
+    """Push: add U(velocity_range) [m/s] to the base x and y velocity (world frame)."""
+    if len(env_ids) == 0:
+        return
+    v = env.state.base_lin_vel_w[env_ids].cpu().clone()
+    v[:, :2] += _uniform((len(env_ids), 2), velocity_range, "cpu")
+    env.scene.sim.set_base_velocity(env_ids.cpu(), v)

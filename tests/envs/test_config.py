@@ -1,0 +1,68 @@
+"""Task loading: inheritance, deep merge, and errors that name the file, key and allowed values."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from dls_quadruped.envs.config import ConfigError, load_task
+from dls_quadruped.envs.managers.base import resolve_terms
+from dls_quadruped.envs.mdp import rewards as reward_mdp
+
+TASKS = ("base", "rough", "speed", "climb")
+
+
+def _write(tmp: Path, name: str, text: str) -> Path:
+    p = tmp / name
+    p.write_text(text)
+    return p
+
+
+def test_inherit_merge_and_delete(tmp_path):
+    _write(tmp_path, "parent.yaml", "rewards:\n  a: {weight: 1.0, params: {sigma: 0.5}}\n  b: {weight: 2.0}\n")
+    child = _write(tmp_path, "child.yaml", "inherit: parent.yaml\nrewards:\n  a: {params: {sigma: 0.3}}\n  b: null\n")
+    task = load_task(child)
+    assert task.data["rewards"] == {"a": {"weight": 1.0, "params": {"sigma": 0.3}}}
+    assert task.source_of("rewards.a.weight").endswith("parent.yaml")
+    assert task.source_of("rewards.a.params.sigma").endswith("child.yaml")
+
+
+def test_unknown_param_names_file_key_and_allowed(tmp_path):
+    p = _write(tmp_path, "t.yaml", "rewards:\n  track_lin_vel_xy: {weight: 1.0, params: {sigm: 0.5}}\n")
+    task = load_task(p)
+    with pytest.raises(ConfigError) as err:
+        resolve_terms(task, "rewards", reward_mdp, {"weight": ...})
+    msg = str(err.value)
+    assert "t.yaml" in msg and "rewards.track_lin_vel_xy.params.sigm" in msg and "sigma" in msg
+
+
+def test_unknown_term_function_and_key(tmp_path):
+    p = _write(tmp_path, "t.yaml", "rewards:\n  speed: {func: go_fast, weight: 1.0}\n")
+    with pytest.raises(ConfigError, match=r"t.yaml: rewards.speed.func: unknown term function 'go_fast'.*track_lin_vel_xy"):
+        resolve_terms(load_task(p), "rewards", reward_mdp, {"weight": ...})
+    p = _write(tmp_path, "u.yaml", "rewards:\n  lin_vel_z: {wieght: 1.0}\n")
+    with pytest.raises(ConfigError, match=r"u.yaml: rewards.lin_vel_z.wieght: unknown key; allowed"):
+        resolve_terms(load_task(p), "rewards", reward_mdp, {"weight": ...})
+    p = _write(tmp_path, "v.yaml", "rewardz: {}\n")
+    with pytest.raises(ConfigError, match="unknown top-level keys"):
+        load_task(p)
+
+
+def test_unknown_task_lists_available():
+    with pytest.raises(ConfigError, match="available: .*'base'"):
+        load_task("no_such_task")
+
+
+@pytest.mark.parametrize("name", TASKS)
+def test_tasks_resolve_and_match_table6(name):
+    task = load_task(name)
+    resolve_terms(task, "rewards", reward_mdp, {"weight": ...})
+    agent = task.data["agent"]
+    alg = agent["algorithm"]
+    assert agent["actor"]["hidden_dims"] == [512, 256, 128] == agent["critic"]["hidden_dims"]
+    assert agent["actor"]["activation"] == "elu" and agent["num_steps_per_env"] == 24
+    assert (alg["learning_rate"], alg["gamma"], alg["lam"], alg["num_learning_epochs"], alg["num_mini_batches"],
+            alg["clip_param"], alg["entropy_coef"], alg["desired_kl"], alg["schedule"]) == (
+        1e-3, 0.99, 0.95, 5, 4, 0.2, 0.005, 0.1, "adaptive")
+    assert agent["actor"]["distribution_cfg"]["init_std"] == 1.0
