@@ -1,0 +1,126 @@
+"""The env end to end: every task builds and steps, bookkeeping of resets/time-outs, events, curriculum."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from dls_quadruped.envs.config import load_task
+from dls_quadruped.envs.env import LocomotionEnv
+from dls_quadruped.envs.mdp import curriculum as cur_mdp
+from dls_quadruped.envs.mdp import events as ev_mdp
+
+OBS_DIM = 3 + 3 + 3 + 12 + 12 + 28 + 4 + 4 + 187 + 3  # Table 2 + velocity command
+SMALL = {"scene": {"num_workers": 0},
+         "terrain": {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0, "horizontal_scale": 0.1}}
+
+
+def make_env(name: str, num_envs: int = 4, **extra) -> LocomotionEnv:
+    overrides = {**SMALL, **extra}
+    return LocomotionEnv(load_task(name, overrides=overrides), num_envs=num_envs, verbose=False)
+
+
+@pytest.mark.parametrize("name", ["base", "rough", "speed", "climb"])
+def test_task_steps_with_random_actions(name):
+    env = make_env(name)
+    try:
+        obs = env.get_observations()
+        assert obs["policy"].shape == (4, OBS_DIM)
+        for _ in range(50):
+            obs, rew, dones, extras = env.step(torch.randn(4, 28))
+            assert obs["policy"].shape == (4, OBS_DIM) and torch.isfinite(obs["policy"]).all()
+            assert rew.shape == (4,) and torch.isfinite(rew).all()
+            assert dones.shape == (4,) and extras["time_outs"].shape == (4,)
+    finally:
+        env.close()
+
+
+def test_time_out_bookkeeping():
+    env = make_env("base", env={"episode_length_s": 0.2})  # 10 policy steps
+    try:
+        assert env.max_episode_length == 10
+        for k in range(1, 11):
+            _, _, dones, extras = env.step(torch.zeros(4, 28))
+            if k < 10:
+                assert not extras["time_outs"].any() and int(env.episode_length_buf[0]) == k
+        failed = env.termination_manager.terminated
+        assert torch.equal(extras["time_outs"], ~failed) and dones.bool().all()
+        assert (env.episode_length_buf == 0).all()
+        assert "Episode_Reward/track_lin_vel_xy" in extras["log"]
+        assert extras["log"]["Episode_Termination/time_out"] == float((~failed).sum())
+    finally:
+        env.close()
+
+
+def test_events_touch_only_targeted_envs():
+    env = make_env("rough")
+    try:
+        captured = {}
+        env.scene.sim.set_model_field = lambda name, ids, values: captured.__setitem__(name, (ids, values))
+        ids = torch.tensor([1, 3])
+        ev_mdp.randomize_friction(env, ids, friction_range=(0.4, 0.8))
+        got_ids, values = captured["geom_friction"]
+        assert got_ids.tolist() == [1, 3] and values.shape == (2, env.scene.model.ngeom, 3)
+        geoms = env.scene.friction_geom_ids
+        assert ((values[:, geoms, 0] >= 0.4) & (values[:, geoms, 0] <= 0.8)).all()
+        others = [g for g in range(env.scene.model.ngeom) if g not in geoms]
+        assert (values[:, others] == env.scene.model.geom_friction[others]).all()
+        ev_mdp.randomize_base_mass(env, ids, scale_range=(0.85, 1.15))
+        _, mass = captured["body_mass"]
+        ratio = mass[:, 1] / env.scene.model.body_mass[1]
+        assert ((ratio >= 0.85) & (ratio <= 1.15)).all() and (mass[:, 2:] == env.scene.model.body_mass[2:]).all()
+        # push: only envs 0 and 2 change velocity, by at most 0.5 m/s per axis
+        before = env.state.base_lin_vel_w.clone()
+        ev_mdp.push_robot(env, torch.tensor([0, 2]), velocity_range=(-0.5, 0.5))
+        env._refresh()
+        after = env.state.base_lin_vel_w
+        assert torch.equal(after[[1, 3]], before[[1, 3]])
+        d = (after[[0, 2], :2] - before[[0, 2], :2]).abs()
+        assert (d <= 0.5 + 1e-5).all() and (d > 0).any()
+        w0 = env.scene.sim.buf.command["wrench_w"].clone()
+        ev_mdp.external_wrench(env, torch.tensor([2]), force_range=(-10, 10), torque_range=(-1, 1))
+        w = env.scene.sim.buf.command["wrench_w"]
+        assert torch.equal(w[[0, 1, 3]], w0[[0, 1, 3]]) and (w[2, :3].abs() <= 10).all() and (w[2, 3:].abs() <= 1).all()
+        assert not torch.equal(w[2], w0[2])
+    finally:
+        env.close()
+
+
+def test_terrain_curriculum_moves_levels_up_and_down():
+    env = make_env("rough")
+    try:
+        scene = env.scene
+        scene.update_levels(torch.arange(4), 1 - scene.terrain_levels)  # everyone on row 1
+        state = env.state.clone()
+        origins = scene.env_origins
+        state.base_pos_w[:, :2] = origins[:, :2]
+        state.base_pos_w[0, 0] += 0.6 * scene.terrain.cfg.tile_size  # walked far: up
+        env._state = state
+        env.command_manager.command[:] = torch.tensor([0.5, 0.0, 0.0])  # asked for 7.5 m in 15 s
+        env.command_manager.command[2] = 0.0  # env 2: asked to stand and stood: stays
+        env.command_manager.command[3, 0] = 0.01
+        cur_mdp.terrain_levels(env, torch.tensor([0, 1, 2]))
+        assert scene.terrain_levels[:3].tolist() == [2, 0, 1]
+        assert int(scene.terrain_levels[3]) == 1  # not in env_ids: untouched
+        assert torch.equal(scene.env_origins[0], scene.tile_origins[2, scene.terrain_types[0]])
+        # solving the last row sends the robot to a random row; never below 0
+        scene.update_levels(torch.tensor([1]), torch.tensor([-1]))
+        assert int(scene.terrain_levels[1]) == 0
+    finally:
+        env.close()
+
+
+def test_penalties_switch_on_once_walking():
+    env = make_env("base")
+    try:
+        rm = env.reward_manager
+        assert rm.weights["action_rate"] == 0.0  # off until the robot walks
+        ids = torch.arange(4)
+        rm.episode_sums["track_lin_vel_xy"][:] = 0.2 * 1.5 * env.max_episode_length_s  # 20 % of max
+        cur_mdp.penalties_when_walking(env, ids, ["action_rate"], "track_lin_vel_xy", 0.5)
+        assert rm.weights["action_rate"] == 0.0
+        rm.episode_sums["track_lin_vel_xy"][:] = 0.8 * 1.5 * env.max_episode_length_s
+        cur_mdp.penalties_when_walking(env, ids, ["action_rate"], "track_lin_vel_xy", 0.5)
+        assert rm.weights["action_rate"] == pytest.approx(-2.5e-5)
+    finally:
+        env.close()
