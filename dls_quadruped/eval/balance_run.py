@@ -31,6 +31,7 @@ class BalanceRun:
         foot_pos_w: (T, B, 4, 3) [m]; contact_cmd: (T, B, 4) commanded stance.
         foot_force_z: (T, B, 4) [N] measured vertical ground reaction.
         diverged, base_contact: (T, B) bool.
+        qpos: (T, B, 19) MuJoCo generalized positions (for rendering).
     """
 
     time: np.ndarray
@@ -44,6 +45,7 @@ class BalanceRun:
     foot_force_z: np.ndarray
     diverged: np.ndarray
     base_contact: np.ndarray
+    qpos: np.ndarray
     summary: dict = field(default_factory=dict)
 
 
@@ -99,6 +101,7 @@ def run_balance(
             rec["foot_force_z"].append(state.foot_force_w[..., 2].numpy().copy())
             rec["diverged"].append(state.diverged.numpy().copy())
             rec["base_contact"].append(state.base_contact.numpy().copy())
+            rec["qpos"].append(torch.cat([state.base_pos_w, state.base_quat_w, state.joint_pos], dim=1).numpy())
     run = BalanceRun(**{k: np.asarray(v) for k, v in rec.items()})
     run.summary = summarise(run, balance_cfg.height, balance_cfg.freq)
     return run
