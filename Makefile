@@ -46,3 +46,23 @@ bench-mpc: $(STAMP)
 
 clean:
 	rm -rf $(VENV) results .pytest_cache
+
+# ---------------------------------------------------------------------------------------------
+# RL training and playback (issue 4; owner of this block: the env/learning helper).
+# `make train TASK=rough NUM_ENVS=64 ITERATIONS=300 DEVICE=cpu SEED=0 RESUME=1`, see docs/train.md.
+TASK ?= base
+ITERATIONS ?= 300
+DEVICE ?= cpu
+SEED ?= 0
+RESUME ?=
+CHECKPOINT ?=
+PLAY_SECONDS ?= 10
+
+.PHONY: train play
+
+train: $(STAMP)
+	$(PY) -m dls_quadruped.learning.train --task $(TASK) --num-envs $(NUM_ENVS) --iterations $(ITERATIONS) \
+		--device $(DEVICE) --seed $(SEED) $(if $(RESUME),--resume,)
+
+play: $(STAMP)
+	$(PY) -m dls_quadruped.learning.play --task $(TASK) --seconds $(PLAY_SECONDS) $(if $(CHECKPOINT),--checkpoint $(CHECKPOINT),)
