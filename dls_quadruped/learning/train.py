@@ -6,13 +6,15 @@
 Checkpoints every ``agent.save_interval`` iterations (``--save-interval`` overrides), written
 atomically; ``--resume`` reloads the newest checkpoint of the newest run (or of ``--run-dir``) and
 continues for ``--iterations`` more. At the end the actor is exported to TorchScript and ONNX.
-Multi-GPU: launch with ``torchrun --nproc_per_node=G -m dls_quadruped.learning.train --device cuda:0``;
+Multi-GPU: launch with ``torchrun --nproc_per_node=G -m dls_quadruped.learning.train --device cuda``
+(each process takes ``cuda:$LOCAL_RANK``);
 rsl-rl-lib reads WORLD_SIZE/RANK itself (see docs/train.md; untested here, no GPUs).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -48,6 +50,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> Path:
     """Train; returns the run directory."""
     args = parse_args(argv)
+    if args.device == "cuda" and "LOCAL_RANK" in os.environ:  # torchrun: one GPU per process
+        args.device = f"cuda:{os.environ['LOCAL_RANK']}"
     overrides = {"scene": {"num_workers": args.num_workers}} if args.num_workers is not None else None
     task = load_task(args.task, overrides=overrides)
     task_dir = args.log_root / task.name

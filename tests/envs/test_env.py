@@ -124,3 +124,37 @@ def test_penalties_switch_on_once_walking():
         assert rm.weights["action_rate"] == pytest.approx(-2.5e-5)
     finally:
         env.close()
+
+
+def test_observation_noise_is_per_term_and_bounded():
+    env = make_env("base", observations={"policy": {"noise_scale": 0.5}})
+    try:
+        om = env.observation_manager
+        a, b = om.compute()["policy"], om.compute()["policy"]  # same state, two noise draws
+        start = 0
+        for term in om.groups["policy"]:
+            dim = om.dims["policy"][term.name]
+            d = (a[:, start:start + dim] - b[:, start:start + dim]).abs()
+            bound = 2 * 0.5 * term.extra["noise"]
+            if bound == 0:
+                assert (d == 0).all(), term.name
+            else:
+                assert (d <= bound + 1e-5).all() and (d > 0).any(), term.name
+            start += dim
+        assert start == OBS_DIM
+    finally:
+        env.close()
+
+
+def test_reward_is_weighted_sum_times_dt():
+    env = make_env("base")
+    try:
+        _, rew, _, _ = env.step(torch.zeros(4, 28))
+        rm = env.reward_manager
+        for i, term in enumerate(rm.terms):
+            expected = torch.nan_to_num(term(env).float()) * rm.weights[term.name] * env.step_dt
+            assert torch.allclose(rm.step_reward[:, i], expected, atol=1e-6), term.name
+        assert torch.allclose(rew, rm.step_reward.sum(dim=1), atol=1e-6)
+        assert env.step_dt == pytest.approx(0.02)
+    finally:
+        env.close()
