@@ -4,19 +4,25 @@
 
 Writes to ``<out>`` (default: next to the checkpoint, ``play/``): ``tracking.png`` (commanded vs
 measured v_x, v_y, omega_z of env 0), ``gait.png`` (Hildebrand-style gait diagram: one row per leg,
-a bar while the foot is in contact) and ``play.npz`` (the raw traces). Video rendering is not
-implemented yet (known gap, docs/train.md).
+a bar while the foot is in contact), ``play.npz`` (the raw traces) and ``video.gif`` of env 0
+(MuJoCo offscreen rendering, EGL by default; 25 frames/s; if rendering is unavailable the reason is
+printed and the plots are still written). GIF because Pillow comes with matplotlib; no video codec
+dependency is needed.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must be set before mujoco is imported
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+import mujoco
 import numpy as np
 import torch
 
@@ -27,13 +33,46 @@ from dls_quadruped.learning.runner import AtomicOnPolicyRunner, runner_config
 from dls_quadruped.robots.aliengo import constants as C
 
 
-def rollout(env: LocomotionEnv, policy, steps: int) -> dict[str, np.ndarray]:
+class Recorder:
+    """Renders env 0 from its state with a tracking camera (a local MjData of the env's model)."""
+
+    def __init__(self, model: mujoco.MjModel, width: int = 480, height: int = 360):
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.renderer = mujoco.Renderer(model, height, width)
+        self.camera = mujoco.MjvCamera()
+        self.camera.distance, self.camera.azimuth, self.camera.elevation = 2.0, 135.0, -20.0
+        self.option = mujoco.MjvOption()
+        self.option.geomgroup[:4] = 1  # the robot's collision primitives (group 3) are its only body shapes
+        self.frames: list[np.ndarray] = []
+
+    def capture(self, env: LocomotionEnv) -> None:
+        s = env.state
+        self.data.qpos[:3] = s.base_pos_w[0].cpu().numpy()
+        self.data.qpos[3:7] = s.base_quat_w[0].cpu().numpy()
+        self.data.qpos[7:19] = s.joint_pos[0].cpu().numpy()
+        mujoco.mj_forward(self.model, self.data)
+        self.camera.lookat[:] = self.data.qpos[:3]
+        self.renderer.update_scene(self.data, camera=self.camera, scene_option=self.option)
+        self.frames.append(self.renderer.render().copy())
+
+    def save(self, path: Path, fps: float) -> None:
+        from PIL import Image
+
+        images = [Image.fromarray(f) for f in self.frames]
+        images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+
+
+def rollout(env: LocomotionEnv, policy, steps: int, recorder: Recorder | None = None,
+            frame_every: int = 2) -> dict[str, np.ndarray]:
     """Run ``policy`` (TensorDict -> (B, 28)) for ``steps`` policy steps; traces of env 0."""
     obs = env.get_observations()
     cmd, vel, contact = [], [], []
     with torch.no_grad():
-        for _ in range(steps):
+        for k in range(steps):
             obs, _, _, _ = env.step(policy(obs))
+            if recorder is not None and k % frame_every == 0:
+                recorder.capture(env)
             v = base_lin_vel(env)
             cmd.append(env.command_manager.command[0].cpu().numpy().copy())
             vel.append(np.r_[v[0, :2].cpu().numpy(), env.state.base_ang_vel_b[0, 2].item()])
@@ -80,6 +119,7 @@ def main(argv: list[str] | None = None) -> Path:
     p.add_argument("--seconds", type=float, default=10.0)
     p.add_argument("--out", type=Path, default=None)
     p.add_argument("--num-workers", type=int, default=0)
+    p.add_argument("--no-video", action="store_true")
     args = p.parse_args(argv)
     task = load_task(args.task, overrides={"scene": {"num_workers": args.num_workers}})
     env = LocomotionEnv(task, num_envs=args.num_envs, verbose=False)
@@ -93,13 +133,21 @@ def main(argv: list[str] | None = None) -> Path:
         else:
             def policy(obs):
                 return torch.zeros(env.num_envs, env.num_actions)
-        trace = rollout(env, policy, round(args.seconds / env.step_dt))
+        recorder = None
+        if not args.no_video:
+            try:
+                recorder = Recorder(env.scene.model)
+            except Exception as err:  # noqa: BLE001 - any GL failure only disables the video
+                print(f"[play] no video: offscreen rendering unavailable ({type(err).__name__}: {err})")
+        trace = rollout(env, policy, round(args.seconds / env.step_dt), recorder)
+        if recorder is not None and recorder.frames:
+            recorder.save(out / "video.gif", fps=1.0 / (2 * env.step_dt))
     finally:
         env.close()
     np.savez(out / "play.npz", **trace)
     plot_tracking(trace, out / "tracking.png")
     plot_gait(trace, out / "gait.png", env.step_dt)
-    print(f"[play] wrote {out}/tracking.png, gait.png, play.npz")
+    print(f"[play] wrote {out}: tracking.png, gait.png, play.npz" + (", video.gif" if (out / "video.gif").is_file() else ""))
     return out
 
 

@@ -158,3 +158,33 @@ def test_reward_is_weighted_sum_times_dt():
         assert env.step_dt == pytest.approx(0.02)
     finally:
         env.close()
+
+
+def test_speed_curriculum_widens_forward_range():
+    env = make_env("speed")
+    try:
+        cm, rm = env.command_manager, env.reward_manager
+        assert list(cm.params["lin_vel_x"]) == [0.0, 1.0]
+        ids = torch.arange(4)
+        full = rm.weights["track_lin_vel_xy"] * env.max_episode_length_s
+        rm.episode_sums["track_lin_vel_xy"][:] = 0.5 * full  # below the 0.7 threshold: no change
+        assert cur_mdp.command_speed_growth(env, ids, "track_lin_vel_xy", 0.7, 0.1, 2.1) == pytest.approx(1.0)
+        rm.episode_sums["track_lin_vel_xy"][:] = 0.9 * full
+        for _ in range(15):
+            top = cur_mdp.command_speed_growth(env, ids, "track_lin_vel_xy", 0.7, 0.1, 2.1)
+        assert top == pytest.approx(2.1)  # capped at the task's top speed
+        cmd = env.command_manager.term.func(env, torch.arange(500), **cm.params)
+        assert cmd[:, 0].min() >= 0.0 and cmd[:, 0].max() <= 2.1 and cmd[:, 0].max() > 1.5
+    finally:
+        env.close()
+
+
+def test_omnidirectional_command_stays_in_its_disc():
+    env = make_env("base")
+    try:
+        cmd = env.command_manager.term.func(env, torch.arange(2000), max_speed=1.0, ang_vel_z=(-1.0, 1.0))
+        speed = cmd[:, :2].norm(dim=1)
+        assert speed.max() <= 1.0 + 1e-6 and speed.max() > 0.95
+        assert (cmd[:, 0] < -0.5).any() and (cmd[:, 1] > 0.5).any()  # all directions
+    finally:
+        env.close()

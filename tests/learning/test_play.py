@@ -8,7 +8,7 @@ from dls_quadruped.learning import play
 
 
 def test_play_writes_plots_and_trot_contacts(tmp_path):
-    out = play.main(["--task", "base", "--seconds", "1.0", "--num-envs", "2", "--out", str(tmp_path)])
+    out = play.main(["--task", "base", "--seconds", "1.0", "--num-envs", "2", "--out", str(tmp_path), "--no-video"])
     assert (out / "tracking.png").is_file() and (out / "gait.png").is_file()
     trace = np.load(out / "play.npz")
     c = trace["contact"]
