@@ -1,0 +1,33 @@
+"""Batched torch sampling MPC: SRBD rollouts, cost, action encodings, warm starts (SPEC 8-9).
+
+Usage (B robots, 100 Hz, the thesis's model-based baseline optimising the forces only)::
+
+    import torch
+    from dls_quadruped.mpc import (Refs, SamplerConfig, SamplingMPC, srbd_state_from_base, warm_start)
+
+    cfg = SamplerConfig(num_samples=10000, horizon=10, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0)
+    mpc = SamplingMPC(cfg, device="cpu", seed=0)
+    state = srbd_state_from_base(rs.base_pos_w, rs.base_quat_w, rs.base_lin_vel_w, rs.base_ang_vel_b, rs.foot_pos_w)
+    refs = Refs(com_height_w=torch.full((B,), 0.33), lin_vel_w=cmd[:, :2], yaw_rate=cmd[:, 2],
+                foothold_w=heuristic_footholds_w)                    # (B, 4, 3)
+    default = warm_start.nominal_trot(B, cfg)                        # (B, D) encoded
+    result = mpc.solve(state, refs, warm_starts=[mpc.naive_warm_start(default)], phase=rs.phase)
+    result.force_w, result.foot_target_w, result.f, result.d         # first action, world frame
+    # several warm starts: warm_starts=[naive, policy_ws], proportions=(0.5, 0.5);
+    # result.warm_start_index says which one won, result.fallback flags NaN states.
+
+See docs/mpc.md for the model, frames, the typos resolved and the encodings' grid.
+"""
+
+from dls_quadruped.mpc import warm_start
+from dls_quadruped.mpc.config import CostWeights, EncodingConfig, SamplerConfig
+from dls_quadruped.mpc.cost import Refs, initial_cost, rollout_cost_reference
+from dls_quadruped.mpc.encodings import decode, decode_parts, encode, encoded_dim, fit_spline, shift_encoded
+from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
+from dls_quadruped.mpc.srbd import SRBDModel, SRBDState, robot_srbd_model, rollout_reference, srbd_state_from_base
+
+__all__ = [
+    "CostWeights", "EncodingConfig", "SamplerConfig", "Refs", "initial_cost", "rollout_cost_reference",
+    "decode", "decode_parts", "encode", "encoded_dim", "fit_spline", "shift_encoded", "MPCResult", "SamplingMPC",
+    "SRBDModel", "SRBDState", "robot_srbd_model", "rollout_reference", "srbd_state_from_base", "warm_start",
+]

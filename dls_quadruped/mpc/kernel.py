@@ -1,0 +1,241 @@
+"""Sample costs of one solve: the plain eager ``reference`` kernel and the fused ``fast`` kernel.
+
+Both map the same inputs (:class:`KernelInputs`) to the (B, M) rollout costs of all samples:
+draw -> clip -> decode -> contact sequence -> frames -> SRBD rollout -> cost (Algorithm 2).
+
+* ``reference``: the straightforward batched formulation (tensors (B, M, N, 4, 3), cross products,
+  matmuls, a Python loop over the N steps only), built from :mod:`samples`, :mod:`srbd`, :mod:`cost`.
+* ``fast``: the same maths written per scalar on (B, M) tensors - legs, coordinates and the N steps
+  unrolled in Python, spline bases, limits, inertia and weights baked in as constants, the yaw trig
+  of the horizontal frame computed once - so that torch.compile (inductor: fused C++/OpenMP on CPU,
+  Triton on CUDA) emits one elementwise loop over samples with the noise generated in registers and
+  no intermediate tensors. If compilation fails it runs the same function eagerly, with a warning.
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+
+from dls_quadruped.mpc.config import SamplerConfig
+from dls_quadruped.mpc.cost import Refs, rollout_cost_reference
+from dls_quadruped.mpc.encodings import P_SCALARS, SPLINE_PARAMS, block_slices, encoded_dim, spline_basis
+from dls_quadruped.mpc.rng import normal_pair
+from dls_quadruped.mpc.samples import decode_samples, encoded_bounds, sample_encoded, sigma_vector
+from dls_quadruped.mpc.srbd import SRBDModel
+
+
+@dataclass
+class KernelInputs:
+    """Everything one solve needs, on one device (B robots, G warm starts, M samples).
+
+    Attributes:
+        seed: () int64 noise seed.
+        warm_starts: (B, G, D) encoded warm starts.
+        group: (M,) long warm-start group of each sample; perturb: (M,) float 0/1.
+        x0: (B, 24) SRBD state vector.
+        phase: (B, 4) gait phase at step 0.
+        base_xy_w: (B, 2) [m], base_yaw: (B,) [rad]: the horizontal frame.
+        terrain_z_w: (B, 4) [m] ground height under the nominal footholds.
+        refs: cost references.
+    """
+
+    seed: torch.Tensor
+    warm_starts: torch.Tensor
+    group: torch.Tensor
+    perturb: torch.Tensor
+    x0: torch.Tensor
+    phase: torch.Tensor
+    base_xy_w: torch.Tensor
+    base_yaw: torch.Tensor
+    terrain_z_w: torch.Tensor
+    refs: Refs
+
+
+def reference_costs(inp: KernelInputs, cfg: SamplerConfig, model: SRBDModel) -> torch.Tensor:
+    """(B, M) costs, straightforward eager torch (the in-run reference)."""
+    b, m = inp.x0.shape[0], inp.group.shape[0]
+    idx = torch.arange(m, device=inp.x0.device).expand(b, m)
+    samples = sample_encoded(inp.seed, inp.warm_starts, inp.group, inp.perturb, idx, cfg)
+    dec = decode_samples(samples, inp.phase, inp.base_xy_w, inp.base_yaw, inp.terrain_z_w, cfg)
+    return rollout_cost_reference(inp.x0, dec["contact"], dec["foot_target_w"], dec["force_w"], inp.refs, model,
+                                  cfg.weights, cfg.dt)
+
+
+def _build_fused(cfg: SamplerConfig, model: SRBDModel) -> Callable[..., torch.Tensor]:
+    """The fused cost function for one (config, model); pure torch, compiles or runs eagerly."""
+    enc, act, w = cfg.encoding, cfg.action, cfg.weights
+    n_steps, dt, dim = cfg.horizon, cfg.dt, encoded_dim(cfg.encoding)
+    sl = block_slices(enc)
+    sigma = sigma_vector(cfg)
+    lo, hi = encoded_bounds(cfg)
+    basis = spline_basis(n_steps, torch.float64).tolist()  # (N, 4) python floats
+    nominal = act.nominal_foothold_b
+    fz_lo, fz_hi = (frac * act.weight for frac in act.force_z_range_frac)
+    px_lo, px_hi = act.foothold_x_range
+    py_lo, py_hi = act.foothold_y_range
+    mu, mass, grav = act.mu, model.mass, model.gravity
+    inertia = torch.tensor(model.inertia_b, dtype=torch.float64)
+    I = inertia.tolist()
+    Ii = torch.linalg.inv(inertia).tolist()
+
+    def block_values(P: list, kind: str, start: int, scalars: int, scalar: int) -> list:
+        """Per-step decoded value of one scalar of a block, as a list over the N steps."""
+        if kind == "first":
+            return [P[start + scalar]] * n_steps
+        if kind == "discrete":
+            return [P[start + k * scalars + scalar] for k in range(n_steps)]
+        th = [P[start + scalar * SPLINE_PARAMS + j] for j in range(SPLINE_PARAMS)]
+        return [basis[k][0] * th[0] + basis[k][1] * th[1] + basis[k][2] * th[2] + basis[k][3] * th[3]
+                for k in range(n_steps)]
+
+    def fused(seed, warm_starts, group, perturb, x0, phase, base_xy_w, base_yaw, terrain_z_w,
+              com_height_w, lin_vel_w, yaw_rate, foothold_w):
+        b, m = x0.shape[0], group.shape[0]
+        device = x0.device
+        rows = torch.arange(b, device=device)[:, None]
+        counter0 = (rows * m + torch.arange(m, device=device)[None, :]) * (dim // 2)  # (B, M)
+        center = warm_starts[rows, group[None, :]]  # (B, M, D), gathered lazily by inductor
+        pert = perturb[None, :]
+        P = []  # encoded entries, each (B, M)
+        for j in range(dim):
+            v = center[..., j]
+            if j % 2 == 0 and (sigma[j] > 0.0 or sigma[j + 1] > 0.0):
+                z_pair = normal_pair(seed, counter0 + j // 2)
+            if sigma[j] > 0.0:
+                v = v + pert * (sigma[j] * z_pair[j % 2])
+            if lo[j] > -float("inf"):
+                v = torch.clamp(v, lo[j], hi[j])
+            P.append(v)
+        cyaw, syaw = torch.cos(base_yaw)[:, None], torch.sin(base_yaw)[:, None]  # frame H, once
+        bx, by = base_xy_w[:, 0:1], base_xy_w[:, 1:2]
+
+        # contact flags c[k][i] (same closed form as gait.contact_sequence)
+        c = [[None] * 4 for _ in range(n_steps)]
+        for i in range(4):
+            fdt = P[i] * dt
+            for k in range(n_steps):
+                c[k][i] = (torch.remainder(phase[:, i:i + 1] + k * fdt, 1.0) < P[4 + i]).to(x0.dtype)
+
+        # touch-down targets (world) and their R cost per step
+        tgt = [[None] * 4 for _ in range(n_steps)]
+        r_cost = [None] * n_steps
+        for i in range(4):
+            pxs = block_values(P, enc.p, sl["p"].start, P_SCALARS, 2 * i)
+            pys = block_values(P, enc.p, sl["p"].start, P_SCALARS, 2 * i + 1)
+            tz = terrain_z_w[:, i:i + 1] + act.foot_radius
+            for k in range(n_steps):
+                if enc.p == "first" and k > 0:
+                    tgt[k][i] = tgt[0][i]
+                    continue
+                qx = torch.clamp(pxs[k], px_lo, px_hi) + nominal[i][0]
+                qy = torch.clamp(pys[k], py_lo, py_hi) + nominal[i][1]
+                tgt[k][i] = (bx + cyaw * qx - syaw * qy, by + syaw * qx + cyaw * qy, tz)
+        for k in range(n_steps):
+            if enc.p == "first" and k > 0:
+                r_cost[k] = r_cost[0]
+                continue
+            acc = 0.0
+            for i in range(4):
+                ex = tgt[k][i][0] - foothold_w[:, i, 0:1]
+                ey = tgt[k][i][1] - foothold_w[:, i, 1:2]
+                acc = acc + w.foothold_xy * (ex * ex + ey * ey)
+            r_cost[k] = acc
+
+        # forces (world), clipped to Table 1 and the friction cone
+        frc = [[None] * 4 for _ in range(n_steps)]
+        for i in range(4):
+            fxs, fys, fzs = (block_values(P, enc.F, sl["F"].start, 12, 3 * i + a) for a in range(3))
+            for k in range(n_steps):
+                if enc.F == "first" and k > 0:
+                    frc[k][i] = frc[0][i]
+                    continue
+                fz = torch.clamp(fzs[k], fz_lo, fz_hi)
+                nxy = torch.sqrt(fxs[k] * fxs[k] + fys[k] * fys[k])
+                lim = mu * fz
+                scale = torch.where(nxy > lim, lim / torch.clamp(nxy, min=1e-12), 1.0)
+                fx, fy = fxs[k] * scale, fys[k] * scale
+                frc[k][i] = (cyaw * fx - syaw * fy, syaw * fx + cyaw * fy, fz)
+
+        # rollout (explicit Euler) and state cost
+        px, py, pz, vx, vy, vz, ro, pi, ya, wx, wy, wz = (x0[:, j:j + 1] for j in range(12))
+        feet = [tuple(x0[:, 12 + 3 * i + a:13 + 3 * i + a] for a in range(3)) for i in range(4)]
+        h_ref, vx_ref, vy_ref, wz_ref = com_height_w[:, None], lin_vel_w[:, 0:1], lin_vel_w[:, 1:2], yaw_rate[:, None]
+        total = 0.0
+        for k in range(n_steps):
+            sfx = sfy = sfz = 0.0
+            tx = ty = tz = 0.0
+            new_feet = []
+            for i in range(4):
+                ci = c[k][i]
+                fx, fy, fz = (ci * frc[k][i][a] for a in range(3))
+                rx, ry, rz = feet[i][0] - px, feet[i][1] - py, feet[i][2] - pz
+                sfx, sfy, sfz = sfx + fx, sfy + fy, sfz + fz
+                tx, ty, tz = tx + ry * fz - rz * fy, ty + rz * fx - rx * fz, tz + rx * fy - ry * fx
+                new_feet.append(tuple(feet[i][a] + (1.0 - ci) * (tgt[k][i][a] - feet[i][a]) for a in range(3)))
+            cr, sr, cp, sp, cy, sy = torch.cos(ro), torch.sin(ro), torch.cos(pi), torch.sin(pi), torch.cos(ya), torch.sin(ya)
+            # R = Rz Ry Rx; torque_b = R^T torque_w (columns of R dotted with torque_w)
+            r00, r10, r20 = cy * cp, sy * cp, -sp
+            r01, r11, r21 = cy * sp * sr - sy * cr, sy * sp * sr + cy * cr, cp * sr
+            r02, r12, r22 = cy * sp * cr + sy * sr, sy * sp * cr - cy * sr, cp * cr
+            tbx = r00 * tx + r10 * ty + r20 * tz
+            tby = r01 * tx + r11 * ty + r21 * tz
+            tbz = r02 * tx + r12 * ty + r22 * tz
+            iwx = I[0][0] * wx + I[0][1] * wy + I[0][2] * wz
+            iwy = I[1][0] * wx + I[1][1] * wy + I[1][2] * wz
+            iwz = I[2][0] * wx + I[2][1] * wy + I[2][2] * wz
+            hx, hy, hz = tbx - (wy * iwz - wz * iwy), tby - (wz * iwx - wx * iwz), tbz - (wx * iwy - wy * iwx)
+            dwx = Ii[0][0] * hx + Ii[0][1] * hy + Ii[0][2] * hz
+            dwy = Ii[1][0] * hx + Ii[1][1] * hy + Ii[1][2] * hz
+            dwz = Ii[2][0] * hx + Ii[2][1] * hy + Ii[2][2] * hz
+            tp = sp / cp  # eq. C.2.3
+            dro = wx + sr * tp * wy + cr * tp * wz
+            dpi = cr * wy - sr * wz
+            dya = (sr * wy + cr * wz) / cp
+            px, py, pz = px + dt * vx, py + dt * vy, pz + dt * vz
+            vx, vy, vz = vx + dt * (sfx / mass), vy + dt * (sfy / mass), vz + dt * (sfz / mass - grav)
+            ro, pi, ya = ro + dt * dro, pi + dt * dpi, ya + dt * dya
+            wx, wy, wz = wx + dt * dwx, wy + dt * dwy, wz + dt * dwz
+            feet = new_feet
+            ez, evx, evy, ewz = pz - h_ref, vx - vx_ref, vy - vy_ref, wz - wz_ref
+            total = total + (w.z * ez * ez + w.vx * evx * evx + w.vy * evy * evy + w.vz * vz * vz
+                             + w.roll * ro * ro + w.pitch * pi * pi + w.roll_rate * wx * wx
+                             + w.pitch_rate * wy * wy + w.yaw_rate * ewz * ewz + r_cost[k])
+        total = total + torch.zeros_like(P[0])  # (B, M) even if nothing depends on the samples
+        return torch.where(torch.isnan(total), torch.full_like(total, float("inf")), total)
+
+    return fused
+
+
+@functools.lru_cache(maxsize=64)
+def _fast_fn(cfg: SamplerConfig, model: SRBDModel, compiled: bool) -> Callable[..., torch.Tensor]:
+    fused = _build_fused(cfg, model)
+    if not compiled:
+        return fused
+    # Realise shared intermediates early so the unrolled graph is not re-inlined into every use.
+    return torch.compile(fused, dynamic=False, fullgraph=True, options=_INDUCTOR_OPTIONS)
+
+
+_INDUCTOR_OPTIONS = {"realize_opcount_threshold": 4, "realize_reads_threshold": 2}
+
+
+_COMPILE_FAILED: set[tuple] = set()
+
+
+def fast_costs(inp: KernelInputs, cfg: SamplerConfig, model: SRBDModel, compiled: bool = True) -> torch.Tensor:
+    """(B, M) costs with the fused kernel (compiled unless ``compiled=False`` or compilation failed)."""
+    args = (inp.seed, inp.warm_starts, inp.group, inp.perturb, inp.x0, inp.phase, inp.base_xy_w, inp.base_yaw,
+            inp.terrain_z_w, inp.refs.com_height_w, inp.refs.lin_vel_w, inp.refs.yaw_rate, inp.refs.foothold_w)
+    key = (cfg, model, inp.x0.device.type)
+    if compiled and key not in _COMPILE_FAILED:
+        try:
+            return _fast_fn(cfg, model, True)(*args)
+        except Exception as err:  # inductor/compiler missing or broken: stay correct, just slower
+            _COMPILE_FAILED.add(key)
+            warnings.warn(f"torch.compile of the MPC kernel failed ({type(err).__name__}: {err}); "
+                          f"falling back to the eager fused kernel", RuntimeWarning, stacklevel=2)
+    return _fast_fn(cfg, model, False)(*args)

@@ -1,0 +1,261 @@
+"""Sampling MPC controller (thesis Algorithm 2, SPEC 9): one batched solve over B robots x M samples.
+
+    mpc = SamplingMPC(SamplerConfig(num_samples=10000, horizon=10))
+    result = mpc.solve(state, refs, warm_starts=[mpc.naive_warm_start(default), policy_ws], proportions=(0.5, 0.5),
+                       phase=phase)
+
+Per solve: validate inputs -> split M into warm-start groups -> draw/clip/decode -> roll out and
+cost every sample (``fast`` or ``reference`` kernel, :mod:`kernel`) -> argmin -> re-draw and decode
+the winner's first action. Robots whose state is not finite get the previous solution back
+(``fallback`` flag and ``reason``) instead of a meaningless argmin.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+
+from dls_quadruped.mpc.config import SamplerConfig
+from dls_quadruped.mpc.cost import Refs, initial_cost
+from dls_quadruped.mpc.encodings import encoded_dim, shift_encoded
+from dls_quadruped.mpc.kernel import KernelInputs, fast_costs, reference_costs
+from dls_quadruped.mpc.samples import decode_samples, group_layout, sample_encoded
+from dls_quadruped.mpc.srbd import SRBDModel, SRBDState, robot_srbd_model, rotation_from_euler
+
+
+@dataclass
+class MPCResult:
+    """Solution of one solve for B robots (world frame unless noted).
+
+    Attributes:
+        f: (B, 4) [Hz] step frequency; d: (B, 4) duty cycle.
+        contact: (B, 4) bool, stance flags at step 0.
+        foot_target_w: (B, 4, 3) [m] touch-down targets p_0; force_w: (B, 4, 3) [N] forces F_0.
+        p_h: (B, 4, 2) [m], F_h: (B, 4, 3) [N]: the same first action in the horizontal frame
+            (p relative to the nominal foothold), i.e. the latent-action units.
+        best_cost: (B,) rollout cost of the chosen sample (+inf if every sample diverged).
+        initial_cost: (B,) state cost of the current state (thesis 7.3.1).
+        best_index: (B,) long, winning sample (-1 for a fallback robot).
+        warm_start_index: (B,) long, warm start whose group the winner came from (-1 for a fallback).
+        best_encoded: (B, D) winning encoded action (box-clipped), for the naive warm start.
+        fallback: (B,) bool, True where the state was not finite and the previous solution (or the
+            first warm start if there was none) was returned unchanged.
+        reason: "" or a sentence naming the fallback robots and why.
+    """
+
+    f: torch.Tensor
+    d: torch.Tensor
+    contact: torch.Tensor
+    foot_target_w: torch.Tensor
+    force_w: torch.Tensor
+    p_h: torch.Tensor
+    F_h: torch.Tensor
+    best_cost: torch.Tensor
+    initial_cost: torch.Tensor
+    best_index: torch.Tensor
+    warm_start_index: torch.Tensor
+    best_encoded: torch.Tensor
+    fallback: torch.Tensor
+    reason: str = ""
+
+
+def _check_tensor(name: str, value: object, shape: tuple[int, ...]) -> None:
+    if not isinstance(value, torch.Tensor) or tuple(value.shape) != shape:
+        raise ValueError(f"{name} must be a tensor of shape {shape}, got {tuple(getattr(value, 'shape', ())) or type(value).__name__}")
+
+
+class SamplingMPC:
+    """Batched sampling MPC with warm starts (Algorithm 2).
+
+    Args:
+        cfg: sampler configuration (frozen).
+        model: SRBD parameters (default: from the MJCF, :func:`robot_srbd_model`).
+        device: where the rollouts run ("cpu" or "cuda").
+        seed: seed of the generator that draws one noise seed per solve (deterministic solves).
+    """
+
+    def __init__(self, cfg: SamplerConfig | None = None, model: SRBDModel | None = None,
+                 device: torch.device | str = "cpu", seed: int = 0):
+        self.cfg = cfg if cfg is not None else SamplerConfig()
+        self.model = model if model is not None else robot_srbd_model()
+        self.device = torch.device(device)
+        self.dim = encoded_dim(self.cfg.encoding)
+        self.generator = torch.Generator().manual_seed(seed)
+        self.last_result: MPCResult | None = None
+        self._layouts: dict[tuple[float, ...], tuple[torch.Tensor, torch.Tensor]] = {}
+
+    # ------------------------------------------------------------------ warm starts
+
+    def naive_warm_start(self, default: torch.Tensor | None = None) -> torch.Tensor:
+        """Previous best sample shifted by one MPC period (mpc_period / dt horizon steps).
+
+        Args:
+            default: (B, D) or (D,) used when there is no previous solution yet (e.g. a trot
+                with feet under the hips and m g / 2 on the stance legs).
+
+        Raises:
+            ValueError: no previous solution and no default.
+        """
+        if self.last_result is None:
+            if default is None:
+                raise ValueError("naive_warm_start: there is no previous solution yet; pass default=(B, D) encoded action")
+            return default.to(self.device, torch.float32)
+        return shift_encoded(self.last_result.best_encoded, self.cfg.encoding, self.cfg.mpc_period / self.cfg.dt)
+
+    def reset(self) -> None:
+        """Forget the previous solution (next naive warm start uses its default)."""
+        self.last_result = None
+
+    # ------------------------------------------------------------------ solve
+
+    def _layout(self, proportions: tuple[float, ...]) -> tuple[torch.Tensor, torch.Tensor]:
+        if proportions not in self._layouts:
+            group, perturb, _ = group_layout(self.cfg.num_samples, proportions)
+            self._layouts[proportions] = (group.to(self.device), perturb.to(self.device))
+        return self._layouts[proportions]
+
+    def _validate(self, state: SRBDState, refs: Refs, warm_starts: Sequence[torch.Tensor],
+                  proportions: Sequence[float] | None, phase: torch.Tensor) -> tuple[torch.Tensor, tuple[float, ...]]:
+        if not isinstance(state, SRBDState):
+            raise ValueError(f"state must be an SRBDState, got {type(state).__name__}")
+        state.validate()
+        b = state.batch_size
+        refs.validate(b)
+        _check_tensor("phase", phase, (b, 4))
+        if isinstance(warm_starts, torch.Tensor) or len(warm_starts) == 0:
+            raise ValueError("warm_starts must be a non-empty list of (B, D) or (D,) encoded actions "
+                             f"(D = {self.dim} for encoding p={self.cfg.encoding_p!r}, F={self.cfg.encoding_F!r})")
+        num_ws = len(warm_starts)
+        rows = []
+        for g, ws in enumerate(warm_starts):
+            if not isinstance(ws, torch.Tensor) or tuple(ws.shape) not in ((b, self.dim), (self.dim,)):
+                raise ValueError(
+                    f"warm_starts[{g}] must have shape (B, D) = ({b}, {self.dim}) or ({self.dim},) for encoding "
+                    f"p={self.cfg.encoding_p!r}, F={self.cfg.encoding_F!r}, H={self.cfg.horizon}; "
+                    f"got {tuple(getattr(ws, 'shape', ()))}"
+                )
+            if not torch.isfinite(ws).all():
+                raise ValueError(f"warm_starts[{g}] contains NaN/inf; every entry must be finite")
+            rows.append(ws.to(self.device, torch.float32).expand(b, self.dim))
+        if self.cfg.num_samples < num_ws:
+            raise ValueError(f"num_samples (M = {self.cfg.num_samples}) must be >= the number of warm starts "
+                             f"({num_ws}): each warm start needs at least its own sample")
+        if proportions is None:
+            if num_ws != 1:
+                raise ValueError(f"proportions must be given (one per warm start, summing to 1) for {num_ws} warm starts")
+            props = (1.0,)
+        else:
+            props = tuple(float(p) for p in proportions)
+            if len(props) != num_ws:
+                raise ValueError(f"proportions must have one entry per warm start ({num_ws}), got {len(props)}")
+            if any(not (p >= 0.0) for p in props) or not math.isclose(sum(props), 1.0, abs_tol=1e-6):
+                raise ValueError(f"proportions must be >= 0 and sum to 1, got {props} (sum {sum(props)})")
+        return torch.stack(rows, dim=1), props
+
+    def solve(
+        self,
+        state: SRBDState,
+        refs: Refs,
+        warm_starts: Sequence[torch.Tensor],
+        proportions: Sequence[float] | None = None,
+        phase: torch.Tensor | None = None,
+        base_xy_w: torch.Tensor | None = None,
+        base_yaw: torch.Tensor | None = None,
+        terrain_z_w: torch.Tensor | None = None,
+    ) -> MPCResult:
+        """One MPC solve for B robots.
+
+        Args:
+            state: SRBD state of B robots.
+            refs: cost references.
+            warm_starts: G encoded actions, each (B, D) or (D,) (naive, policy, ...).
+            proportions: G fractions of M summing to 1 (default: (1.0,) for a single warm start).
+            phase: (B, 4) current gait phase in [0, 1).
+            base_xy_w: (B, 2) [m] origin of the horizontal frame (default: the base position
+                recovered from the CoM and the model's CoM offset).
+            base_yaw: (B,) [rad] yaw of the horizontal frame (default: the state's yaw).
+            terrain_z_w: (B, 4) [m] ground height under each leg's nominal foothold (default 0).
+
+        Returns:
+            :class:`MPCResult`.
+
+        Raises:
+            ValueError: wrong shapes, non-finite warm starts, bad proportions, M < G.
+        """
+        if phase is None:
+            raise ValueError("phase must be given: (B, 4) gait phase in [0, 1)")
+        ws, props = self._validate(state, refs, warm_starts, proportions, phase)
+        b, dev = state.batch_size, self.device
+        state = state.to(dev)
+        refs = refs.to(dev)
+        finite = state.finite_mask()
+        x0 = torch.where(finite[:, None], state.as_vector(), torch.zeros(()).to(dev))  # keep NaN out of the kernel
+        safe_state = SRBDState.from_vector(x0)
+        if base_yaw is None:
+            base_yaw = safe_state.euler[:, 2]
+        if base_xy_w is None:
+            rot = rotation_from_euler(safe_state.euler)
+            c_b = torch.tensor(self.model.com_offset_b, dtype=torch.float32, device=dev)
+            base_xy_w = (safe_state.com_pos_w - rot @ c_b)[:, :2]
+        if terrain_z_w is None:
+            terrain_z_w = torch.zeros(b, 4, device=dev)
+        for name, value, shape in (("base_xy_w", base_xy_w, (b, 2)), ("base_yaw", base_yaw, (b,)),
+                                   ("terrain_z_w", terrain_z_w, (b, 4))):
+            _check_tensor(name, value, shape)
+        group, perturb = self._layout(props)
+        seed = torch.randint(0, 2**31 - 1, (), generator=self.generator).to(dev)
+        inp = KernelInputs(seed, ws, group, perturb, x0, phase.to(dev, torch.float32),
+                           base_xy_w.to(dev, torch.float32), base_yaw.to(dev, torch.float32),
+                           terrain_z_w.to(dev, torch.float32), refs)
+        if self.cfg.kernel == "fast":
+            costs = fast_costs(inp, self.cfg, self.model)
+        else:
+            costs = reference_costs(inp, self.cfg, self.model)
+        best_cost, best_index = costs.min(dim=1)
+        result = self._extract(inp, best_index, best_cost, initial_cost(x0, refs, self.cfg.weights))
+        if not bool(finite.all()):
+            result = self._fallback(result, ~finite, inp)
+        self.last_result = result
+        return result
+
+    def _extract(self, inp: KernelInputs, best_index: torch.Tensor, best_cost: torch.Tensor,
+                 init_cost: torch.Tensor) -> MPCResult:
+        """Re-draw the winning samples and decode their first action."""
+        best = sample_encoded(inp.seed, inp.warm_starts, inp.group, inp.perturb, best_index[:, None], self.cfg)
+        dec = decode_samples(best, inp.phase, inp.base_xy_w, inp.base_yaw, inp.terrain_z_w, self.cfg)
+        first = {k: v[:, 0] for k, v in dec.items()}  # drop the K = 1 sample dim
+        b = best_index.shape[0]
+        return MPCResult(
+            f=first["f"], d=first["d"], contact=first["contact"][:, 0], foot_target_w=first["foot_target_w"][:, 0],
+            force_w=first["force_w"][:, 0], p_h=first["p_h"][:, 0], F_h=first["F_h"][:, 0],
+            best_cost=best_cost, initial_cost=init_cost, best_index=best_index,
+            warm_start_index=inp.group[best_index], best_encoded=best[:, 0],
+            fallback=torch.zeros(b, dtype=torch.bool, device=best_index.device),
+        )
+
+    def _fallback(self, result: MPCResult, bad: torch.Tensor, inp: KernelInputs) -> MPCResult:
+        """Robots with a non-finite state keep the previous solution (or the first warm start, decoded)."""
+        robots = torch.nonzero(bad).flatten().tolist()
+        prev = self.last_result
+        if prev is not None and prev.f.shape[0] == bad.shape[0] and prev.f.device == bad.device:
+            source = "the previous solution"
+        else:  # sample 0 is warm start 0 itself (its group's unperturbed sample)
+            source = "the first warm start (no previous solution)"
+            prev = self._extract(inp, torch.zeros_like(result.best_index), result.best_cost, result.initial_cost)
+        out = {}
+        for name in ("f", "d", "contact", "foot_target_w", "force_w", "p_h", "F_h", "best_encoded"):
+            new, old = getattr(result, name), getattr(prev, name)
+            out[name] = torch.where(bad.view(-1, *([1] * (new.dim() - 1))), old, new)
+        inf = torch.full_like(result.best_cost, float("inf"))
+        minus = torch.full_like(result.best_index, -1)
+        return MPCResult(
+            **out, best_cost=torch.where(bad, inf, result.best_cost),
+            initial_cost=torch.where(bad, inf, result.initial_cost),
+            best_index=torch.where(bad, minus, result.best_index),
+            warm_start_index=torch.where(bad, minus, result.warm_start_index),
+            fallback=bad.clone(),
+            reason=f"state of robots {robots} is not finite (NaN/inf): returned {source} for them",
+        )
