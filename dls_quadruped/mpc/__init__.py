@@ -22,12 +22,42 @@ See docs/mpc.md for the model, frames, the typos resolved and the encodings' gri
 from dls_quadruped.mpc import warm_start
 from dls_quadruped.mpc.config import CostWeights, EncodingConfig, SamplerConfig
 from dls_quadruped.mpc.cost import Refs, initial_cost, rollout_cost_reference
-from dls_quadruped.mpc.encodings import decode, decode_parts, encode, encoded_dim, fit_spline, shift_encoded
+from dls_quadruped.mpc.encodings import (
+    decode,
+    decode_parts,
+    encode,
+    encoded_dim,
+    fit_spline,
+    shift_encoded,
+)
 from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
-from dls_quadruped.mpc.srbd import SRBDModel, SRBDState, robot_srbd_model, rollout_reference, srbd_state_from_base
+from dls_quadruped.mpc.srbd import (
+    SRBDModel,
+    SRBDState,
+    robot_srbd_model,
+    rollout_reference,
+    srbd_state_from_base,
+)
 
 __all__ = [
-    "CostWeights", "EncodingConfig", "SamplerConfig", "Refs", "initial_cost", "rollout_cost_reference",
-    "decode", "decode_parts", "encode", "encoded_dim", "fit_spline", "shift_encoded", "MPCResult", "SamplingMPC",
-    "SRBDModel", "SRBDState", "robot_srbd_model", "rollout_reference", "srbd_state_from_base", "warm_start",
+    "CostWeights",
+    "EncodingConfig",
+    "MPCResult",
+    "Refs",
+    "SRBDModel",
+    "SRBDState",
+    "SamplerConfig",
+    "SamplingMPC",
+    "decode",
+    "decode_parts",
+    "encode",
+    "encoded_dim",
+    "fit_spline",
+    "initial_cost",
+    "robot_srbd_model",
+    "rollout_cost_reference",
+    "rollout_reference",
+    "shift_encoded",
+    "srbd_state_from_base",
+    "warm_start",
 ]

@@ -155,7 +155,7 @@ class SamplerConfig:
                 )
         if self.kernel not in KERNELS:
             raise ValueError(f"SamplerConfig.kernel must be one of {KERNELS}, got {self.kernel!r}")
-        self.encoding  # validates the encoding kinds and horizon
+        _ = self.encoding  # validates the encoding kinds and horizon
 
     @property
     def encoding(self) -> EncodingConfig:

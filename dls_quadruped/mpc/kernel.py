@@ -23,9 +23,20 @@ import torch
 
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import Refs, rollout_cost_reference
-from dls_quadruped.mpc.encodings import P_SCALARS, SPLINE_PARAMS, block_slices, encoded_dim, spline_basis
+from dls_quadruped.mpc.encodings import (
+    P_SCALARS,
+    SPLINE_PARAMS,
+    block_slices,
+    encoded_dim,
+    spline_basis,
+)
 from dls_quadruped.mpc.rng import normal_pair
-from dls_quadruped.mpc.samples import decode_samples, encoded_bounds, sample_encoded, sigma_vector
+from dls_quadruped.mpc.samples import (
+    decode_samples,
+    encoded_bounds,
+    sample_encoded,
+    sigma_vector,
+)
 from dls_quadruped.mpc.srbd import SRBDModel
 
 
@@ -234,7 +245,7 @@ def fast_costs(inp: KernelInputs, cfg: SamplerConfig, model: SRBDModel, compiled
     if compiled and key not in _COMPILE_FAILED:
         try:
             return _fast_fn(cfg, model, True)(*args)
-        except Exception as err:  # inductor/compiler missing or broken: stay correct, just slower
+        except Exception as err:  # noqa: BLE001 - inductor/compiler missing or broken: stay correct, just slower
             _COMPILE_FAILED.add(key)
             warnings.warn(f"torch.compile of the MPC kernel failed ({type(err).__name__}: {err}); "
                           f"falling back to the eager fused kernel", RuntimeWarning, stacklevel=2)

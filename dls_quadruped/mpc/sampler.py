@@ -23,7 +23,12 @@ from dls_quadruped.mpc.cost import Refs, initial_cost
 from dls_quadruped.mpc.encodings import encoded_dim, shift_encoded
 from dls_quadruped.mpc.kernel import KernelInputs, fast_costs, reference_costs
 from dls_quadruped.mpc.samples import decode_samples, group_layout, sample_encoded
-from dls_quadruped.mpc.srbd import SRBDModel, SRBDState, robot_srbd_model, rotation_from_euler
+from dls_quadruped.mpc.srbd import (
+    SRBDModel,
+    SRBDState,
+    robot_srbd_model,
+    rotation_from_euler,
+)
 
 
 @dataclass
@@ -120,7 +125,7 @@ class SamplingMPC:
     def _validate(self, state: SRBDState, refs: Refs, warm_starts: Sequence[torch.Tensor],
                   proportions: Sequence[float] | None, phase: torch.Tensor) -> tuple[torch.Tensor, tuple[float, ...]]:
         if not isinstance(state, SRBDState):
-            raise ValueError(f"state must be an SRBDState, got {type(state).__name__}")
+            raise ValueError(f"state must be an SRBDState, got {type(state).__name__}")  # noqa: TRY004
         state.validate()
         b = state.batch_size
         refs.validate(b)

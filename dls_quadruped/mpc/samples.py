@@ -59,7 +59,7 @@ def group_layout(num_samples: int, proportions: tuple[float, ...]) -> tuple[torc
         counts: samples per group.
     """
     raw = [p * num_samples for p in proportions]
-    counts = [max(1, int(math.floor(r))) for r in raw]
+    counts = [max(1, math.floor(r)) for r in raw]
     order = sorted(range(len(raw)), key=lambda g: raw[g] - math.floor(raw[g]), reverse=True)
     i = 0
     while sum(counts) < num_samples:
@@ -166,5 +166,12 @@ def decode_samples(
             "contact": contact}
 
 
-__all__ = ["sigma_vector", "encoded_bounds", "group_layout", "sample_encoded", "clip_horizon",
-           "horizontal_to_world", "decode_samples"]
+__all__ = [
+    "clip_horizon",
+    "decode_samples",
+    "encoded_bounds",
+    "group_layout",
+    "horizontal_to_world",
+    "sample_encoded",
+    "sigma_vector",
+]

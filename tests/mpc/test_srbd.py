@@ -147,7 +147,7 @@ def test_zero_force_momentum():
     inertia = torch.tensor(model.inertia_b, dtype=torch.float64)
 
     def drift(dt: float, duration: float = 0.5) -> tuple[float, torch.Tensor]:
-        n = int(round(duration / dt))
+        n = round(duration / dt)
         x0 = torch.zeros(1, 24, dtype=torch.float64)
         x0[0, 3:6] = torch.tensor([0.2, -0.1, 0.4])
         x0[0, 6:9] = torch.tensor([0.1, -0.2, 0.3])
