@@ -214,3 +214,19 @@ def test_balance_controller_through_the_env_action_path_stays_up():
                               env.action_manager.raw_action)
     finally:
         env.close()
+
+
+def test_reset_placement_runs_before_other_reset_events(tmp_path):
+    from dls_quadruped.envs.config import TASKS_DIR
+
+    p = tmp_path / "t.yaml"
+    p.write_text(f"inherit: {TASKS_DIR / 'base.yaml'}\nevents:\n  reset_robot: null\n"
+                 "  wrench: {func: external_wrench, mode: reset, params: {force_range: [5, 10], torque_range: [0, 0]}}\n"
+                 "  place: {func: reset_robot, mode: reset}\n")
+    task = load_task(p, overrides=SMALL)
+    env = LocomotionEnv(task, num_envs=2, verbose=False)
+    try:
+        assert [t.name for t in env.event_manager.terms] == ["place", "wrench"]
+        assert (env.scene.sim.buf.command["wrench_w"][:, :3] >= 5).all()  # not cleared by the placement
+    finally:
+        env.close()

@@ -15,8 +15,10 @@ MODES = ("startup", "reset", "interval")
 class EventManager:
     def __init__(self, task: TaskConfig, env):
         self.env = env
-        self.terms = resolve_terms(task, "events", event_mdp, {"mode": ..., "interval_s": None},
-                                   positional=("env", "env_ids"))
+        terms = resolve_terms(task, "events", event_mdp, {"mode": ..., "interval_s": None},
+                              positional=("env", "env_ids"))
+        # placement first: VecSim.reset clears the base wrench, so e.g. external_wrench must come after it
+        self.terms = sorted(terms, key=lambda t: t.func is not event_mdp.reset_robot)
         self.timers: dict[str, torch.Tensor] = {}
         for t in self.terms:
             key = f"events.{t.name}"
