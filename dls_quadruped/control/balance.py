@@ -145,12 +145,19 @@ class BalanceController:
             dim=-1,
         )
         inertia = torch.tensor(cfg.inertia, dtype=dtype)
-        torque = inertia * torch.stack(
+        # roll and pitch are rotations about the yaw-aligned axes of frame H: build the PD torque
+        # there and rotate it to the world (a world-axis law reverses sign at yaw = pi)
+        w_h = torch.stack([cy * w_w[:, 0] + sy * w_w[:, 1], -sy * w_w[:, 0] + cy * w_w[:, 1], w_w[:, 2]], dim=-1)
+        torque_h = inertia * torch.stack(
             [
-                -cfg.kp_att * rpy[:, 0] - cfg.kd_att * w_w[:, 0],
-                -cfg.kp_att * rpy[:, 1] - cfg.kd_att * w_w[:, 1],
-                cfg.kd_att * (cmd[:, 2] - w_w[:, 2]),
+                -cfg.kp_att * rpy[:, 0] - cfg.kd_att * w_h[:, 0],
+                -cfg.kp_att * rpy[:, 1] - cfg.kd_att * w_h[:, 1],
+                cfg.kd_att * (cmd[:, 2] - w_h[:, 2]),
             ],
+            dim=-1,
+        )
+        torque = torch.stack(
+            [cy * torque_h[:, 0] - sy * torque_h[:, 1], sy * torque_h[:, 0] + cy * torque_h[:, 1], torque_h[:, 2]],
             dim=-1,
         )
         wrench = torch.cat([force, torque], dim=-1)  # (B, 6)

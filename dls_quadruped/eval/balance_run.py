@@ -49,13 +49,15 @@ class BalanceRun:
     summary: dict = field(default_factory=dict)
 
 
-def home_state(num: int, seed: int, noise: float = 0.0) -> dict[str, torch.Tensor]:
-    """Home-keyframe reset targets, optionally with uniform joint noise [rad] (seeded)."""
+def home_state(num: int, seed: int, noise: float = 0.0, yaw: float | torch.Tensor = 0.0) -> dict[str, torch.Tensor]:
+    """Home-keyframe reset targets, optionally with uniform joint noise [rad] (seeded) and base yaw [rad]."""
     gen = torch.Generator().manual_seed(seed)
     joint = torch.as_tensor(C.NOMINAL_JOINT_POS, dtype=torch.float64).expand(num, 12).clone()
     joint += noise * (2 * torch.rand(num, 12, generator=gen, dtype=torch.float64) - 1)
     pos = torch.tensor([0.0, 0.0, C.STANDING_BASE_HEIGHT + 0.005], dtype=torch.float64).expand(num, 3)
-    quat = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64).expand(num, 4)
+    half = torch.as_tensor(yaw, dtype=torch.float64).expand(num) / 2
+    zero = torch.zeros(num, dtype=torch.float64)
+    quat = torch.stack([torch.cos(half), zero, zero, torch.sin(half)], dim=1)
     return {"base_pos_w": pos, "base_quat_w": quat, "joint_pos": joint}
 
 
@@ -66,6 +68,7 @@ def run_balance(
     cmd_vel_h: tuple[float, float, float] = (0.0, 0.0, 0.0),
     seed: int = 0,
     joint_noise: float = 0.05,
+    yaw: float | torch.Tensor = 0.0,
     high_level_hz: float = 100.0,
     sim_cfg: SimConfig = SimConfig(num_workers=0),
     balance_cfg: BalanceConfig = BalanceConfig(),
@@ -81,7 +84,7 @@ def run_balance(
     n_stand = int(round(stand_seconds * high_level_hz))
     n_total = n_stand + int(round(trot_seconds * high_level_hz))
     with VecSim(model, num_envs, sim_cfg) as sim:
-        state = sim.reset(torch.arange(num_envs), **home_state(num_envs, seed, joint_noise))
+        state = sim.reset(torch.arange(num_envs), **home_state(num_envs, seed, joint_noise, yaw))
         for k in range(n_total):
             trotting = k >= n_stand
             # standing has f = 0, so the phases keep their trot offsets until the trot starts

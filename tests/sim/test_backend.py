@@ -126,3 +126,14 @@ def test_external_wrench_pushes_the_base(model):
         state = sim.step(60)
         assert state.base_lin_vel_w[0, 1] > 0.05
         assert abs(float(state.base_lin_vel_w[1, 1])) < 0.02
+
+
+def test_balance_baseline_works_at_any_heading(model):
+    """Attitude feedback lives in the yaw-aligned frame: robots facing any direction stand and trot."""
+    yaw = torch.tensor([0.0, 1.5, 3.0, -2.0], dtype=torch.float64)
+    run = run_balance(num_envs=4, stand_seconds=1.0, trot_seconds=2.0, yaw=yaw, model=model)
+    assert run.summary["num_fallen"] == 0, run.summary
+    assert run.summary["trot_roll_abs_max"] < 0.1 and run.summary["trot_pitch_abs_max"] < 0.1, run.summary
+    q = run.qpos[-1, :, 3:7]
+    final_yaw = 2 * np.arctan2(q[:, 3], q[:, 0])
+    np.testing.assert_allclose(np.angle(np.exp(1j * (final_yaw - yaw.numpy()))), 0.0, atol=0.1)
