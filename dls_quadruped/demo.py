@@ -15,14 +15,15 @@ import os
 # the GL backend is chosen when mujoco is first imported: headless EGL unless the user chose one
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import argparse  # noqa: E402
-import json  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import json
+from pathlib import Path
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from dls_quadruped.eval.balance_run import BalanceRun, run_balance  # noqa: E402
-from dls_quadruped.sim.backend import SimConfig  # noqa: E402
+from dls_quadruped.eval.balance_run import BalanceRun, run_balance
+from dls_quadruped.sim.backend import SimConfig
+from dls_quadruped.viz.video import render_gif
 
 
 def plot_run(run: BalanceRun, path: Path, robot: int = 0) -> None:
@@ -54,38 +55,6 @@ def plot_run(run: BalanceRun, path: Path, robot: int = 0) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def render_gif(run: BalanceRun, path: Path, robot: int = 0, fps: int = 25, seconds: float = 4.0) -> str:
-    """Render the last ``seconds`` of robot ``robot`` to a GIF; returns a status message."""
-    try:
-        import mujoco
-        from PIL import Image
-
-        from dls_quadruped.robots.aliengo import constants as C
-
-        model = mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))
-        data = mujoco.MjData(model)
-        renderer = mujoco.Renderer(model, 360, 480)
-    except Exception as err:  # no GL context (headless machine without EGL/OSMesa), or no Pillow
-        return f"no offscreen renderer available ({err!r}); wrote the plot only"
-    option = mujoco.MjvOption()
-    option.geomgroup[:] = 1  # the robot's primitives live in the collision group (3)
-    camera = mujoco.MjvCamera()
-    camera.distance, camera.azimuth, camera.elevation = 1.6, 135.0, -20.0
-    dt = float(run.time[1] - run.time[0])
-    stride = max(1, int(round(1.0 / (fps * dt))))
-    start = max(0, len(run.time) - int(seconds / dt))
-    frames = []
-    for k in range(start, len(run.time), stride):
-        data.qpos[:] = run.qpos[k, robot]
-        mujoco.mj_forward(model, data)
-        camera.lookat[:] = data.qpos[:3]
-        renderer.update_scene(data, camera, scene_option=option)
-        frames.append(Image.fromarray(renderer.render()))
-    renderer.close()
-    frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0)
-    return f"wrote {path} ({len(frames)} frames)"
 
 
 def main() -> None:

@@ -25,7 +25,12 @@ from dataclasses import dataclass
 
 import torch
 
-from dls_quadruped.control.gait import advance_phase, contact_from_phase, swing_progress, trot_phases
+from dls_quadruped.control.gait import (
+    advance_phase,
+    contact_from_phase,
+    swing_progress,
+    trot_phases,
+)
 from dls_quadruped.control.swing import swing_reference
 from dls_quadruped.robots.aliengo import constants as C
 

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from dls_quadruped.control.lowlevel import LowLevelConfig
-from dls_quadruped.sim.shard import STATE_SPECS, SharedBuffers, Shard
+from dls_quadruped.sim.shard import STATE_SPECS, Shard, SharedBuffers
 from dls_quadruped.sim.state import RobotState
 
 _BOOL_FIELDS = ("base_contact", "diverged")
@@ -304,10 +304,10 @@ class VecSim:
                 proc.terminate()
         self._conns, self._procs = [], []
 
-    def __enter__(self) -> "VecSim":
+    def __enter__(self) -> VecSim:
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     def __del__(self) -> None:

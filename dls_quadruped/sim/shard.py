@@ -69,7 +69,7 @@ class SharedBuffers:
     command: dict[str, torch.Tensor]
 
     @staticmethod
-    def allocate(num_robots: int, shared: bool) -> "SharedBuffers":
+    def allocate(num_robots: int, shared: bool) -> SharedBuffers:
         """Zeroed buffers; ``shared=True`` puts them in shared memory for worker processes."""
         state = {k: torch.zeros((num_robots, *s), dtype=torch.float32) for k, s in STATE_SPECS.items()}
         command = {k: torch.zeros((num_robots, *s), dtype=torch.float64) for k, s in COMMAND_SPECS.items()}
@@ -78,7 +78,7 @@ class SharedBuffers:
                 t.share_memory_()
         return SharedBuffers(state, command)
 
-    def rows(self, start: int, stop: int) -> "SharedBuffers":
+    def rows(self, start: int, stop: int) -> SharedBuffers:
         """Views of rows [start, stop)."""
         return SharedBuffers(
             {k: v[start:stop] for k, v in self.state.items()}, {k: v[start:stop] for k, v in self.command.items()}

@@ -8,7 +8,12 @@ import pytest
 import torch
 
 from dls_quadruped.control.balance import BalanceController
-from dls_quadruped.control.latent_action import LatentActionConfig, clip, flat_ground, to_world
+from dls_quadruped.control.latent_action import (
+    LatentActionConfig,
+    clip,
+    flat_ground,
+    to_world,
+)
 from dls_quadruped.eval.balance_run import _yaw, home_state, run_balance
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.backend import SimConfig, VecSim

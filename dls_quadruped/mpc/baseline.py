@@ -1,0 +1,193 @@
+"""Model-based baseline (thesis Fig. 1): periodic trot + heuristic footholds + sampling MPC on the forces.
+
+At every MPC step (100 Hz) for B robots:
+
+1. gait: fixed periodic trot (f, d); the MPC's sigma_f = sigma_d = 0;
+2. footholds: the heuristic planner of eq. 2.2.4, in the horizontal frame H relative to the
+   nominal foothold under the hip::
+
+       p_h = T_stance / 2 * v_ref + sqrt(z_com / g) (v - v_ref),   T_stance = d / f
+
+   (sigma_p = 0: the MPC does not change them; they are also the cost's foothold reference);
+3. forces: the sampling MPC searches around two warm starts, the previous solution shifted by
+   one MPC period (naive) and the nominal trot (m g / 2 per stance leg), with the gait and
+   footholds of steps 1-2 written into both;
+4. the first action ``(f, d, p_0, F_0)`` goes to the low-level controller, which runs at 200 Hz
+   inside the simulator backend for ``mpc_period / physics_dt`` physics steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import mujoco
+import numpy as np
+import torch
+
+from dls_quadruped.control.balance import quat_to_rotmat, rpy_from_rotmat
+from dls_quadruped.mpc import warm_start
+from dls_quadruped.mpc.config import SamplerConfig
+from dls_quadruped.mpc.cost import Refs
+from dls_quadruped.mpc.encodings import block_slices, fit_spline
+from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
+from dls_quadruped.mpc.srbd import srbd_state_from_base
+from dls_quadruped.robots.aliengo import constants as C
+from dls_quadruped.sim.backend import SimConfig, VecSim
+from dls_quadruped.sim.state import RobotState
+
+
+@dataclass(frozen=True)
+class BaselineConfig:
+    """Model-based baseline settings.
+
+    Attributes:
+        freq, duty: periodic trot [Hz], stance fraction.
+        com_height: desired CoM height above the ground [m].
+        proportions: shares of the samples drawn around (previous solution shifted, nominal trot).
+            The nominal group anchors the forces: with the naive warm start alone, the force
+            parameters of legs in swing drift freely (they cost nothing) and are far off when
+            those legs touch down.
+        sampler: sampling-MPC settings; sigma_f, sigma_d and sigma_p are forced to 0 (forces only).
+    """
+
+    freq: float = 1.5
+    duty: float = 0.6
+    com_height: float = 0.33
+    proportions: tuple[float, float] = (0.8, 0.2)
+    sampler: SamplerConfig = field(default_factory=SamplerConfig)
+
+    def forces_only(self) -> SamplerConfig:
+        """The sampler config with gait and foothold optimisation switched off."""
+        return replace(self.sampler, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0)
+
+
+def heuristic_footholds_h(state: RobotState, cmd_vel_h: torch.Tensor, cfg: BaselineConfig) -> torch.Tensor:
+    """Eq. 2.2.4 in frame H: (B, 4, 2) [m] offsets from the nominal foothold under each hip.
+
+    Args:
+        state: robot state (B robots).
+        cmd_vel_h: (B, 3) commanded (v_x, v_y) [m/s] in frame H and yaw rate [rad/s].
+    """
+    yaw = rpy_from_rotmat(quat_to_rotmat(state.base_quat_w.double()))[:, 2]
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    v_w = state.base_lin_vel_w.double()
+    v_h = torch.stack([c * v_w[:, 0] + s * v_w[:, 1], -s * v_w[:, 0] + c * v_w[:, 1]], dim=-1)  # (B, 2)
+    v_ref = cmd_vel_h[:, :2].double()
+    t_stance = cfg.duty / cfg.freq
+    k = (cfg.com_height / C.GRAVITY) ** 0.5
+    p_h = t_stance / 2 * v_ref + k * (v_h - v_ref)  # (B, 2), the same for every leg
+    return p_h.unsqueeze(1).expand(-1, 4, 2).float()
+
+
+class ModelBasedBaseline:
+    """Trot + heuristic footholds + force-only sampling MPC for B robots (see module docstring)."""
+
+    def __init__(self, num_robots: int, cfg: BaselineConfig = BaselineConfig(), device: str = "cpu", seed: int = 0):
+        self.cfg = cfg
+        self.sampler_cfg = cfg.forces_only()
+        self.mpc = SamplingMPC(self.sampler_cfg, device=device, seed=seed)
+        self.num_robots = num_robots
+        self.slices = block_slices(self.sampler_cfg.encoding)
+        self.default = warm_start.nominal_trot(num_robots, self.sampler_cfg, cfg.freq, cfg.duty)
+
+    def _encode_p(self, p_h: torch.Tensor) -> torch.Tensor:
+        """The p block of the encoding for footholds held over the horizon, (B, 4, 2) -> (B, Dp)."""
+        kind, horizon = self.sampler_cfg.encoding.p, self.sampler_cfg.horizon
+        flat = p_h.reshape(self.num_robots, 8)
+        if kind == "first":
+            return flat
+        if kind == "discrete":
+            return flat.repeat(1, horizon)
+        return fit_spline(flat[:, None, :].expand(-1, horizon, 8), constrained=True).reshape(self.num_robots, -1)
+
+    def step(self, state: RobotState, cmd_vel_h: torch.Tensor) -> tuple[MPCResult, Refs]:
+        """One MPC solve: returns the result (first action in the world frame) and the references used."""
+        cfg = self.cfg
+        p_h = heuristic_footholds_h(state, cmd_vel_h, cfg)
+        p_block = self._encode_p(p_h)
+        ws = self.mpc.naive_warm_start(self.default).clone()
+        ws_nominal = self.default.clone()
+        for w in (ws, ws_nominal):
+            w[:, self.slices["f"]] = cfg.freq
+            w[:, self.slices["d"]] = cfg.duty
+            w[:, self.slices["p"]] = p_block
+
+        srbd = srbd_state_from_base(state.base_pos_w, state.base_quat_w, state.base_lin_vel_w,
+                                    state.base_ang_vel_b, state.foot_pos_w, self.mpc.model)
+        yaw = srbd.euler[:, 2]
+        c, s = torch.cos(yaw), torch.sin(yaw)
+        cmd = cmd_vel_h.float()
+        v_ref_w = torch.stack([c * cmd[:, 0] - s * cmd[:, 1], s * cmd[:, 0] + c * cmd[:, 1]], dim=-1)
+        nominal = torch.tensor(self.sampler_cfg.action.nominal_foothold_b, dtype=torch.float32) + p_h  # (B, 4, 2)
+        base_xy = state.base_pos_w[:, :2]
+        foothold_w = torch.stack([
+            base_xy[:, None, 0] + c[:, None] * nominal[..., 0] - s[:, None] * nominal[..., 1],
+            base_xy[:, None, 1] + s[:, None] * nominal[..., 0] + c[:, None] * nominal[..., 1],
+            torch.full_like(nominal[..., 0], C.FOOT_RADIUS),
+        ], dim=-1)
+        refs = Refs(com_height_w=torch.full((self.num_robots,), cfg.com_height), lin_vel_w=v_ref_w,
+                    yaw_rate=cmd[:, 2].clone(), foothold_w=foothold_w)
+        result = self.mpc.solve(srbd, refs, warm_starts=[ws, ws_nominal], proportions=cfg.proportions,
+                                phase=state.phase, base_xy_w=base_xy, base_yaw=yaw)
+        return result, refs
+
+
+@dataclass
+class BaselineRun:
+    """Recorded signals of a closed-loop baseline run, one row per MPC step (robot 0..B-1).
+
+    Attributes:
+        time: (T,) [s]; base_vel_w: (T, B, 3) [m/s]; base_height: (T, B) [m];
+        roll, pitch: (T, B) [rad]; contact: (T, B, 4) commanded stance;
+        best_cost, initial_cost: (T, B); fallen: (B,) bool; qpos: (T, B, 19).
+    """
+
+    time: np.ndarray
+    base_vel_w: np.ndarray
+    base_height: np.ndarray
+    roll: np.ndarray
+    pitch: np.ndarray
+    contact: np.ndarray
+    best_cost: np.ndarray
+    initial_cost: np.ndarray
+    fallen: np.ndarray
+    qpos: np.ndarray
+
+
+def run_baseline(
+    cmd_vel_h: tuple[float, float, float] = (0.5, 0.0, 0.0),
+    seconds: float = 15.0,
+    num_robots: int = 1,
+    cfg: BaselineConfig = BaselineConfig(),
+    seed: int = 0,
+    device: str = "cpu",
+    model: mujoco.MjModel | None = None,
+) -> BaselineRun:
+    """Walk B robots on flat ground with the model-based baseline."""
+    from dls_quadruped.eval.balance_run import home_state
+
+    model = model if model is not None else mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))
+    decimation = int(round(cfg.sampler.mpc_period / model.opt.timestep))
+    ctrl = ModelBasedBaseline(num_robots, cfg, device, seed)
+    cmd = torch.tensor(cmd_vel_h, dtype=torch.float32).expand(num_robots, 3)
+    rec: dict[str, list] = {k: [] for k in ("time", "base_vel_w", "base_height", "roll", "pitch", "contact",
+                                            "best_cost", "initial_cost", "qpos")}
+    fallen = np.zeros(num_robots, dtype=bool)
+    with VecSim(model, num_robots, SimConfig(num_workers=0)) as sim:
+        state = sim.reset(torch.arange(num_robots), **home_state(num_robots, seed, 0.0))
+        for k in range(int(round(seconds / cfg.sampler.mpc_period))):
+            result, _ = ctrl.step(state, cmd)
+            sim.set_references(result.f, result.d, result.foot_target_w, result.force_w)
+            state = sim.step(decimation)
+            rpy = rpy_from_rotmat(quat_to_rotmat(state.base_quat_w.double()))
+            fallen |= (state.base_contact | state.diverged).numpy()
+            rec["time"].append((k + 1) * cfg.sampler.mpc_period)
+            rec["base_vel_w"].append(state.base_lin_vel_w.numpy().copy())
+            rec["base_height"].append(state.base_pos_w[:, 2].numpy().copy())
+            rec["roll"].append(rpy[:, 0].numpy())
+            rec["pitch"].append(rpy[:, 1].numpy())
+            rec["contact"].append(state.contact_cmd.numpy().copy())
+            rec["best_cost"].append(result.best_cost.cpu().numpy())
+            rec["initial_cost"].append(result.initial_cost.cpu().numpy())
+            rec["qpos"].append(torch.cat([state.base_pos_w, state.base_quat_w, state.joint_pos], 1).numpy())
+    return BaselineRun(**{k: np.asarray(v) for k, v in rec.items()}, fallen=fallen)
