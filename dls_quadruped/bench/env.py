@@ -4,6 +4,8 @@ Measures, in one run on the same cores:
 
 * ``raw``: open-loop ``mujoco.batch.Batch`` physics (all threads, constant standing
   torques, no controller) — the ceiling;
+* ``python loop``: the alternative to ``Batch``, ``mj_step`` on one ``MjData`` per robot in a
+  Python loop (GIL held, one core);
 * ``backend``: the full backend (physics + Pinocchio + low-level control at every physics
   step), worker processes (one per core) and in-process, standing on flat ground with the
   references held (the high-level producer is not part of this number).
@@ -53,6 +55,21 @@ def raw_physics(model: mujoco.MjModel, n: int, seconds: float) -> float:
     return n * steps / (time.perf_counter() - t0)
 
 
+def loop_physics(model: mujoco.MjModel, n: int, seconds: float) -> float:
+    """The alternative to ``Batch``: a Python loop of ``mj_step`` over n MjData (one thread, GIL held)."""
+    datas = [mujoco.MjData(model) for _ in range(n)]
+    tau = _standing_torques(model)
+    for d in datas:
+        mujoco.mj_resetDataKeyframe(model, d, 0)
+        d.ctrl[:] = tau
+    steps, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for d in datas:
+            mujoco.mj_step(model, d)
+        steps += 1
+    return n * steps / (time.perf_counter() - t0)
+
+
 def full_backend(model: mujoco.MjModel, n: int, seconds: float, workers: int) -> float:
     """Full-backend physics steps per second (physics + Pinocchio + low-level control)."""
     with VecSim(model, n, SimConfig(num_workers=workers)) as sim:
@@ -76,12 +93,13 @@ def main() -> None:
     rows = []
     for n in args.sizes:
         raw = raw_physics(model, n, args.seconds)
+        loop = loop_physics(model, n, args.seconds)
         workers = full_backend(model, n, args.seconds, workers=-1)
         inproc = full_backend(model, n, args.seconds, workers=0)
-        rows.append({"num_envs": n, "raw_steps_per_s": raw, "backend_workers_steps_per_s": workers,
+        rows.append({"num_envs": n, "raw_steps_per_s": raw, "python_loop_mj_step_per_s": loop, "backend_workers_steps_per_s": workers,
                      "backend_inprocess_steps_per_s": inproc, "ratio_workers_to_raw": workers / raw,
                      "ratio_inprocess_to_raw": inproc / raw})
-        print(f"N={n}: raw {raw:,.0f}/s, backend ({cores} workers) {workers:,.0f}/s ({workers / raw:.2f} x raw), "
+        print(f"N={n}: raw {raw:,.0f}/s (python mj_step loop {loop:,.0f}/s), backend ({cores} workers) {workers:,.0f}/s ({workers / raw:.2f} x raw), "
               f"in-process {inproc:,.0f}/s ({inproc / raw:.2f} x raw)", flush=True)
     result = {
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": cores, "python": platform.python_version(),
@@ -93,10 +111,11 @@ def main() -> None:
     tmp = args.out / "env_throughput.json.tmp"
     tmp.write_text(json.dumps(result, indent=2))
     tmp.replace(args.out / "env_throughput.json")
-    print("\n| N | raw Batch physics [steps/s] | full backend, workers [steps/s] | ratio | full backend, in-process [steps/s] | ratio |")
-    print("|---|---|---|---|---|---|")
+    print("\n| N | raw Batch physics [steps/s] | python mj_step loop [steps/s] | full backend, workers [steps/s] | ratio "
+          "| full backend, in-process [steps/s] | ratio |")
+    print("|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['num_envs']} | {r['raw_steps_per_s']:,.0f} | {r['backend_workers_steps_per_s']:,.0f} | "
+        print(f"| {r['num_envs']} | {r['raw_steps_per_s']:,.0f} | {r['python_loop_mj_step_per_s']:,.0f} | {r['backend_workers_steps_per_s']:,.0f} | "
               f"{r['ratio_workers_to_raw']:.2f} | {r['backend_inprocess_steps_per_s']:,.0f} | {r['ratio_inprocess_to_raw']:.2f} |")
 
 
