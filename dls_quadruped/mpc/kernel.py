@@ -14,6 +14,7 @@ draw -> clip -> decode -> contact sequence -> frames -> SRBD rollout -> cost (Al
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import warnings
 from collections.abc import Callable
@@ -228,7 +229,7 @@ def _fast_fn(cfg: SamplerConfig, model: SRBDModel, compiled: bool) -> Callable[.
     if not compiled:
         return fused
     # Realise shared intermediates early so the unrolled graph is not re-inlined into every use.
-    return torch.compile(fused, dynamic=False, fullgraph=True, options=_INDUCTOR_OPTIONS)
+    return torch.compile(fused, dynamic=None, fullgraph=True, options=_INDUCTOR_OPTIONS)
 
 
 _INDUCTOR_OPTIONS = {"realize_opcount_threshold": 4, "realize_reads_threshold": 2}
@@ -241,9 +242,15 @@ def fast_costs(inp: KernelInputs, cfg: SamplerConfig, model: SRBDModel, compiled
     """(B, M) costs with the fused kernel (compiled unless ``compiled=False`` or compilation failed)."""
     args = (inp.seed, inp.warm_starts, inp.group, inp.perturb, inp.x0, inp.phase, inp.base_xy_w, inp.base_yaw,
             inp.terrain_z_w, inp.refs.com_height_w, inp.refs.lin_vel_w, inp.refs.yaw_rate, inp.refs.foothold_w)
+    # M is a runtime size, not a constant of the kernel: one compiled function per everything-but-M
+    # (dynamo keeps at most 8 compiled variants of one function, so per-M closures would fall back to eager).
+    cfg = dataclasses.replace(cfg, num_samples=1, kernel="fast")
     key = (cfg, model, inp.x0.device.type)
     if compiled and key not in _COMPILE_FAILED:
         try:
+            # one compiled kernel for every M (B and the rest stay static)
+            torch._dynamo.mark_dynamic(inp.group, 0)
+            torch._dynamo.mark_dynamic(inp.perturb, 0)
             return _fast_fn(cfg, model, True)(*args)
         except Exception as err:  # noqa: BLE001 - inductor/compiler missing or broken: stay correct, just slower
             _COMPILE_FAILED.add(key)

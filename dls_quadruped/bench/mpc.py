@@ -1,0 +1,194 @@
+"""MPC solve-time benchmark (issue 3 item 5): ``python -m dls_quadruped.bench.mpc [--quick]``.
+
+Times one full :meth:`SamplingMPC.solve` (validation, sampling, rollouts, argmin, decoding the
+winner) for M samples x N steps, B = 1 robot, two warm starts (naive + external, 50/50), every
+variable optimised (sigma_f, sigma_d, sigma_p, sigma_F > 0, first-spline encoding), for the
+``fast`` and the ``reference`` kernel, on the CPU with the threads torch has and on CUDA when
+present. Median and p90 over ``--solves`` solves after warm-up (the first call compiles).
+
+Writes results/bench/mpc.json (with machine info), results/bench/mpc_solve_time.png, prints a
+markdown table and rewrites the "## MPC solve time" section of docs/benchmarks.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+from dls_quadruped.mpc import Refs, SamplerConfig, SamplingMPC, SRBDState, warm_start
+
+REPO = Path(__file__).resolve().parents[2]
+SECTION = "## MPC solve time"
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def machine_info() -> dict:
+    """CPU model, threads, torch version, CUDA device, load average."""
+    info = {"cpu": _cpu_model(), "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+            "torch": torch.__version__, "python": platform.python_version(),
+            "load_avg_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
+    if torch.cuda.is_available():
+        info["cuda_device"] = torch.cuda.get_device_name(0)
+    return info
+
+
+def _problem(device: str) -> tuple[SRBDState, Refs, torch.Tensor]:
+    feet = torch.tensor([[0.24, 0.134, 0.0265], [0.24, -0.134, 0.0265], [-0.24, 0.134, 0.0265],
+                         [-0.24, -0.134, 0.0265]])
+    state = SRBDState(torch.tensor([[0.0, 0.0, 0.32]]), torch.tensor([[0.3, 0.0, 0.0]]), torch.tensor([[0.02, -0.01, 0.0]]),
+                      torch.tensor([[0.1, 0.0, 0.0]]), feet[None].clone()).to(device)
+    refs = Refs(torch.tensor([0.33]), torch.tensor([[0.5, 0.0]]), torch.tensor([0.0]), feet[None].clone()).to(device)
+    phase = torch.tensor([[0.1, 0.6, 0.6, 0.1]], device=device)
+    return state, refs, phase
+
+
+def time_solves(num_samples: int, horizon: int, kernel: str, device: str, solves: int, warmup: int = 3) -> dict:
+    """Median / p90 wall time [ms] of ``solves`` solves after ``warmup`` (first one timed as compile)."""
+    cfg = SamplerConfig(num_samples=num_samples, horizon=horizon, kernel=kernel)
+    mpc = SamplingMPC(cfg, device=device, seed=0)
+    state, refs, phase = _problem(device)
+    default = warm_start.nominal_trot(1, cfg).to(device)
+    external = warm_start.nominal_trot(1, cfg, freq=1.8).to(device)
+    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+
+    def solve() -> None:
+        mpc.solve(state, refs, [mpc.naive_warm_start(default), external], proportions=(0.5, 0.5), phase=phase)
+        sync()
+
+    t0 = time.perf_counter()
+    solve()
+    first = time.perf_counter() - t0
+    for _ in range(warmup):
+        solve()
+    times = []
+    for _ in range(solves):
+        t0 = time.perf_counter()
+        solve()
+        times.append((time.perf_counter() - t0) * 1e3)
+    times.sort()
+    return {"M": num_samples, "N": horizon, "kernel": kernel, "device": device, "solves": solves,
+            "median_ms": statistics.median(times), "p90_ms": times[int(0.9 * (len(times) - 1))],
+            "min_ms": times[0], "first_call_s": first}
+
+
+def markdown_table(results: list[dict]) -> str:
+    """Rows (device, N, M) with fast / reference median and p90 and the speed-up."""
+    keyed = {(r["device"], r["N"], r["M"], r["kernel"]): r for r in results}
+    lines = ["| device | N | M | fast median [ms] | fast p90 [ms] | reference median [ms] | reference p90 [ms] | speed-up |",
+             "|---|---|---|---|---|---|---|---|"]
+    for dev, n, m in sorted({(r["device"], r["N"], r["M"]) for r in results}):
+        fast, ref = keyed.get((dev, n, m, "fast")), keyed.get((dev, n, m, "reference"))
+        cell = lambda r, k: f"{r[k]:.2f}" if r else "-"
+        speed = f"{ref['median_ms'] / fast['median_ms']:.1f}x" if fast and ref else "-"
+        lines.append(f"| {dev} | {n} | {m} | {cell(fast, 'median_ms')} | {cell(fast, 'p90_ms')} | "
+                     f"{cell(ref, 'median_ms')} | {cell(ref, 'p90_ms')} | {speed} |")
+    return "\n".join(lines)
+
+
+def plot(results: list[dict], path: Path) -> None:
+    """Solve time vs samples, one line per (device, kernel, N)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for dev, kernel, n in sorted({(r["device"], r["kernel"], r["N"]) for r in results}):
+        rows = sorted((r for r in results if (r["device"], r["kernel"], r["N"]) == (dev, kernel, n)), key=lambda r: r["M"])
+        ax.plot([r["M"] for r in rows], [r["median_ms"] for r in rows], marker="o",
+                linestyle="-" if kernel == "fast" else "--", label=f"{kernel} {dev} N={n}")
+    ax.axhline(4.0, color="grey", linewidth=0.8, linestyle=":", label="4 ms target (CPU)")
+    ax.set(xscale="log", yscale="log", xlabel="samples M", ylabel="median solve time [ms]",
+           title="Sampling MPC solve time (B = 1)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def update_docs(table: str, info: dict, results: list[dict], path: Path) -> None:
+    """Replace (or append) the '## MPC solve time' section of docs/benchmarks.md."""
+    ref10 = [r for r in results if r["kernel"] == "reference" and r["N"] == 10 and r["M"] == 10000 and r["device"] == "cpu"]
+    fast10 = [r for r in results if r["kernel"] == "fast" and r["N"] == 10 and r["M"] == 10000 and r["device"] == "cpu"]
+    headline = ""
+    if ref10 and fast10:
+        headline = (f"M = 10 000, N = 10 on the CPU: fast {fast10[0]['median_ms']:.2f} ms median "
+                    f"(p90 {fast10[0]['p90_ms']:.2f} ms) vs reference {ref10[0]['median_ms']:.1f} ms: "
+                    f"speed-up {ref10[0]['median_ms'] / fast10[0]['median_ms']:.1f}x (target <= 4 ms).\n\n")
+    body = (
+        f"{SECTION}\n\n"
+        "`python -m dls_quadruped.bench.mpc` (issue 3 item 5): one full `SamplingMPC.solve` for B = 1 robot, "
+        "two warm starts (50/50), f, d, p and F all sampled, first-spline encoding, dt = 0.02 s; median and p90 "
+        f"over {results[0]['solves']} solves after warm-up. `fast` = the torch.compile'd fused kernel, "
+        "`reference` = the straightforward eager kernel (the in-run reference). "
+        f"Machine: {info['cpu']}, {info['cpu_count']} cores, {info['torch_threads']} torch threads, torch "
+        f"{info['torch']}, load average at start {info['load_avg_1_5_15']} (the cores are shared with other jobs, "
+        "so timings are noisy).\n\n"
+        f"{headline}{table}\n\n"
+        "Raw numbers: `results/bench/mpc.json`; plot: `results/bench/mpc_solve_time.png`.\n"
+    )
+    text = path.read_text() if path.exists() else "# Benchmarks\n"
+    if SECTION in text:
+        start = text.index(SECTION)
+        nxt = text.find("\n## ", start + len(SECTION))
+        text = text[:start] + body + (text[nxt + 1:] if nxt >= 0 else "")
+    else:
+        text = text.rstrip("\n") + "\n\n" + body
+    path.write_text(text)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="reduced grid (M in 1000, 4000; N = 5; 10 solves)")
+    parser.add_argument("--solves", type=int, default=50, help="timed solves per point (default 50)")
+    parser.add_argument("--reference-all", action="store_true", help="reference kernel at every N (default N = 10)")
+    parser.add_argument("--out", type=Path, default=REPO / "results" / "bench")
+    parser.add_argument("--docs", type=Path, default=REPO / "docs" / "benchmarks.md")
+    parser.add_argument("--no-docs", action="store_true", help="do not touch docs/benchmarks.md")
+    args = parser.parse_args(argv)
+    if args.quick:
+        ms, ns, solves, ref_ns = (1000, 4000), (5,), min(args.solves, 10), (5,)
+    else:
+        ms, ns, solves = (1000, 4000, 10000, 25000), (5, 10, 15), args.solves
+        ref_ns = ns if args.reference_all else (10,)
+    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    info = machine_info()
+    results = []
+    for device in devices:
+        for n in ns:
+            for m in ms:
+                for kernel in ("fast", "reference"):
+                    if kernel == "reference" and n not in ref_ns:
+                        continue
+                    r = time_solves(m, n, kernel, device, solves)
+                    results.append(r)
+                    print(f"{device} {kernel:9s} N={n:2d} M={m:6d}: median {r['median_ms']:8.2f} ms  "
+                          f"p90 {r['p90_ms']:8.2f} ms  (first call {r['first_call_s']:.1f} s)", flush=True)
+    info["load_avg_end"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "mpc.json").write_text(json.dumps({"machine": info, "results": results}, indent=2))
+    plot(results, args.out / "mpc_solve_time.png")
+    table = markdown_table(results)
+    print(table)
+    if not args.no_docs and not args.quick:
+        update_docs(table, info, results, args.docs)
+
+
+if __name__ == "__main__":
+    main()
