@@ -12,7 +12,9 @@ Step order (IsaacLab's ``ManagerBasedRLEnv.step``):
 7. observation manager -> TensorDict of groups.
 
 Returns ``(obs, reward, dones, extras)`` with ``extras["time_outs"]`` (time limits, bootstrapped
-by PPO) and ``extras["log"]`` (episode means, curriculum values). The last observation of a
+by PPO) and ``extras["log"]`` (episode means, curriculum values, and
+``Episode_Metric/lin_vel_xy_error``: mean over the resetting envs of the per-step planar
+velocity-tracking error |v_xy,b - v_cmd,xy| [m/s] averaged over their episode). The last observation of a
 reset env is the first one of its new episode (as in IsaacLab).
 
 What terms see (``env.<attr>``): ``state`` (RobotState on ``device``), ``num_envs``, ``device``,
@@ -46,6 +48,7 @@ from dls_quadruped.envs.managers.reward import RewardManager
 from dls_quadruped.envs.managers.scene import SceneManager
 from dls_quadruped.envs.managers.termination import TerminationManager
 from dls_quadruped.envs.mdp import events as event_mdp
+from dls_quadruped.envs.mdp import observations as obs_mdp
 from dls_quadruped.sim.state import RobotState
 
 
@@ -90,6 +93,7 @@ class LocomotionEnv(VecEnv):
         self.robot_weight = self.scene.sim.total_weight()
         self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
         self.common_step_counter = 0
+        self._vel_err_sum = torch.zeros(self.num_envs, device=self.device)  # sum over the episode of |v_xy - cmd_xy| [m/s]
         self._state = self._to_device(self.scene.sim.state)
         self.command_manager = CommandManager(self.task, self)
         self.action_manager = ActionManager(self.task, self)
@@ -139,6 +143,8 @@ class LocomotionEnv(VecEnv):
         self._refresh()
         self.episode_length_buf += 1
         self.common_step_counter += 1
+        self._vel_err_sum += torch.linalg.vector_norm(
+            obs_mdp.base_lin_vel(self)[:, :2] - self.command_manager.command[:, :2], dim=-1)
         dones = self.termination_manager.compute()
         reward = self.reward_manager.compute(self.step_dt)
         time_outs = self.termination_manager.time_outs.clone()
@@ -166,6 +172,9 @@ class LocomotionEnv(VecEnv):
         self._refresh()
         for manager in (self.reward_manager, self.termination_manager, self.action_manager, self.command_manager):
             log.update(manager.reset(env_ids))
+        steps = self.episode_length_buf[env_ids].clamp(min=1)
+        log["Episode_Metric/lin_vel_xy_error"] = float((self._vel_err_sum[env_ids] / steps).mean())
+        self._vel_err_sum[env_ids] = 0.0
         self.episode_length_buf[env_ids] = 0
 
     def close(self) -> None:

@@ -1,0 +1,94 @@
+"""Learning curve of a training run from its TensorBoard events: CSV + PNG.
+
+    python -m dls_quadruped.viz.learning_curve runs/base/<run> --csv docs/learning_curve_base.csv \
+        --png docs/learning_curve_base.png
+
+Per PPO iteration: ``Train/mean_reward`` (mean return of the episodes finished so far, rsl-rl's
+window of 100), ``Train/mean_episode_length`` [policy steps, 50 per s], the velocity-tracking error
+``Episode_Metric/lin_vel_xy_error`` (|v_xy,b - v_cmd,xy| averaged over each finished episode [m/s],
+logged by ``LocomotionEnv``) and the iteration time (``Perf/collection_time + Perf/learning_time`` [s]).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+COLUMNS = {
+    "mean_reward": "Train/mean_reward",
+    "mean_episode_length": "Train/mean_episode_length",
+    "lin_vel_xy_error": "Episode_Metric/lin_vel_xy_error",
+    "collection_s": "Perf/collection_time",
+    "learning_s": "Perf/learning_time",
+}
+
+
+def read_run(run_dir: Path) -> list[dict[str, float]]:
+    """Rows {iteration, <COLUMNS>} from every event file of ``run_dir`` (later files win on resume)."""
+    rows: dict[int, dict[str, float]] = {}
+    for events in sorted(Path(run_dir).glob("events.out.tfevents.*")):
+        acc = EventAccumulator(str(events), size_guidance={"scalars": 0})
+        acc.Reload()
+        tags = set(acc.Tags()["scalars"])
+        for col, tag in COLUMNS.items():
+            if tag in tags:
+                for ev in acc.Scalars(tag):
+                    rows.setdefault(ev.step, {"iteration": ev.step})[col] = ev.value
+    if not rows:
+        raise FileNotFoundError(f"no TensorBoard scalars under {run_dir}")
+    return [rows[k] for k in sorted(rows)]
+
+
+def write_csv(rows: list[dict[str, float]], path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cols = ["iteration", *COLUMNS]
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for r in rows:
+            w.writerow([r["iteration"]] + [f"{r[c]:.5g}" if c in r else "" for c in cols[1:]])
+
+
+def plot(rows: list[dict[str, float]], path: Path, title: str) -> None:
+    it = [r["iteration"] for r in rows]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    specs = [("mean_reward", "mean reward (episode return)"), ("mean_episode_length", "mean episode length [steps]"),
+             ("lin_vel_xy_error", "velocity-tracking error |v_xy - v_cmd| [m/s]")]
+    for ax, (col, label) in zip(axes, specs):
+        pts = [(i, r[col]) for i, r in zip(it, rows) if col in r]
+        if pts:
+            ax.plot(*zip(*pts), lw=1.2)
+        ax.set_xlabel("PPO iteration")
+        ax.set_title(label, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[1].axhline(750, color="grey", ls="--", lw=0.8)  # 15 s episode = 750 steps
+    axes[2].axhline(0.15, color="grey", ls="--", lw=0.8)  # thesis target on the simple task
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("run_dir", type=Path)
+    p.add_argument("--csv", type=Path, required=True)
+    p.add_argument("--png", type=Path, required=True)
+    p.add_argument("--title", default=None)
+    args = p.parse_args(argv)
+    rows = read_run(args.run_dir)
+    write_csv(rows, args.csv)
+    plot(rows, args.png, args.title or f"{args.run_dir}")
+    print(f"[learning_curve] {len(rows)} iterations -> {args.csv}, {args.png}")
+
+
+if __name__ == "__main__":
+    main()
