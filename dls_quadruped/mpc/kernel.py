@@ -105,12 +105,13 @@ def _build_fused(cfg: SamplerConfig, model: SRBDModel) -> Callable[..., torch.Te
         return [basis[k][0] * th[0] + basis[k][1] * th[1] + basis[k][2] * th[2] + basis[k][3] * th[3]
                 for k in range(n_steps)]
 
-    def fused(seed, warm_starts, group, perturb, x0, phase, base_xy_w, base_yaw, terrain_z_w,
+    def fused(seed, offset, m_total, warm_starts, group, perturb, x0, phase, base_xy_w, base_yaw, terrain_z_w,
               com_height_w, lin_vel_w, yaw_rate, foothold_w):
+        # group/perturb: (C,) the chunk of samples offset .. offset + C - 1 out of m_total
         b, m = x0.shape[0], group.shape[0]
         device = x0.device
         rows = torch.arange(b, device=device)[:, None]
-        counter0 = (rows * m + torch.arange(m, device=device)[None, :]) * (dim // 2)  # (B, M)
+        counter0 = (rows * m_total + offset + torch.arange(m, device=device)[None, :]) * (dim // 2)  # (B, C)
         center = warm_starts[rows, group[None, :]]  # (B, M, D), gathered lazily by inductor
         pert = perturb[None, :]
         P = []  # encoded entries, each (B, M)
@@ -228,32 +229,57 @@ def _fast_fn(cfg: SamplerConfig, model: SRBDModel, compiled: bool) -> Callable[.
     fused = _build_fused(cfg, model)
     if not compiled:
         return fused
-    # Realise shared intermediates early so the unrolled graph is not re-inlined into every use.
-    return torch.compile(fused, dynamic=None, fullgraph=True, options=_INDUCTOR_OPTIONS)
+    return torch.compile(fused, dynamic=False, fullgraph=True, options=_INDUCTOR_OPTIONS)
 
 
+# Realise shared intermediates early so the unrolled graph is not re-inlined into every use.
+# Chosen from a handful of trials on the 2-core dev machine (defaults, one giant fused loop via a
+# large max_fusion_size, dynamic M); the timings there are dominated by core contention, so
+# re-tune on a quiet machine.
 _INDUCTOR_OPTIONS = {"realize_opcount_threshold": 4, "realize_reads_threshold": 2}
-
+CHUNK = 4096
+"""Samples per compiled-kernel call. Static shapes vectorise and parallelise better than a dynamic M
+(measured), and a fixed chunk makes one compilation serve every M (the last chunk is padded)."""
 
 _COMPILE_FAILED: set[tuple] = set()
 
 
 def fast_costs(inp: KernelInputs, cfg: SamplerConfig, model: SRBDModel, compiled: bool = True) -> torch.Tensor:
-    """(B, M) costs with the fused kernel (compiled unless ``compiled=False`` or compilation failed)."""
-    args = (inp.seed, inp.warm_starts, inp.group, inp.perturb, inp.x0, inp.phase, inp.base_xy_w, inp.base_yaw,
-            inp.terrain_z_w, inp.refs.com_height_w, inp.refs.lin_vel_w, inp.refs.yaw_rate, inp.refs.foothold_w)
-    # M is a runtime size, not a constant of the kernel: one compiled function per everything-but-M
-    # (dynamo keeps at most 8 compiled variants of one function, so per-M closures would fall back to eager).
+    """(B, M) costs with the fused kernel (compiled unless ``compiled=False`` or compilation failed).
+
+    The samples are processed in chunks of :data:`CHUNK` by the same compiled function (the noise
+    counters use the global sample index, so chunking does not change any number).
+    """
+    m = inp.group.shape[0]
+    chunk = min(CHUNK, m) if not compiled else CHUNK
+    num_chunks = -(-m // chunk)
+    pad = num_chunks * chunk - m
+    group, perturb = inp.group, inp.perturb
+    if pad:
+        group = torch.cat([group, group.new_zeros(pad)])
+        perturb = torch.cat([perturb, perturb.new_ones(pad)])
+    m_total = torch.tensor(m, dtype=torch.int64, device=inp.x0.device)
+    rest = (inp.warm_starts, inp.x0, inp.phase, inp.base_xy_w, inp.base_yaw, inp.terrain_z_w, inp.refs.com_height_w,
+            inp.refs.lin_vel_w, inp.refs.yaw_rate, inp.refs.foothold_w)
+    # M is not a constant of the kernel: one compiled function per everything-but-M
     cfg = dataclasses.replace(cfg, num_samples=1, kernel="fast")
     key = (cfg, model, inp.x0.device.type)
+    fn = None
     if compiled and key not in _COMPILE_FAILED:
-        try:
-            # one compiled kernel for every M (B and the rest stay static)
-            torch._dynamo.mark_dynamic(inp.group, 0)
-            torch._dynamo.mark_dynamic(inp.perturb, 0)
-            return _fast_fn(cfg, model, True)(*args)
-        except Exception as err:  # noqa: BLE001 - inductor/compiler missing or broken: stay correct, just slower
-            _COMPILE_FAILED.add(key)
-            warnings.warn(f"torch.compile of the MPC kernel failed ({type(err).__name__}: {err}); "
-                          f"falling back to the eager fused kernel", RuntimeWarning, stacklevel=2)
-    return _fast_fn(cfg, model, False)(*args)
+        fn = _fast_fn(cfg, model, True)
+    out = []
+    for c in range(num_chunks):
+        offset = torch.tensor(c * chunk, dtype=torch.int64, device=inp.x0.device)
+        args = (inp.seed, offset, m_total, inp.warm_starts, group[c * chunk:(c + 1) * chunk],
+                perturb[c * chunk:(c + 1) * chunk], *rest[1:])
+        if fn is not None:
+            try:
+                out.append(fn(*args))
+                continue
+            except Exception as err:  # noqa: BLE001 - inductor/compiler missing or broken: stay correct, just slower
+                _COMPILE_FAILED.add(key)
+                fn = None
+                warnings.warn(f"torch.compile of the MPC kernel failed ({type(err).__name__}: {err}); "
+                              f"falling back to the eager fused kernel", RuntimeWarning, stacklevel=2)
+        out.append(_fast_fn(cfg, model, False)(*args))
+    return torch.cat(out, dim=1)[:, :m]

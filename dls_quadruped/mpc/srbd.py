@@ -237,6 +237,13 @@ def srbd_state_from_base(
     return SRBDState(com_pos_w, com_vel_w, euler, base_ang_vel_b.clone(), foot_pos_w.clone())
 
 
+def srbd_state_from_robot_state(robot_state, model: SRBDModel | None = None) -> SRBDState:
+    """:func:`srbd_state_from_base` applied to a :class:`dls_quadruped.sim.state.RobotState` (B robots)."""
+    rs = robot_state
+    return srbd_state_from_base(rs.base_pos_w, rs.base_quat_w, rs.base_lin_vel_w, rs.base_ang_vel_b, rs.foot_pos_w,
+                                model)
+
+
 # ----------------------------------------------------------------------------------------------
 # Reference (plain eager) rollout
 # ----------------------------------------------------------------------------------------------
