@@ -164,6 +164,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--docs", type=Path, default=REPO / "docs" / "benchmarks.md")
     parser.add_argument("--no-docs", action="store_true", help="do not touch docs/benchmarks.md")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (default: torch's choice)")
+    parser.add_argument("--horizons", type=int, nargs="+", default=None, help="override the N grid")
+    parser.add_argument("--samples", type=int, nargs="+", default=None, help="override the M grid")
     parser.add_argument("--render", type=Path, default=None,
                         help="only re-render the table, plot and docs from an existing mpc.json")
     args = parser.parse_args(argv)
@@ -182,6 +184,9 @@ def main(argv: list[str] | None = None) -> None:
     else:
         ms, ns, solves = (1000, 4000, 10000, 25000), (5, 10, 15), args.solves
         ref_ns = ns if args.reference_all else (10,)
+    ms, ns = tuple(args.samples or ms), tuple(args.horizons or ns)
+    if args.horizons and not args.reference_all and not args.quick:
+        ref_ns = tuple(n for n in ns if n == 10) or ns[:1]
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     info = machine_info()
     results = []
