@@ -58,6 +58,10 @@ clean:
 TASK ?= base
 TRAIN_NUM_ENVS ?= $(if $(filter command line environment,$(origin NUM_ENVS)),$(NUM_ENVS),256)
 ITERATIONS ?= 200
+# torch intra-op threads of the trainer: 1 is 5-8x faster than 2 for the PPO update when the two
+# cores are shared with other processes (OpenMP threads then wait on each other); raise it on a
+# machine of your own.
+TRAIN_THREADS ?= 1
 DEVICE ?= cpu
 SEED ?= 0
 RESUME ?=
@@ -67,7 +71,7 @@ PLAY_SECONDS ?= 10
 .PHONY: train play
 
 train: $(STAMP)
-	$(PY) -m dls_quadruped.learning.train --task $(TASK) --num-envs $(TRAIN_NUM_ENVS) --iterations $(ITERATIONS) \
+	OMP_NUM_THREADS=$(TRAIN_THREADS) $(PY) -m dls_quadruped.learning.train --task $(TASK) --num-envs $(TRAIN_NUM_ENVS) --iterations $(ITERATIONS) \
 		--device $(DEVICE) --seed $(SEED) $(if $(RESUME),--resume,)
 
 play: $(STAMP)

@@ -20,7 +20,7 @@ Measures, for the ``base`` task (flat ground) and the ``rough`` task at each N:
 Writes ``results/bench/rl_env.json`` (with the machine and its load, ``os.getloadavg``) and prints
 the markdown tables of ``docs/benchmarks.md``. Usage::
 
-    python -m dls_quadruped.bench.rl_env [--sizes 1024 4096] [--ppo-size 4096] [--quick]
+    python -m dls_quadruped.bench.rl_env [--sizes 1024 4096] [--ppo-size 4096] [--threads 1] [--quick]
 """
 
 from __future__ import annotations
@@ -241,8 +241,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--steps", type=int, default=10, help="measured RL steps per configuration")
     parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="N = 256, 4 steps, PPO at 256 (a smoke run)")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="torch intra-op threads of the main process (0: torch's default); 1 is far faster "
+                             "than 2 when the 2 cores are shared (OpenMP threads wait on each other)")
     parser.add_argument("--out", type=Path, default=Path("results/bench"))
     args = parser.parse_args(argv)
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
     if args.quick:
         args.sizes, args.ppo_size, args.split_size, args.steps, args.warmup = [256], 256, 256, 4, 1
     t0 = time.perf_counter()
