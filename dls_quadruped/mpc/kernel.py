@@ -112,11 +112,15 @@ def _build_fused(cfg: SamplerConfig, model: SRBDModel) -> Callable[..., torch.Te
         device = x0.device
         rows = torch.arange(b, device=device)[:, None]
         counter0 = (rows * m_total + offset + torch.arange(m, device=device)[None, :]) * (dim // 2)  # (B, C)
-        center = warm_starts[rows, group[None, :]]  # (B, M, D), gathered lazily by inductor
+        # warm start of each sample by a select chain over the G groups (G is static): a gather
+        # warm_starts[rows, group] would be scalarised lane by lane in inductor's vector code
+        is_group = [group[None, :] == g for g in range(1, warm_starts.shape[1])]
         pert = perturb[None, :]
         P = []  # encoded entries, each (B, M)
         for j in range(dim):
-            v = center[..., j]
+            v = warm_starts[:, 0, j:j + 1].expand(b, m)
+            for g, mask in enumerate(is_group, start=1):
+                v = torch.where(mask, warm_starts[:, g, j:j + 1], v)
             if j % 2 == 0 and (sigma[j] > 0.0 or sigma[j + 1] > 0.0):
                 z_pair = normal_pair(seed, counter0 + j // 2)
             if sigma[j] > 0.0:
