@@ -56,7 +56,8 @@ def write_csv(rows: list[dict[str, float]], path: Path) -> None:
             w.writerow([r["iteration"]] + [f"{r[c]:.5g}" if c in r else "" for c in cols[1:]])
 
 
-def plot(rows: list[dict[str, float]], path: Path, title: str) -> None:
+def plot(rows: list[dict[str, float]], path: Path, title: str, marks: tuple[int, ...] = ()) -> None:
+    """Three panels over the iterations; ``marks``: iterations to draw as dotted lines (e.g. a resume)."""
     it = [r["iteration"] for r in rows]
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     specs = [("mean_reward", "mean reward (episode return)"), ("mean_episode_length", "mean episode length [steps]"),
@@ -68,8 +69,12 @@ def plot(rows: list[dict[str, float]], path: Path, title: str) -> None:
         ax.set_xlabel("PPO iteration")
         ax.set_title(label, fontsize=10)
         ax.grid(alpha=0.3)
-    axes[1].axhline(750, color="grey", ls="--", lw=0.8)  # 15 s episode = 750 steps
-    axes[2].axhline(0.15, color="grey", ls="--", lw=0.8)  # thesis target on the simple task
+        for m in marks:
+            ax.axvline(m, color="tab:red", ls=":", lw=1.0)
+    axes[1].axhline(750, color="grey", ls="--", lw=0.8, label="15 s episode (time-out)")
+    axes[2].axhline(0.15, color="grey", ls="--", lw=0.8, label="0.15 m/s (target on the simple task)")
+    for ax in axes[1:]:
+        ax.legend(loc="upper left", fontsize=8)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -83,10 +88,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--csv", type=Path, required=True)
     p.add_argument("--png", type=Path, required=True)
     p.add_argument("--title", default=None)
+    p.add_argument("--mark", type=int, nargs="*", default=[], help="iterations to mark (dotted), e.g. a resume")
     args = p.parse_args(argv)
     rows = read_run(args.run_dir)
     write_csv(rows, args.csv)
-    plot(rows, args.png, args.title or f"{args.run_dir}")
+    plot(rows, args.png, args.title or f"{args.run_dir}", tuple(args.mark))
     print(f"[learning_curve] {len(rows)} iterations -> {args.csv}, {args.png}")
 
 
