@@ -52,12 +52,12 @@ clean:
 
 # ---------------------------------------------------------------------------------------------
 # RL training and playback (issue 4; owner of this block: the env/learning helper).
-# `make train TASK=rough NUM_ENVS=256 ITERATIONS=200 DEVICE=cpu SEED=0 RESUME=1`, see docs/train.md.
-# Defaults sized for the 2-core dev machine (~8-12 s per iteration at 256 envs, ~30-40 min in all;
-# docs/benchmarks.md "Learning curve"). NUM_ENVS on the command line overrides TRAIN_NUM_ENVS.
+# `make train TASK=rough NUM_ENVS=256 ITERATIONS=500 DEVICE=cpu SEED=0 RESUME=1`, see docs/train.md.
+# Defaults sized for the 2-core dev machine (~2.9 s per iteration at 256 envs for the base task,
+# ~25 min in all; docs/benchmarks.md "Learning curve"). NUM_ENVS on the command line overrides TRAIN_NUM_ENVS.
 TASK ?= base
 TRAIN_NUM_ENVS ?= $(if $(filter command line environment,$(origin NUM_ENVS)),$(NUM_ENVS),256)
-ITERATIONS ?= 200
+ITERATIONS ?= 500
 # torch intra-op threads of the trainer: 1 is 5-8x faster than 2 for the PPO update when the two
 # cores are shared with other processes (OpenMP threads then wait on each other); raise it on a
 # machine of your own.
