@@ -3,7 +3,7 @@
 Times one full :meth:`SamplingMPC.solve` (validation, sampling, rollouts, argmin, decoding the
 winner) for M samples x N steps, B = 1 robot, two warm starts (naive + external, 50/50), every
 variable optimised (sigma_f, sigma_d, sigma_p, sigma_F > 0, first-spline encoding), for the
-``fast`` and the ``reference`` kernel, on the CPU with the threads torch has and on CUDA when
+``fast``, ``cpp`` (CPU only) and ``reference`` kernels, on the CPU with the threads torch has and on CUDA when
 present. Median and p90 over ``--solves`` solves after warm-up (the first call compiles).
 
 Writes results/bench/mpc.json (with machine info), results/bench/mpc_solve_time.png, prints a
@@ -90,14 +90,16 @@ def time_solves(num_samples: int, horizon: int, kernel: str, device: str, solves
 def markdown_table(results: list[dict]) -> str:
     """Rows (device, N, M) with fast / reference median and p90 and the speed-up."""
     keyed = {(r["device"], r["N"], r["M"], r["kernel"]): r for r in results}
-    header = ("| device | N | M | fast median [ms] | fast p90 [ms] | fast min [ms] | reference median [ms] "
-              "| reference p90 [ms] | speed-up (medians) |")
-    lines = [header, "|---|---|---|---|---|---|---|---|---|"]
+    header = ("| device | N | M | fast median [ms] | fast p90 [ms] | fast min [ms] | cpp median [ms] | cpp p90 [ms] "
+              "| cpp min [ms] | reference median [ms] | reference p90 [ms] | speed-up fast (medians) |")
+    lines = [header, "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for dev, n, m in sorted({(r["device"], r["N"], r["M"]) for r in results}):
         fast, ref = keyed.get((dev, n, m, "fast")), keyed.get((dev, n, m, "reference"))
+        cpp = keyed.get((dev, n, m, "cpp"))
         cell = lambda r, k: f"{r[k]:.2f}" if r else "-"
         speed = f"{ref['median_ms'] / fast['median_ms']:.1f}x" if fast and ref else "-"
         lines.append(f"| {dev} | {n} | {m} | {cell(fast, 'median_ms')} | {cell(fast, 'p90_ms')} | {cell(fast, 'min_ms')} | "
+                     f"{cell(cpp, 'median_ms')} | {cell(cpp, 'p90_ms')} | {cell(cpp, 'min_ms')} | "
                      f"{cell(ref, 'median_ms')} | {cell(ref, 'p90_ms')} | {speed} |")
     return "\n".join(lines)
 
@@ -113,7 +115,7 @@ def plot(results: list[dict], path: Path) -> None:
     for dev, kernel, n in sorted({(r["device"], r["kernel"], r["N"]) for r in results}):
         rows = sorted((r for r in results if (r["device"], r["kernel"], r["N"]) == (dev, kernel, n)), key=lambda r: r["M"])
         ax.plot([r["M"] for r in rows], [r["median_ms"] for r in rows], marker="o",
-                linestyle="-" if kernel == "fast" else "--", label=f"{kernel} {dev} N={n}")
+                linestyle={"fast": "-", "cpp": "-."}.get(kernel, "--"), label=f"{kernel} {dev} N={n}")
     ax.axhline(4.0, color="grey", linewidth=0.8, linestyle=":", label="4 ms target (CPU)")
     ax.set(xscale="log", yscale="log", xlabel="samples M", ylabel="median solve time [ms]",
            title="Sampling MPC solve time (B = 1)")
@@ -136,7 +138,8 @@ def update_docs(table: str, info: dict, results: list[dict], path: Path) -> None
         f"{SECTION}\n\n"
         "`python -m dls_quadruped.bench.mpc` (issue 3 item 5): one full `SamplingMPC.solve` for B = 1 robot, "
         "two warm starts (50/50), f, d, p and F all sampled, first-spline encoding, dt = 0.02 s; median and p90 "
-        f"over {results[0]['solves']} solves after warm-up. `fast` = the torch.compile'd fused kernel, "
+        f"over {results[0]['solves']} solves after warm-up. `fast` = the torch.compile'd fused kernel, `cpp` = the "
+        "hand-written C++/OpenMP kernel, "
         "`reference` = the straightforward eager kernel (the in-run reference). "
         f"Machine: {info['cpu']}, {info['cpu_count']} cores, {info['torch_threads']} torch threads, torch "
         f"{info['torch']}, load average (1, 5, 15 min) at start {info['load_avg_1_5_15']} and end "
@@ -193,8 +196,8 @@ def main(argv: list[str] | None = None) -> None:
     for device in devices:
         for n in ns:
             for m in ms:
-                for kernel in ("fast", "reference"):
-                    if kernel == "reference" and n not in ref_ns:
+                for kernel in ("fast", "cpp", "reference"):
+                    if (kernel == "reference" and n not in ref_ns) or (kernel == "cpp" and device != "cpu"):
                         continue
                     r = time_solves(m, n, kernel, device, solves)
                     results.append(r)

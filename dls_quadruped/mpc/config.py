@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, fields
 from dls_quadruped.control.latent_action import LatentActionConfig
 
 ENCODING_KINDS = ("discrete", "spline", "first")
-KERNELS = ("fast", "reference")
+KERNELS = ("fast", "reference", "cpp")
 
 
 def _check_from_dict(cls: type, values: dict) -> None:
@@ -119,7 +119,9 @@ class SamplerConfig:
         sigma_F: [N] std of the force noise (per encoded parameter).
         mpc_period: [s] time between two solves (100 Hz); the naive warm start is shifted by
             mpc_period / dt horizon steps.
-        kernel: "fast" (torch.compile'd fused kernel, eager fallback) or "reference" (plain eager).
+        kernel: "cpp" (default: hand-written C++/OpenMP kernel built at first use; CPU only, falls
+            back to "fast" on other devices or if it cannot be built), "fast" (torch.compile'd fused
+            kernel, eager fallback) or "reference" (plain eager).
         weights: cost weights.
         action: latent-action limits (Table 1), nominal footholds, mass, mu.
     """
@@ -135,7 +137,7 @@ class SamplerConfig:
     sigma_p: float = 0.02
     sigma_F: float = 10.0
     mpc_period: float = 0.01
-    kernel: str = "fast"
+    kernel: str = "cpp"
     weights: CostWeights = field(default_factory=CostWeights)
     action: LatentActionConfig = field(default_factory=LatentActionConfig)
 

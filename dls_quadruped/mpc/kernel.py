@@ -10,6 +10,8 @@ draw -> clip -> decode -> contact sequence -> frames -> SRBD rollout -> cost (Al
   of the horizontal frame computed once - so that torch.compile (inductor: fused C++/OpenMP on CPU,
   Triton on CUDA) emits one elementwise loop over samples with the noise generated in registers and
   no intermediate tensors. If compilation fails it runs the same function eagerly, with a warning.
+* ``cpp``: the same per-sample maths in hand-written C++ (:mod:`cpp_kernel`, ``rollout_kernel.cpp``),
+  built at first use; CPU only. On another device, or if it cannot be built, ``fast`` runs instead.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from dataclasses import dataclass
 
 import torch
 
+from dls_quadruped.mpc import cpp_kernel
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import Refs, rollout_cost_reference
 from dls_quadruped.mpc.encodings import (
@@ -287,3 +290,15 @@ def fast_costs(inp: KernelInputs, cfg: SamplerConfig, model: SRBDModel, compiled
                               f"falling back to the eager fused kernel", RuntimeWarning, stacklevel=2)
         out.append(_fast_fn(cfg, model, False)(*args))
     return torch.cat(out, dim=1)[:, :m]
+
+
+def cpp_costs(inp: KernelInputs, cfg: SamplerConfig, model: SRBDModel) -> torch.Tensor:
+    """(B, M) costs with the C++ kernel on CPU tensors (threads: ``torch.get_num_threads()``).
+
+    Falls back to :func:`fast_costs` on a non-CPU device, or (after one ``RuntimeWarning``) when the
+    C++ library cannot be built.
+    """
+    lib = cpp_kernel.load() if inp.x0.device.type == "cpu" else None
+    if lib is None:
+        return fast_costs(inp, cfg, model)
+    return cpp_kernel.cpp_costs(inp, cfg, model, lib)

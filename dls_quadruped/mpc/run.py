@@ -63,7 +63,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=15.0)
     parser.add_argument("--samples", type=int, default=10000, help="M, samples per solve")
     parser.add_argument("--horizon", type=int, default=10, help="N, rollout steps of dt = 0.02 s")
-    parser.add_argument("--kernel", choices=KERNELS, default="fast")
+    parser.add_argument("--kernel", choices=KERNELS, default=SamplerConfig.kernel)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-video", action="store_true")

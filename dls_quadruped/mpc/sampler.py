@@ -5,7 +5,7 @@
                        phase=phase)
 
 Per solve: validate inputs -> split M into warm-start groups -> draw/clip/decode -> roll out and
-cost every sample (``fast`` or ``reference`` kernel, :mod:`kernel`) -> argmin -> re-draw and decode
+cost every sample (``cpp``, ``fast`` or ``reference`` kernel, :mod:`kernel`) -> argmin -> re-draw and decode
 the winner's first action. Robots whose state is not finite get the previous solution back
 (``fallback`` flag and ``reason``) instead of a meaningless argmin.
 """
@@ -21,7 +21,12 @@ import torch
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import Refs, initial_cost
 from dls_quadruped.mpc.encodings import encoded_dim, shift_encoded
-from dls_quadruped.mpc.kernel import KernelInputs, fast_costs, reference_costs
+from dls_quadruped.mpc.kernel import (
+    KernelInputs,
+    cpp_costs,
+    fast_costs,
+    reference_costs,
+)
 from dls_quadruped.mpc.samples import decode_samples, group_layout, sample_encoded
 from dls_quadruped.mpc.srbd import (
     SRBDModel,
@@ -215,7 +220,9 @@ class SamplingMPC:
         inp = KernelInputs(seed, ws, group, perturb, x0, phase.to(dev, torch.float32),
                            base_xy_w.to(dev, torch.float32), base_yaw.to(dev, torch.float32),
                            terrain_z_w.to(dev, torch.float32), refs)
-        if self.cfg.kernel == "fast":
+        if self.cfg.kernel == "cpp":
+            costs = cpp_costs(inp, self.cfg, self.model)
+        elif self.cfg.kernel == "fast":
             costs = fast_costs(inp, self.cfg, self.model)
         else:
             costs = reference_costs(inp, self.cfg, self.model)

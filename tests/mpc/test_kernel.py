@@ -1,13 +1,18 @@
-"""Fast (fused) kernel == reference kernel; counter-based noise statistics."""
+"""Fast (fused) and C++ kernels == reference kernel; C++ build fallback; counter-based noise statistics."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from dls_quadruped.mpc import warm_start
+from dls_quadruped.mpc import cpp_kernel, kernel, warm_start
 from dls_quadruped.mpc.config import SamplerConfig
-from dls_quadruped.mpc.kernel import KernelInputs, fast_costs, reference_costs
+from dls_quadruped.mpc.kernel import (
+    KernelInputs,
+    cpp_costs,
+    fast_costs,
+    reference_costs,
+)
 from dls_quadruped.mpc.rng import normals
 from dls_quadruped.mpc.samples import group_layout
 from dls_quadruped.mpc.srbd import robot_srbd_model
@@ -63,6 +68,62 @@ def test_compiled_matches_reference():
     inp = _inputs(cfg, seed=11)
     model = robot_srbd_model()
     _assert_costs_match(fast_costs(inp, cfg, model, compiled=True), reference_costs(inp, cfg, model))
+
+
+@pytest.fixture(scope="module")
+def cpp_lib():
+    lib = cpp_kernel.load()  # ~1 s cold build, cached afterwards
+    if lib is None:
+        pytest.skip("no working C++ compiler: the cpp kernel falls back to fast (tested below)")
+    return lib
+
+
+@pytest.mark.parametrize("enc_p,enc_F,horizon", [("first", "spline", 10), ("discrete", "discrete", 5),
+                                                 ("spline", "first", 7)])
+def test_cpp_matches_reference(cpp_lib, enc_p, enc_F, horizon):
+    cfg = SamplerConfig(num_samples=300, horizon=horizon, encoding_p=enc_p, encoding_F=enc_F)  # 300 = 18 x 16 + 12
+    inp = _inputs(cfg)
+    model = robot_srbd_model()
+    ref = reference_costs(inp, cfg, model)
+    assert torch.isfinite(ref).all()
+    _assert_costs_match(cpp_kernel.cpp_costs(inp, cfg, model, cpp_lib), ref)
+
+
+def test_cpp_sigma_off_threads_and_nan(cpp_lib):
+    cfg = SamplerConfig(num_samples=200, horizon=6, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0)
+    inp = _inputs(cfg, seed=3)
+    model = robot_srbd_model()
+    ref = reference_costs(inp, cfg, model)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        one = cpp_costs(inp, cfg, model)
+        torch.set_num_threads(2)
+        two = cpp_costs(inp, cfg, model)
+    finally:
+        torch.set_num_threads(threads)
+    _assert_costs_match(one, ref)
+    assert torch.equal(one, two)  # per-sample maths: the thread count changes no number
+    inp.x0[1, 7] = float("nan")  # robot 1 diverges: every sample +inf, robot 0 untouched
+    nan_costs = cpp_kernel.cpp_costs(inp, cfg, model, cpp_lib)
+    assert torch.isposinf(nan_costs[1]).all() and torch.isposinf(reference_costs(inp, cfg, model)[1]).all()
+    assert torch.equal(nan_costs[0], one[0])
+
+
+def test_cpp_build_failure_warns_and_falls_back(monkeypatch, tmp_path):
+    monkeypatch.setenv("CXX", str(tmp_path / "no-such-compiler"))
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
+    cpp_kernel.load.cache_clear()
+    try:
+        with pytest.warns(RuntimeWarning, match="falling back to the 'fast' kernel"):
+            assert cpp_kernel.load() is None
+        calls = []
+        monkeypatch.setattr(kernel, "fast_costs", lambda inp, cfg, model: calls.append(cfg) or torch.zeros(2, 3))
+        cfg = SamplerConfig(num_samples=3, horizon=5)
+        assert torch.equal(kernel.cpp_costs(_inputs(cfg), cfg, robot_srbd_model()), torch.zeros(2, 3))
+        assert calls == [cfg]
+    finally:
+        cpp_kernel.load.cache_clear()
 
 
 def test_counter_normals_statistics_and_determinism():
