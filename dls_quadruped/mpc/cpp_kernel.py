@@ -6,7 +6,7 @@ computed per sample in registers: one OpenMP loop over blocks of 16 samples, the
 only the (B, M) costs are written. float32 like the torch kernels.
 
 Build: the source is compiled at first use with the system C++ compiler into a plain shared library
-(``g++ -O3 -march=native -fopenmp``, dropping flags that the compiler rejects), cached by source hash
+(``g++ -O3 -march=native -fopenmp``, dropping flags that the compiler rejects), cached by source hash and host CPU
 in torch's extensions directory (``$TORCH_EXTENSIONS_DIR`` or ``~/.cache/torch_extensions``), and
 called through ctypes with the tensors' data pointers. No torch headers are involved, so a cold
 build takes about a second. :func:`load` returns None (after one ``RuntimeWarning``) if no
@@ -19,6 +19,7 @@ import ctypes
 import functools
 import hashlib
 import os
+import platform
 import shutil
 import subprocess
 import tempfile
@@ -77,12 +78,29 @@ def _compile(src: Path, lib: Path) -> str:
     return error
 
 
+def _host_signature() -> str:
+    """The CPU the library is built for: ``-march=native`` code must not be reused on another CPU
+    (a home directory shared by heterogeneous cluster nodes would otherwise hand an AVX-512
+    build to a node without it)."""
+    cpu = platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith(("model name", "flags")):
+                    cpu += "|" + line.split(":", 1)[1].strip()
+                if line.startswith("flags"):
+                    break
+    except OSError:
+        cpu += "|" + platform.processor()
+    return cpu
+
+
 @functools.lru_cache(maxsize=1)
 def load() -> ctypes.CDLL | None:
     """The compiled kernel library (built on first use), or None with a RuntimeWarning if it cannot be built."""
     try:
         text = SOURCE.read_bytes()
-        digest = hashlib.sha256(text + repr((FLAG_SETS, COMMON_FLAGS)).encode()).hexdigest()[:16]
+        digest = hashlib.sha256(text + repr((FLAG_SETS, COMMON_FLAGS, _host_signature())).encode()).hexdigest()[:16]
         out = build_dir()
         out.mkdir(parents=True, exist_ok=True)
         lib_path = out / f"rollout_kernel_{digest}.so"

@@ -37,7 +37,7 @@ def test_heuristic_footholds_match_eq_2_2_4_by_hand():
 
 def test_baseline_walks_forward_at_half_a_metre_per_second():
     """Issue 3 acceptance: 15 s at 0.5 m/s on flat ground, no fall, mean v_x within 0.1 m/s."""
-    cfg = BaselineConfig(sampler=SamplerConfig(num_samples=512, kernel="reference"))
+    cfg = BaselineConfig(sampler=SamplerConfig(num_samples=2000))  # default (C++) kernel
     run = run_baseline((0.5, 0.0, 0.0), seconds=15.0, cfg=cfg, seed=0)
     assert not run.fallen.any()
     settled = run.time > 2.0
