@@ -50,6 +50,24 @@ class SimConfig:
     control: LowLevelConfig = field(default_factory=LowLevelConfig)
 
 
+def _execute(shard: Shard, cmd: str, arg: Any) -> None:
+    """Run one backend command on a shard (same code in-process and in a worker).
+
+    ``arg`` is the step count for "step", the shard-local ids for "reset"/"set_lin_vel", and
+    ``(name, ids, values)`` for "model_field".
+    """
+    if cmd == "step":
+        shard.step(arg)
+    elif cmd == "reset":
+        shard.reset(arg)
+    elif cmd == "set_lin_vel":
+        shard.set_lin_vel(arg)
+    elif cmd == "model_field":
+        shard.set_model_field(*arg)
+    else:
+        raise ValueError(f"unknown backend command {cmd!r}")
+
+
 def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: SimConfig) -> None:
     """Worker process loop: execute commands on one shard until 'close'."""
     torch.set_num_threads(1)
@@ -61,18 +79,11 @@ def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: 
         return
     while True:
         cmd, arg = conn.recv()
+        if cmd == "close":
+            conn.send(("ok", None))
+            return
         try:
-            if cmd == "close":
-                conn.send(("ok", None))
-                return
-            if cmd == "step":
-                shard.step(arg)
-            elif cmd == "reset":
-                shard.reset(arg)
-            elif cmd == "set_lin_vel":
-                shard.set_lin_vel(arg)
-            elif cmd == "model_field":
-                shard.set_model_field(*arg)
+            _execute(shard, cmd, arg)
             conn.send(("ok", None))
         except Exception as err:
             conn.send(("error", f"{cmd}: {err!r}"))
@@ -156,8 +167,11 @@ class VecSim:
     def _dispatch(self, cmd: str, ids: torch.Tensor | None, payload: Any = None) -> None:
         """Send a command to the shards owning ``ids`` (all shards for None), with shard-local ids."""
         if self._shard is not None:
-            local = None if ids is None else ids.numpy()
-            self._run_local(cmd, local, payload)
+            if ids is None:
+                arg = payload
+            else:
+                arg = ids.numpy() if payload is None else (payload[0], ids.numpy(), payload[1])
+            _execute(self._shard, cmd, arg)
             return
         busy = []
         for w, conn in enumerate(self._conns):
@@ -175,17 +189,6 @@ class VecSim:
         errors = [msg for conn in busy for status, msg in [conn.recv()] if status != "ok"]
         if errors:
             raise RuntimeError("simulator backend failed: " + "; ".join(errors))
-
-    def _run_local(self, cmd: str, ids: np.ndarray | None, payload: Any) -> None:
-        shard = self._shard
-        if cmd == "step":
-            shard.step(payload)
-        elif cmd == "reset":
-            shard.reset(ids)
-        elif cmd == "set_lin_vel":
-            shard.set_lin_vel(ids)
-        elif cmd == "model_field":
-            shard.set_model_field(payload[0], ids, payload[1])
 
     @staticmethod
     def _ids(env_ids: torch.Tensor | np.ndarray | list[int]) -> torch.Tensor:
