@@ -230,3 +230,24 @@ def test_reset_placement_runs_before_other_reset_events(tmp_path):
         assert (env.scene.sim.buf.command["wrench_w"][:, :3] >= 5).all()  # not cleared by the placement
     finally:
         env.close()
+
+
+def test_velocity_tracking_metric_is_the_episode_mean_planar_error():
+    """Episode_Metric/lin_vel_xy_error = mean over the episode's steps of |v_xy,b - cmd_xy| (hand-accumulated)."""
+    from dls_quadruped.envs.mdp import observations as obs_mdp
+
+    env = make_env("base", env={"episode_length_s": 0.2})  # 10 policy steps
+    try:
+        by_hand = torch.zeros(4)
+        for _ in range(9):
+            env.step(torch.zeros(4, 28))
+            by_hand += torch.linalg.vector_norm(obs_mdp.base_lin_vel(env)[:, :2] - env.command_manager.command[:, :2], dim=-1)
+        torch.testing.assert_close(env._vel_err_sum, by_hand)
+        _, _, dones, extras = env.step(torch.zeros(4, 28))
+        assert dones.bool().all()
+        metric = extras["log"]["Episode_Metric/lin_vel_xy_error"]
+        assert metric >= float(by_hand.mean()) / 10 - 1e-6  # the 10th step only adds a non-negative error
+        assert metric <= float(by_hand.mean()) / 10 + 10.0 / 10  # and at most 10 m/s (a sanity bound) over 10 steps
+        assert (env._vel_err_sum == 0).all()
+    finally:
+        env.close()
