@@ -121,6 +121,8 @@ def main(argv: list[str] | None = None) -> Path:
     p.add_argument("--num-workers", type=int, default=0)
     p.add_argument("--no-video", action="store_true")
     args = p.parse_args(argv)
+    if args.checkpoint is not None and not args.checkpoint.is_file():
+        p.error(f"--checkpoint {args.checkpoint}: no such file (expected a runs/<task>/<run>/model_<it>.pt)")
     task = load_task(args.task, overrides={"scene": {"num_workers": args.num_workers}})
     env = LocomotionEnv(task, num_envs=args.num_envs, verbose=False)
     out = args.out or (args.checkpoint.parent / "play" if args.checkpoint else Path("runs") / task.name / "play")
