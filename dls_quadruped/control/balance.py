@@ -27,8 +27,9 @@ from dataclasses import dataclass
 import torch
 
 from dls_quadruped.control.latent_action import LatentAction
+from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
+from dls_quadruped.core.state import RobotState
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.state import RobotState
 
 
 @dataclass(frozen=True)
@@ -59,27 +60,6 @@ class BalanceConfig:
     duty: float = 0.6
     alpha: float = 1e-3
     wrench_weights: tuple[float, ...] = (1.0, 1.0, 10.0, 100.0, 100.0, 100.0)
-
-
-def quat_to_rotmat(quat_wxyz: torch.Tensor) -> torch.Tensor:
-    """Rotation matrix base -> world from (w, x, y, z) quaternions, (..., 4) -> (..., 3, 3)."""
-    w, x, y, z = quat_wxyz.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(*quat_wxyz.shape[:-1], 3, 3)
-
-
-def rpy_from_rotmat(R: torch.Tensor) -> torch.Tensor:
-    """(roll, pitch, yaw) with R = Rz(yaw) Ry(pitch) Rx(roll); (..., 3, 3) -> (..., 3)."""
-    roll = torch.atan2(R[..., 2, 1], R[..., 2, 2])
-    pitch = torch.asin((-R[..., 2, 0]).clamp(-1.0, 1.0))
-    yaw = torch.atan2(R[..., 1, 0], R[..., 0, 0])
-    return torch.stack([roll, pitch, yaw], dim=-1)
 
 
 def _skew(v: torch.Tensor) -> torch.Tensor:

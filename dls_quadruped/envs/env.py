@@ -33,6 +33,7 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
+from dls_quadruped.core.state import RobotState
 from dls_quadruped.envs.config import (
     TaskConfig,
     dataclass_from_dict,
@@ -49,7 +50,6 @@ from dls_quadruped.envs.managers.scene import SceneManager
 from dls_quadruped.envs.managers.termination import TerminationManager
 from dls_quadruped.envs.mdp import events as event_mdp
 from dls_quadruped.envs.mdp import observations as obs_mdp
-from dls_quadruped.sim.state import RobotState
 
 
 @dataclass(frozen=True)

@@ -13,18 +13,14 @@ import mujoco
 import numpy as np
 import torch
 
-from dls_quadruped.control.balance import (
-    BalanceConfig,
-    BalanceController,
-    quat_to_rotmat,
-    rpy_from_rotmat,
-)
+from dls_quadruped.control.balance import BalanceConfig, BalanceController
 from dls_quadruped.control.latent_action import (
     LatentActionConfig,
     clip,
     flat_ground,
     to_world,
 )
+from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.backend import SimConfig, VecSim
 

@@ -7,7 +7,7 @@ Usage (B robots, 100 Hz, the thesis's model-based baseline optimising the forces
 
     cfg = SamplerConfig(num_samples=10000, horizon=10, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0)
     mpc = SamplingMPC(cfg, device="cpu", seed=0)
-    state = srbd_state_from_robot_state(rs)                         # rs: sim.state.RobotState (B robots)
+    state = srbd_state_from_robot_state(rs)                         # rs: core.state.RobotState (B robots)
     refs = Refs(com_height_w=torch.full((B,), 0.33), lin_vel_w=cmd[:, :2], yaw_rate=cmd[:, 2],
                 foothold_w=heuristic_footholds_w)                    # (B, 4, 3)
     default = warm_start.nominal_trot(B, cfg)                        # (B, D) encoded

@@ -24,7 +24,8 @@ import mujoco
 import numpy as np
 import torch
 
-from dls_quadruped.control.balance import quat_to_rotmat, rpy_from_rotmat
+from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
+from dls_quadruped.core.state import RobotState
 from dls_quadruped.mpc import warm_start
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import Refs
@@ -33,7 +34,6 @@ from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
 from dls_quadruped.mpc.srbd import srbd_state_from_base
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.backend import SimConfig, VecSim
-from dls_quadruped.sim.state import RobotState
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
+from dls_quadruped.core.rotations import euler_from_quat
 from dls_quadruped.robots.aliengo import constants as C
 
 STATE_DIM = 24
@@ -132,23 +133,6 @@ def euler_rate_matrix_inv(euler: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.stack(r, dim=-1) for r in rows], dim=-2)
 
 
-def euler_from_quat(quat_wxyz: torch.Tensor) -> torch.Tensor:
-    """(roll, pitch, yaw) of a body -> world quaternion (w, x, y, z), for R = Rz Ry Rx.
-
-    Args:
-        quat_wxyz: (..., 4), need not be normalised.
-
-    Returns:
-        (..., 3) [rad]; pitch in [-pi/2, pi/2].
-    """
-    q = quat_wxyz / torch.linalg.vector_norm(quat_wxyz, dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    roll = torch.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))  # atan2(R32, R33)
-    pitch = torch.asin((2 * (w * y - z * x)).clamp(-1.0, 1.0))  # asin(-R31)
-    yaw = torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))  # atan2(R21, R11)
-    return torch.stack([roll, pitch, yaw], dim=-1)
-
-
 # ----------------------------------------------------------------------------------------------
 # State
 # ----------------------------------------------------------------------------------------------
@@ -238,7 +222,7 @@ def srbd_state_from_base(
 
 
 def srbd_state_from_robot_state(robot_state, model: SRBDModel | None = None) -> SRBDState:
-    """:func:`srbd_state_from_base` applied to a :class:`dls_quadruped.sim.state.RobotState` (B robots)."""
+    """:func:`srbd_state_from_base` applied to a :class:`dls_quadruped.core.state.RobotState` (B robots)."""
     rs = robot_state
     return srbd_state_from_base(rs.base_pos_w, rs.base_quat_w, rs.base_lin_vel_w, rs.base_ang_vel_b, rs.foot_pos_w,
                                 model)

@@ -29,8 +29,8 @@ import numpy as np
 import torch
 
 from dls_quadruped.control.lowlevel import LowLevelConfig
+from dls_quadruped.core.state import RobotState
 from dls_quadruped.sim.shard import STATE_SPECS, Shard, SharedBuffers
-from dls_quadruped.sim.state import RobotState
 
 _BOOL_FIELDS = ("base_contact", "diverged")
 

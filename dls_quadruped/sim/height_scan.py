@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import torch
 
+from dls_quadruped.core.rotations import yaw_from_quat
 from dls_quadruped.sim.terrain import Terrain
 
 
@@ -43,12 +44,6 @@ def scan_pattern(cfg: HeightScanConfig, device: torch.device | str = "cpu") -> t
     ys = torch.linspace(-0.5 * cfg.size[1], 0.5 * cfg.size[1], ny, device=device)
     gy, gx = torch.meshgrid(ys, xs, indexing="ij")  # (ny, nx): row = y, x fastest when flattened
     return torch.stack([gx.reshape(-1), gy.reshape(-1)], dim=-1)
-
-
-def yaw_from_quat(quat_w: torch.Tensor) -> torch.Tensor:
-    """Yaw [rad] of (..., 4) quaternions (w, x, y, z), ZYX convention."""
-    w, x, y, z = quat_w.unbind(-1)
-    return torch.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def scan_points_w(pattern: torch.Tensor, base_pos_w: torch.Tensor, base_quat_w: torch.Tensor) -> torch.Tensor:

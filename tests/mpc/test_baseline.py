@@ -7,10 +7,14 @@ import math
 import numpy as np
 import torch
 
-from dls_quadruped.mpc.baseline import BaselineConfig, heuristic_footholds_h, run_baseline
+from dls_quadruped.core.state import RobotState
+from dls_quadruped.mpc.baseline import (
+    BaselineConfig,
+    heuristic_footholds_h,
+    run_baseline,
+)
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.state import RobotState
 
 
 def _state(yaw: float, vel_w: tuple[float, float, float]) -> RobotState:

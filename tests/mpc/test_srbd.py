@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
+from dls_quadruped.core.rotations import euler_from_quat
 from dls_quadruped.mpc.srbd import (
     SRBDModel,
-    euler_from_quat,
     euler_rate_matrix_inv,
     robot_srbd_model,
     rollout_reference,

@@ -14,9 +14,9 @@ from dls_quadruped.control.latent_action import (
     ActionInterface,
     LatentActionConfig,
 )
+from dls_quadruped.core.rotations import yaw_from_quat
 from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
 from dls_quadruped.envs.managers.base import format_table
-from dls_quadruped.sim.height_scan import yaw_from_quat
 
 
 class ActionManager:

@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 import torch
 
-from dls_quadruped.envs.mdp.frames import quat_from_yaw
+from dls_quadruped.core.rotations import quat_from_yaw
 from dls_quadruped.robots.aliengo import constants as C
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import torch
 
-from dls_quadruped.envs.mdp.frames import quat_rotate_inverse
+from dls_quadruped.core.rotations import quat_rotate_inverse
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.height_scan import height_scan as _height_scan
 

@@ -51,10 +51,10 @@ class RobotState:
     time: torch.Tensor
     diverged: torch.Tensor
 
-    def clone(self) -> "RobotState":
+    def clone(self) -> RobotState:
         """Deep copy (the backend's tensors are live views that the next step overwrites)."""
         return RobotState(**{f.name: getattr(self, f.name).clone() for f in fields(self)})
 
-    def index(self, ids: torch.Tensor | slice) -> "RobotState":
+    def index(self, ids: torch.Tensor | slice) -> RobotState:
         """The state of a subset of robots."""
         return RobotState(**{f.name: getattr(self, f.name)[ids] for f in fields(self)})
