@@ -6,11 +6,13 @@ computed per sample in registers: one OpenMP loop over blocks of 16 samples, the
 only the (B, M) costs are written. float32 like the torch kernels.
 
 Build: the source is compiled at first use with the system C++ compiler into a plain shared library
-(``g++ -O3 -march=native -fopenmp``, dropping flags that the compiler rejects), cached by source hash and host CPU
+(``g++ -O3 -march=native -fopenmp``; if that fails, generic ``-O3 -fopenmp``, then without OpenMP, and a
+build that fell back says once per process which flags it used), cached by source hash, flags and host CPU
 in torch's extensions directory (``$TORCH_EXTENSIONS_DIR`` or ``~/.cache/torch_extensions``), and
 called through ctypes with the tensors' data pointers. No torch headers are involved, so a cold
 build takes about a second. :func:`load` returns None (after one ``RuntimeWarning``) if no
-compiler works; the caller then falls back to the ``fast`` kernel.
+compiler works; the caller then falls back to the ``fast`` kernel. ``load("x86-64-v3")`` and
+``load("scalar")`` build the comparison variants of the benchmark (:data:`VARIANTS`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import os
 import platform
 import shutil
 import subprocess
+import sys
 import tempfile
 import warnings
 from pathlib import Path
@@ -45,8 +48,19 @@ FLAG_SETS = (
     ["-O3", "-fopenmp", "-fno-math-errno"],
     ["-O3", "-fno-math-errno"],
 )
-"""Compiler flags tried in order (the first set that compiles wins)."""
+"""Compiler flags of the host build, tried in order (the first set that compiles wins)."""
 COMMON_FLAGS = ["-std=gnu++17", "-ffp-contract=fast", "-shared", "-fPIC"]
+GCC_FLAGS = ["--param=max-completely-peel-times=8"]
+"""GCC only. At -O3 GCC fully unrolls loops of up to 16 iterations before its loop vectoriser runs and
+leaves the unrolled 16-lane loops to the basic-block vectoriser, which misses some of them (on NEON
+the decode loop); with at most 8 peels the lane loops reach the loop vectoriser whole, which
+vectorises every one of them (tests/mpc/test_cpp_vectorise.py) and unrolls the 2-4 vector
+iterations afterwards."""
+NO_VECTORISE = ["-fno-tree-vectorize", "-fno-tree-slp-vectorize"]
+VARIANTS = ("native", "x86-64-v3", "scalar")
+"""Builds :func:`load` knows: the host build (``native``, with the fallbacks of :data:`FLAG_SETS`),
+AVX2 + FMA without AVX-512 (``x86-64-v3``: what a machine without AVX-512 runs), and the host build
+without auto-vectorisation (``scalar``); the last two are for the benchmark's side-by-side timing."""
 
 _F = ctypes.POINTER(ctypes.c_float)
 _I32 = ctypes.POINTER(ctypes.c_int32)
@@ -59,23 +73,52 @@ def build_dir() -> Path:
     return Path(root) / "dls_mpc_cpp"
 
 
-def _compile(src: Path, lib: Path) -> str:
-    """Compile ``src`` into ``lib``; returns '' on success, else the last compiler error."""
-    compiler = os.environ.get("CXX") or shutil.which("g++") or shutil.which("c++")
-    if compiler is None:
-        return "no C++ compiler (g++/c++) on PATH"
+def flag_sets(variant: str = "native") -> tuple[list[str], ...]:
+    """The flag sets tried in order for one of :data:`VARIANTS` (only the host build has fallbacks)."""
+    if variant == "native":
+        return tuple(FLAG_SETS)
+    if variant == "x86-64-v3":
+        return (["-O3", "-march=x86-64-v3", "-fopenmp", "-fno-math-errno"],)
+    if variant == "scalar":
+        return ([*FLAG_SETS[0], *NO_VECTORISE],)
+    raise ValueError(f"unknown C++ kernel variant {variant!r}; allowed: {', '.join(VARIANTS)}")
+
+
+def compiler() -> str | None:
+    """The C++ compiler: ``$CXX``, else g++, else c++ on PATH (None if there is none)."""
+    return os.environ.get("CXX") or shutil.which("g++") or shutil.which("c++")
+
+
+@functools.lru_cache(maxsize=8)
+def extra_flags(cxx: str) -> tuple[str, ...]:
+    """:data:`GCC_FLAGS` if ``cxx`` is GCC (clang rejects them), else nothing."""
+    try:
+        out = subprocess.run([cxx, "--version"], capture_output=True, text=True, check=False, timeout=30).stdout
+    except (OSError, subprocess.SubprocessError):
+        return ()
+    return tuple(GCC_FLAGS) if "Free Software Foundation" in out and "clang" not in out.lower() else ()
+
+
+def _compile(src: Path, lib: Path, variant: str) -> tuple[str, list[str]]:
+    """Compile ``src`` into ``lib`` with the first flag set of ``variant`` that works.
+
+    Returns ('', flags used) on success, else (the last compiler error, [])."""
+    cxx = compiler()
+    if cxx is None:
+        return "no C++ compiler (g++/c++) on PATH", []
     error = ""
-    for flags in FLAG_SETS:
+    for flags in flag_sets(variant):
         with tempfile.NamedTemporaryFile(dir=lib.parent, suffix=".so", delete=False) as tmp:
             tmp_path = Path(tmp.name)
-        cmd = [compiler, *flags, *COMMON_FLAGS, str(src), "-o", str(tmp_path)]
+        cmd = [cxx, *flags, *COMMON_FLAGS, *extra_flags(cxx), str(src), "-o", str(tmp_path)]
         proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if proc.returncode == 0:
+            lib.with_suffix(".flags").write_text(" ".join(flags))  # before the library: a reader sees both
             os.replace(tmp_path, lib)  # atomic: concurrent builders never load a half-written file
-            return ""
+            return "", flags
         tmp_path.unlink(missing_ok=True)
         error = f"{' '.join(cmd)}: {proc.stderr.strip()[-2000:]}"
-    return error
+    return error, []
 
 
 def _host_signature() -> str:
@@ -95,21 +138,33 @@ def _host_signature() -> str:
     return cpu
 
 
-@functools.lru_cache(maxsize=1)
-def load() -> ctypes.CDLL | None:
-    """The compiled kernel library (built on first use), or None with a RuntimeWarning if it cannot be built."""
+@functools.lru_cache(maxsize=len(VARIANTS))
+def load(variant: str = "native") -> ctypes.CDLL | None:
+    """The compiled kernel library (built on first use), or None with a RuntimeWarning if it cannot be built.
+
+    ``variant`` is one of :data:`VARIANTS`. Cached per process; if the build used a fallback flag set
+    (the first one failed), that is printed to stderr once per process, even when the library comes
+    from the on-disk cache."""
     try:
         text = SOURCE.read_bytes()
-        digest = hashlib.sha256(text + repr((FLAG_SETS, COMMON_FLAGS, _host_signature())).encode()).hexdigest()[:16]
+        cxx = compiler() or ""
+        key = repr((flag_sets(variant), COMMON_FLAGS, extra_flags(cxx) if cxx else (), _host_signature()))
+        digest = hashlib.sha256(text + key.encode()).hexdigest()[:16]
         out = build_dir()
         out.mkdir(parents=True, exist_ok=True)
         lib_path = out / f"rollout_kernel_{digest}.so"
+        flags_path = lib_path.with_suffix(".flags")  # the flag set the library was built with
         if not lib_path.exists():
             src = out / f"rollout_kernel_{digest}.cpp"
             src.write_bytes(text)
-            error = _compile(src, lib_path)
+            error, _ = _compile(src, lib_path, variant)
             if error:
                 raise RuntimeError(error)
+        used = flags_path.read_text().strip() if flags_path.exists() else ""
+        first = " ".join(flag_sets(variant)[0])
+        if used and used != first:
+            print(f"dls_quadruped: the C++ MPC kernel ({variant}) did not build with '{first}'; "
+                  f"built with '{used}' instead (slower)", file=sys.stderr, flush=True)
         lib = ctypes.CDLL(str(lib_path))
         fn = lib.mpc_costs
         fn.restype = ctypes.c_int
@@ -117,7 +172,7 @@ def load() -> ctypes.CDLL | None:
             + [_F] * 10
         return lib
     except Exception as err:  # noqa: BLE001 - no compiler / broken toolchain: caller falls back, stays correct
-        warnings.warn(f"building the C++ MPC kernel failed ({type(err).__name__}: {err}); "
+        warnings.warn(f"building the C++ MPC kernel ({variant}) failed ({type(err).__name__}: {err}); "
                       f"falling back to the 'fast' kernel", RuntimeWarning, stacklevel=2)
         return None
 

@@ -7,9 +7,17 @@
 // explicit-Euler SRBD rollout and quadratic cost (srbd.srbd_step, cost.rollout_cost_reference)
 // -> NaN cost = +inf. float32 throughout, like the torch kernels.
 //
-// Layout: samples are processed in blocks of L lanes; every operation is a loop over the lanes
-// (vectorised by the compiler, no libm calls: own sincos/log), OpenMP over blocks.
+// Layout: samples are processed in blocks of L lanes; every operation is a plain loop over the lanes
+// that GCC vectorises with the target's own vector width (AVX2, AVX-512, NEON), OpenMP over blocks.
+// The lane loops are branch-free so that they vectorise without masked instructions (which only
+// AVX-512 has): no per-lane early exit, no libm call (own sincos/log), and no conditional float
+// operation -- under the default -ftrapping-math GCC may not speculate a float op that sits on one
+// side of a `?:`, so both sides are computed and a select picks one. No `#pragma omp simd` either:
+// it would force vectorisation even in the -fno-tree-vectorize comparison build.
+// tests/mpc/test_cpp_vectorise.py checks from GCC's -fopt-info report that every lane loop
+// (`for (int l = 0; l < L; ++l)`) vectorises for x86-64-v3 (AVX2 + FMA) and armv8-a (NEON).
 // Called through ctypes (no torch headers: builds in ~1 s); all pointers are contiguous CPU arrays.
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -28,37 +36,52 @@ inline uint32_t hash32(uint32_t x) {  // rng.hash32
   return x ^ (x >> 13);
 }
 
+inline uint32_t bits_of(float x) {
+  uint32_t u;
+  std::memcpy(&u, &x, 4);
+  return u;
+}
+
+inline float float_of(uint32_t u) {
+  float x;
+  std::memcpy(&x, &u, 4);
+  return x;
+}
+
+// v clipped to [lo, hi] (lo <= hi); NaN stays NaN, like `v < lo ? lo : (v > hi ? hi : v)`.
+inline float clamp(float v, float lo, float hi) { return std::min(std::max(v, lo), hi); }
+
 // sin and cos of a float (Cody-Waite reduction by pi/2, minimax polynomials on [-pi/4, pi/4];
-// ~1 ulp for |x| < 1e4, NaN in -> NaN out). Branch-free so the lane loops vectorise.
+// ~1 ulp for |x| < 1e4, NaN in -> NaN out). The quadrant swaps sin/cos by a select and flips
+// signs by xor-ing the sign bit.
 inline void sincos_f(float x, float& s, float& c) {
-  float q = std::nearbyint(x * 0.636619772367581343f);
+  const float q = std::nearbyint(x * 0.636619772367581343f);
   float r = x - q * 1.5703125f;
   r = r - q * 4.837512969970703125e-4f;
   r = r - q * 7.54978995489188216e-8f;
-  float r2 = r * r;
-  float sp = r + r * r2 * (-1.6666654611e-1f + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
-  float cp = 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * (-1.388731625493765e-3f + r2 * 2.443315711809948e-5f));
-  int qi = static_cast<int>(q) & 3;
-  float s0 = (qi & 1) ? cp : sp;
-  float c0 = (qi & 1) ? sp : cp;
-  s = (qi & 2) ? -s0 : s0;
-  c = ((qi + 1) & 2) ? -c0 : c0;
+  const float r2 = r * r;
+  const float sp = r + r * r2 * (-1.6666654611e-1f + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
+  const float cp = 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * (-1.388731625493765e-3f + r2 * 2.443315711809948e-5f));
+  const uint32_t qi = static_cast<uint32_t>(static_cast<int32_t>(q));  // quadrant mod 4 in the low 2 bits
+  const bool odd = (qi & 1u) != 0u;
+  const float s0 = odd ? cp : sp;
+  const float c0 = odd ? sp : cp;
+  s = float_of(bits_of(s0) ^ ((qi & 2u) << 30));          // quadrants 2, 3: -sin
+  c = float_of(bits_of(c0) ^ (((qi + 1u) & 2u) << 30));   // quadrants 1, 2: -cos
 }
 
 // natural log of a positive normal float (exponent split, atanh series; ~1 ulp).
+// x = 2^e m with m in [sqrt(2)/2, sqrt(2)): a mantissa above sqrt(2) (bits 0x3504F3) is halved by
+// taking one off its exponent field, in integer arithmetic (exact, like 0.5 m).
 inline float log_f(float x) {
-  uint32_t bits;
-  std::memcpy(&bits, &x, 4);
-  int e = static_cast<int>((bits >> 23) & 255u) - 127;
-  uint32_t mb = (bits & 0x7FFFFFu) | 0x3F800000u;
-  float m;
-  std::memcpy(&m, &mb, 4);
-  bool big = m > 1.41421356f;
-  m = big ? 0.5f * m : m;
-  e = big ? e + 1 : e;
-  float t = (m - 1.0f) / (m + 1.0f);
-  float t2 = t * t;
-  float p = 2.0f * t * (1.0f + t2 * (0.333333333f + t2 * (0.2f + t2 * (0.142857143f + t2 * 0.111111111f))));
+  const uint32_t bits = bits_of(x);
+  const uint32_t mant = bits & 0x7FFFFFu;
+  const uint32_t big = mant > 0x3504F3u ? 1u : 0u;
+  const float m = float_of((mant | 0x3F800000u) - (big << 23));
+  const int e = static_cast<int>((bits >> 23) & 255u) - 127 + static_cast<int>(big);
+  const float t = (m - 1.0f) / (m + 1.0f);
+  const float t2 = t * t;
+  const float p = 2.0f * t * (1.0f + t2 * (0.333333333f + t2 * (0.2f + t2 * (0.142857143f + t2 * 0.111111111f))));
   return p + static_cast<float>(e) * 0.693147180559945f;
 }
 
@@ -98,25 +121,31 @@ int mpc_costs(int B, int M, int N, int G, int D, int64_t seed, int num_threads,
     const int b = static_cast<int>(blk / blocks_per_robot);
     const int m0 = static_cast<int>(blk % blocks_per_robot) * L;
     alignas(64) float P[DMAX][L];
-    int ms[L];
-    for (int l = 0; l < L; ++l) ms[l] = (m0 + l < M) ? m0 + l : M - 1;
+    // The last block of a robot may be partial: its padding lanes repeat the last sample's group and
+    // perturbation flag (contiguous copies, no gathers) and their costs are never written.
+    const int valid = std::min(L, M - m0);
+    alignas(64) float pm[L];
+    alignas(64) int64_t gr[L];
+    for (int l = 0; l < L; ++l) {
+      pm[l] = perturb[M - 1];
+      gr[l] = group[M - 1];
+    }
+    std::memcpy(pm, perturb + m0, sizeof(float) * valid);
+    std::memcpy(gr, group + m0, sizeof(int64_t) * valid);
+    int64_t mixed = 0;  // groups are contiguous runs: almost every block has a single warm start
+    for (int l = 0; l < L; ++l) mixed |= gr[l] ^ gr[0];
 
     // ---- draw and box-clip the encoded samples (samples.sample_encoded)
     const float* wb = warm + static_cast<long>(b) * G * D;
-    alignas(64) float pm[L];
-    bool one_group = true;  // groups are contiguous runs: almost every block has a single warm start
-    for (int l = 0; l < L; ++l) {
-      pm[l] = perturb[ms[l]];
-      one_group = one_group && group[ms[l]] == group[ms[0]];
-    }
-    const float* ws0 = wb + group[ms[0]] * D;
+    // rng.normals counter (b M + m) D/2 + j/2 in int64; only its low 32 bits reach the hash, so
+    // uint32 arithmetic (mod 2^32) gives the same bits and vectorises on every target.
+    const uint32_t row0 = static_cast<uint32_t>(b) * static_cast<uint32_t>(M) + static_cast<uint32_t>(m0);
+    const uint32_t half_d = static_cast<uint32_t>(D / 2);
     for (int j = 0; j < D; j += 2) {
-#pragma omp simd
       for (int l = 0; l < L; ++l) {
-        const int m = ms[l];
-        const uint64_t counter = (static_cast<uint64_t>(b) * M + m) * (D / 2) + j / 2;
-        const uint32_t h1 = hash32(static_cast<uint32_t>(counter * 2) ^ key);
-        const uint32_t h2 = hash32(static_cast<uint32_t>(counter * 2 + 1) ^ key);
+        const uint32_t counter = (row0 + static_cast<uint32_t>(l)) * half_d + static_cast<uint32_t>(j / 2);
+        const uint32_t h1 = hash32((counter * 2u) ^ key);
+        const uint32_t h2 = hash32((counter * 2u + 1u) ^ key);
         const float u1 = (static_cast<float>(h1) + 1.0f) * static_cast<float>(1.0 / 4294967297.0);
         const float angle = static_cast<float>(h2) * static_cast<float>(6.283185307179586 / 4294967296.0);
         const float radius = std::sqrt(-2.0f * log_f(u1));
@@ -126,21 +155,17 @@ int mpc_costs(int B, int M, int N, int G, int D, int64_t seed, int num_threads,
         P[j + 1][l] = radius * sa;
       }
     }
-    for (int j = 0; j < D; ++j) {  // centre + perturb sigma z, box clip
+    for (int j = 0; j < D; ++j) {  // centre (the lane's warm start) + perturb sigma z, box clip
       const float sg = sigma[j], lj = lo[j], hj = hi[j];
-      if (one_group) {
-        const float cj = ws0[j];
-#pragma omp simd
-        for (int l = 0; l < L; ++l) {
-          const float v = cj + pm[l] * (sg * P[j][l]);
-          P[j][l] = v < lj ? lj : (v > hj ? hj : v);
+      alignas(64) float cen[L];
+      const float c0 = wb[gr[0] * D + j];
+      for (int l = 0; l < L; ++l) cen[l] = c0;
+      if (mixed)  // a block straddling groups (at most G - 1 per robot): each lane picks its warm start
+        for (int g = 0; g < G; ++g) {
+          const float cg = wb[g * D + j];
+          for (int l = 0; l < L; ++l) cen[l] = gr[l] == g ? cg : cen[l];
         }
-      } else {
-        for (int l = 0; l < L; ++l) {
-          const float v = wb[group[ms[l]] * D + j] + pm[l] * (sg * P[j][l]);
-          P[j][l] = v < lj ? lj : (v > hj ? hj : v);
-        }
-      }
+      for (int l = 0; l < L; ++l) P[j][l] = clamp(cen[l] + pm[l] * (sg * P[j][l]), lj, hj);
     }
 
     // ---- rollout state
@@ -169,7 +194,6 @@ int mpc_costs(int B, int M, int N, int G, int D, int64_t seed, int num_threads,
         const float* dw = dec_w + (k * 20 + s) * 4;
         const float *r0 = P[di[0]], *r1 = P[di[1]], *r2 = P[di[2]], *r3 = P[di[3]];
         const float w0 = dw[0], w1 = dw[1], w2 = dw[2], w3 = dw[3];
-#pragma omp simd
         for (int l = 0; l < L; ++l) dv[s][l] = w0 * r0[l] + w1 * r1[l] + w2 * r2[l] + w3 * r3[l];
       }
       // contacts of step k (gait.contact_sequence: (phase0 + k f dt) mod 1 < d)
@@ -178,15 +202,13 @@ int mpc_costs(int B, int M, int N, int G, int D, int64_t seed, int num_threads,
         const float* fr = P[i];
         const float* du = P[4 + i];
         const float p0 = ph[i], kf = static_cast<float>(k);
-#pragma omp simd
         for (int l = 0; l < L; ++l) {
           const float ang = p0 + kf * (fr[l] * dt);  // small: f and d are box-clipped
-          float fl = static_cast<float>(static_cast<int>(ang));  // floor, vectorisable
-          fl = fl > ang ? fl - 1.0f : fl;
+          const int tr = static_cast<int>(ang);  // floor = trunc - (trunc > x), in integers: no libm
+          const float fl = static_cast<float>(tr - (static_cast<float>(tr) > ang ? 1 : 0));
           cv[i][l] = (ang - fl) < du[l] ? 1.0f : 0.0f;
         }
       }
-#pragma omp simd
       for (int l = 0; l < L; ++l) {
         float sfx = 0.f, sfy = 0.f, sfz = 0.f, tx = 0.f, ty = 0.f, tzq = 0.f, rcost = 0.f;
         float nf[4][3];
@@ -196,14 +218,16 @@ int mpc_costs(int B, int M, int N, int G, int D, int64_t seed, int num_threads,
           // decoded p_h, F_h of leg i at step k
           const float dec[5] = {dv[2 * i][l], dv[2 * i + 1][l], dv[8 + 3 * i][l], dv[9 + 3 * i][l], dv[10 + 3 * i][l]};
           // Table 1 limits (samples.clip_horizon)
-          float qx = dec[0] < px_lo ? px_lo : (dec[0] > px_hi ? px_hi : dec[0]);
-          float qy = dec[1] < py_lo ? py_lo : (dec[1] > py_hi ? py_hi : dec[1]);
-          qx += nominal[2 * i];
-          qy += nominal[2 * i + 1];
-          const float fz = dec[4] < fz_lo ? fz_lo : (dec[4] > fz_hi ? fz_hi : dec[4]);
+          const float qx = clamp(dec[0], px_lo, px_hi) + nominal[2 * i];
+          const float qy = clamp(dec[1], py_lo, py_hi) + nominal[2 * i + 1];
+          const float fz = clamp(dec[4], fz_lo, fz_hi);
           const float nxy = std::sqrt(dec[2] * dec[2] + dec[3] * dec[3]);
           const float lim = mu * fz;
-          const float scale = nxy > lim ? lim / (nxy > 1e-12f ? nxy : 1e-12f) : 1.0f;
+          // radial scaling onto the cone: lim / |F_xy| where |F_xy| > lim, else 1, written as
+          // lim / max(|F_xy|, lim, 1e-12) so that no float op sits on one side of a select (GCC moves a
+          // product or quotient into the arm that uses it); differs only if |F_xy| <= lim < 1e-12 N.
+          const float big = nxy > lim ? nxy : lim;
+          const float scale = lim / (big > 1e-12f ? big : 1e-12f);
           const float fxh = dec[2] * scale, fyh = dec[3] * scale;
           // frame H -> world (samples.horizontal_to_world)
           const float tgx = bx + cyaw * qx - syaw * qy, tgy = by + syaw * qx + cyaw * qy, tgz = tz[i] + foot_r;
@@ -256,8 +280,8 @@ int mpc_costs(int B, int M, int N, int G, int D, int64_t seed, int num_threads,
                     + w[7] * wy[l] * wy[l] + w[8] * ewz * ewz + w[9] * rcost;
       }
     }
-    float* ob = out + static_cast<long>(b) * M;
-    for (int l = 0; l < L && m0 + l < M; ++l) ob[m0 + l] = std::isnan(total[l]) ? INFINITY : total[l];
+    for (int l = 0; l < L; ++l) total[l] = total[l] != total[l] ? INFINITY : total[l];  // NaN cost = +inf
+    std::memcpy(out + static_cast<long>(b) * M + m0, total, sizeof(float) * valid);
   }
   return 0;
 }
