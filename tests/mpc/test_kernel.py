@@ -126,6 +126,37 @@ def test_cpp_build_failure_warns_and_falls_back(monkeypatch, tmp_path):
         cpp_kernel.load.cache_clear()
 
 
+def test_cpp_build_fallback_says_which_flags_and_cache_keys_host(cpp_lib, monkeypatch, tmp_path, capsys):
+    """-march=native rejected -> the next flag set (here without OpenMP) builds, says so once per process, and
+    computes the same costs; a library built on another CPU is not reused."""
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
+    monkeypatch.setattr(cpp_kernel, "FLAG_SETS", (["-O1", "-march=no-such-cpu", "-fopenmp"], ["-O1", "-fno-math-errno"]))
+    cpp_kernel.load.cache_clear()
+    try:
+        lib = cpp_kernel.load()
+        assert lib is not None and cpp_kernel.load() is lib
+        err = capsys.readouterr().err
+        assert err.count("did not build with '-O1 -march=no-such-cpu -fopenmp'; built with '-O1 -fno-math-errno'") == 1
+        cfg = SamplerConfig(num_samples=100, horizon=5)
+        inp = _inputs(cfg)
+        model = robot_srbd_model()
+        _assert_costs_match(cpp_kernel.cpp_costs(inp, cfg, model, lib), cpp_kernel.cpp_costs(inp, cfg, model, cpp_lib))
+        cpp_kernel.load.cache_clear()  # as in a new process: the cached library is reused and says so again
+        assert cpp_kernel.load() is not None and "built with '-O1 -fno-math-errno'" in capsys.readouterr().err
+        assert len(list(cpp_kernel.build_dir().glob("*.so"))) == 1
+        monkeypatch.setattr(cpp_kernel, "_host_signature", lambda: "x86_64|another CPU|sse2")
+        cpp_kernel.load.cache_clear()
+        assert cpp_kernel.load() is not None
+        assert len(list(cpp_kernel.build_dir().glob("*.so"))) == 2
+    finally:
+        cpp_kernel.load.cache_clear()
+
+
+def test_cpp_unknown_variant_names_the_allowed_ones():
+    with pytest.raises(ValueError, match="unknown C\\+\\+ kernel variant 'avx9'; allowed: native, x86-64-v3, scalar"):
+        cpp_kernel.flag_sets("avx9")
+
+
 def test_counter_normals_statistics_and_determinism():
     counter0 = torch.arange(20000, dtype=torch.int64) * 4
     z = normals(torch.tensor(5), counter0, 8)  # (20000, 8)
