@@ -144,7 +144,7 @@ def load(variant: str = "native") -> ctypes.CDLL | None:
 
     ``variant`` is one of :data:`VARIANTS`. Cached per process; if the build used a fallback flag set
     (the first one failed), that is printed to stderr once per process, even when the library comes
-    from the on-disk cache."""
+    from the on-disk cache. The library's ``build_flags`` attribute holds the flag set it was built with."""
     try:
         text = SOURCE.read_bytes()
         cxx = compiler() or ""
@@ -166,6 +166,7 @@ def load(variant: str = "native") -> ctypes.CDLL | None:
             print(f"dls_quadruped: the C++ MPC kernel ({variant}) did not build with '{first}'; "
                   f"built with '{used}' instead (slower)", file=sys.stderr, flush=True)
         lib = ctypes.CDLL(str(lib_path))
+        lib.build_flags = used or first
         fn = lib.mpc_costs
         fn.restype = ctypes.c_int
         fn.argtypes = [ctypes.c_int] * 5 + [ctypes.c_int64, ctypes.c_int] + [_F] * 4 + [_I32, _F] + [_F, _I64, _F] \
