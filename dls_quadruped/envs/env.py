@@ -25,6 +25,7 @@ What terms see (``env.<attr>``): ``state`` (RobotState on ``device``), ``num_env
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -165,9 +166,10 @@ class LocomotionEnv(VecEnv):
         self.obs_buf = self.observation_manager.compute()
         return self.obs_buf, self.extras
 
-    def _reset_idx(self, env_ids: torch.Tensor) -> None:
+    def _reset_idx(self, env_ids: torch.Tensor, curriculum: bool = True) -> None:
         log = self.extras.setdefault("log", {})
-        log.update(self.curriculum_manager.compute(env_ids))
+        if curriculum:
+            log.update(self.curriculum_manager.compute(env_ids))
         self.event_manager.apply("reset", env_ids)
         self._refresh()
         for manager in (self.reward_manager, self.termination_manager, self.action_manager, self.command_manager):
@@ -176,6 +178,59 @@ class LocomotionEnv(VecEnv):
         log["Episode_Metric/lin_vel_xy_error"] = float((self._vel_err_sum[env_ids] / steps).mean())
         self._vel_err_sum[env_ids] = 0.0
         self.episode_length_buf[env_ids] = 0
+
+    # ------------------------------------------------------------------ checkpoint state
+    def state_dict(self) -> dict:
+        """What training needs to continue where it stopped (saved in every checkpoint).
+
+        Curriculum state and values, reward weights (the penalty switch), command ranges, terrain
+        levels, the step counter and the torch RNG state. Robot poses are not kept: robots
+        restart their episodes on resume.
+        """
+        state = {
+            "curriculum_state": copy.deepcopy(self.curriculum_manager.state),
+            "curriculum_values": dict(self.curriculum_manager.values),
+            "reward_weights": dict(self.reward_manager.weights),
+            "command_params": copy.deepcopy(self.command_manager.params),
+            "terrain_levels": self.scene.terrain_levels.cpu().clone(),
+            "common_step_counter": self.common_step_counter,
+            "rng_cpu": torch.get_rng_state(),
+        }
+        if self.device.type == "cuda":
+            state["rng_cuda"] = torch.cuda.get_rng_state(self.device)
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore ``state_dict()`` output: re-places every robot on its restored terrain level
+        (without running the curriculum) and restores the RNG last.
+
+        Raises:
+            ValueError: the state does not fit this env (other terms, other number of envs).
+        """
+        rm, cm, cur = self.reward_manager, self.command_manager, self.curriculum_manager
+        if set(state["reward_weights"]) != set(rm.weights):
+            raise ValueError(f"checkpoint reward terms {sorted(state['reward_weights'])} != task's {sorted(rm.weights)}")
+        if set(state["command_params"]) != set(cm.params):
+            raise ValueError(f"checkpoint command parameters {sorted(state['command_params'])} "
+                             f"!= task's {sorted(cm.params)}")
+        levels = torch.as_tensor(state["terrain_levels"], dtype=torch.long)
+        if levels.shape != (self.num_envs,):
+            # another --num-envs: keep the level distribution by cycling over the saved levels
+            levels = levels[torch.arange(self.num_envs) % len(levels)]
+        rm.weights.update(state["reward_weights"])
+        cm.params.clear()
+        cm.params.update(copy.deepcopy(state["command_params"]))  # in place: the term holds this dict
+        cur.state.clear()
+        cur.state.update(copy.deepcopy(state["curriculum_state"]))
+        cur.values.update(state["curriculum_values"])
+        self.scene.update_levels(torch.arange(self.num_envs, device=self.device),
+                                 levels.to(self.device) - self.scene.terrain_levels)
+        self.common_step_counter = int(state["common_step_counter"])
+        self._reset_idx(torch.arange(self.num_envs, device=self.device), curriculum=False)
+        self.obs_buf = self.observation_manager.compute()
+        torch.set_rng_state(state["rng_cpu"])
+        if "rng_cuda" in state and self.device.type == "cuda":
+            torch.cuda.set_rng_state(state["rng_cuda"], self.device)
 
     def close(self) -> None:
         self.scene.close()

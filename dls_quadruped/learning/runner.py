@@ -4,6 +4,12 @@ Runs live in ``<log_root>/<task>/<run_name>/``: ``task.yaml`` (resolved config),
 TensorBoard events, ``model_<it>.pt`` checkpoints (written to a temporary file then renamed, so
 a kill never leaves a truncated checkpoint) and ``exported/policy.pt`` (TorchScript) and
 ``exported/policy.onnx``.
+
+A checkpoint holds rsl-rl's own state plus ``env_state`` (``LocomotionEnv.state_dict()``: curricula,
+terrain levels, command ranges, reward weights, RNG) and ``obs_dims``/``num_actions`` so a resume
+onto another task is refused before anything is written. Besides rsl-rl's every-``save_interval``
+saves, the runner saves when ``save_every_s`` seconds of wall time passed since the last save and,
+after SIGINT/SIGTERM, at the end of the current iteration (then raises ``TrainingInterrupted``).
 """
 
 from __future__ import annotations
@@ -11,6 +17,9 @@ from __future__ import annotations
 import copy
 import os
 import re
+import signal
+import threading
+import time
 from pathlib import Path
 
 import torch
@@ -20,17 +29,170 @@ from rsl_rl.runners import OnPolicyRunner
 _CKPT = re.compile(r"model_(\d+)\.pt$")
 
 
-class AtomicOnPolicyRunner(OnPolicyRunner):
-    """``OnPolicyRunner`` whose checkpoints are written atomically (tmp file + ``os.replace``)."""
+class TrainingInterrupted(Exception):
+    """SIGINT/SIGTERM arrived; the last finished iteration was saved to ``path`` (None: nothing to save)."""
 
+    def __init__(self, signum: int, path: str | None):
+        self.signum, self.path = signum, path
+        super().__init__(f"{signal.Signals(signum).name}: saved {path}" if path else signal.Signals(signum).name)
+
+
+class AtomicOnPolicyRunner(OnPolicyRunner):
+    """``OnPolicyRunner`` with atomic checkpoints (tmp file + ``os.replace``) that carry the env state,
+    wall-time saves and a save on SIGINT/SIGTERM.
+
+    Args:
+        save_every_s: also save when this many seconds passed since the last save (None: never).
+        Other arguments as ``OnPolicyRunner``.
+    """
+
+    def __init__(self, env, train_cfg: dict, log_dir: str | None = None, device: str = "cpu",
+                 save_every_s: float | None = None):
+        super().__init__(env, train_cfg, log_dir=log_dir, device=device)
+        self.save_every_s = save_every_s
+        self.stop_signal: int | None = None
+        self._last_save_time = time.monotonic()
+        self._last_saved: tuple[str, int] | None = None
+        log = self.logger.log
+
+        def log_then_checkpoint(*args, **kwargs) -> None:
+            # rsl-rl calls logger.log once per iteration, after the update and before its own save
+            log(*args, **kwargs)
+            self._end_of_iteration()
+
+        self.logger.log = log_then_checkpoint
+
+    # ------------------------------------------------------------------ signals
+    def install_signal_handlers(self) -> dict:
+        """First SIGINT/SIGTERM: finish the iteration, save, raise ``TrainingInterrupted``; second: stop now.
+
+        Returns the previous handlers (give them to ``signal.signal`` to restore); empty outside the
+        main thread, where Python allows no handlers.
+        """
+        if threading.current_thread() is not threading.main_thread():
+            return {}
+        previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+        def handler(signum, frame):
+            if self.stop_signal is not None:
+                signal.signal(signal.SIGINT, signal.default_int_handler)
+                raise KeyboardInterrupt
+            self.stop_signal = signum
+            print(f"[train] {signal.Signals(signum).name}: saving at the end of this iteration "
+                  "(send it again to stop without saving)", flush=True)
+
+        signal.signal(signal.SIGINT, handler)
+        signal.signal(signal.SIGTERM, handler)
+        return previous
+
+    def _end_of_iteration(self) -> None:
+        path = None
+        if self.logger.writer is not None:  # rank 0 with a log dir
+            due = self.save_every_s is not None and time.monotonic() - self._last_save_time >= self.save_every_s
+            if due or self.stop_signal is not None:
+                path = os.path.join(self.logger.log_dir, f"model_{self.current_learning_iteration}.pt")
+                self.save(path)
+        if self.stop_signal is not None:
+            self.logger.stop_logging_writer()
+            raise TrainingInterrupted(self.stop_signal, path)
+
+    # ------------------------------------------------------------------ checkpoints
     def save(self, path: str, infos: dict | None = None) -> None:
+        key = (os.path.abspath(path), self.current_learning_iteration)
+        if key == self._last_saved and os.path.exists(path):
+            return  # the same iteration was just saved (wall-time save, then rsl-rl's own)
         saved = self.alg.save()
         saved["iter"] = self.current_learning_iteration
         saved["infos"] = infos
+        if hasattr(self.env, "state_dict"):
+            saved["env_state"] = self.env.state_dict()
+            saved["obs_dims"] = dict(self.env.obs_dims)
+            saved["num_actions"] = int(self.env.num_actions)
         tmp = f"{path}.tmp"
         torch.save(saved, tmp)
         os.replace(tmp, path)  # atomic on POSIX
+        self._last_saved = key
+        self._last_save_time = time.monotonic()
         self.logger.save_model(path, self.current_learning_iteration)
+
+    def load_checkpoint(self, ckpt: dict, path: str) -> None:
+        """Load an already read checkpoint: networks, optimiser, iteration and (if saved) the env state.
+
+        Raises:
+            CheckpointMismatch: the checkpoint was trained on other observation or action sizes.
+        """
+        env_dims = dict(self.env.obs_dims)
+        if "obs_dims" in ckpt and (ckpt["obs_dims"] != env_dims or ckpt["num_actions"] != self.env.num_actions):
+            raise CheckpointMismatch(f"{path} was trained with observations {ckpt['obs_dims']} and "
+                                     f"{ckpt['num_actions']} actions; this task has {env_dims} and "
+                                     f"{self.env.num_actions}")
+        try:
+            self.alg.load(ckpt, None, True)
+        except (RuntimeError, KeyError) as err:  # size mismatch of a checkpoint without obs_dims
+            first = str(err).strip().splitlines()
+            raise CheckpointMismatch(f"{path} does not fit this task's networks: "
+                                     f"{' '.join(line.strip() for line in first[:3])}") from err
+        self.current_learning_iteration = ckpt["iter"]
+        if "env_state" in ckpt and hasattr(self.env, "load_state_dict"):
+            try:
+                self.env.load_state_dict(ckpt["env_state"])
+            except (KeyError, ValueError) as err:
+                raise CheckpointMismatch(f"{path}: env state does not fit this task: {err}") from err
+
+
+class CheckpointMismatch(ValueError):
+    """A checkpoint does not fit the task it is loaded into."""
+
+
+def read_checkpoint(path: Path) -> dict:
+    """``torch.load`` a checkpoint on the CPU; any failure (truncated, not a checkpoint) -> ``ValueError``."""
+    try:
+        ckpt = torch.load(path, weights_only=False, map_location="cpu")
+    except Exception as err:  # unpickling fails in many ways; all mean "unreadable"
+        raise ValueError(f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}") from err
+    if not isinstance(ckpt, dict) or "iter" not in ckpt or "actor_state_dict" not in ckpt:
+        raise ValueError("not an rsl-rl checkpoint (no 'iter'/'actor_state_dict')")
+    return ckpt
+
+
+def newest_readable_checkpoint(run_dir: Path, note=print) -> tuple[Path, dict] | None:
+    """The highest-iteration ``model_<it>.pt`` of ``run_dir`` that loads, and its contents.
+
+    Unreadable ones are skipped with a one-line ``note`` naming them.
+    """
+    for _, path in sorted(checkpoints(run_dir), reverse=True):
+        try:
+            return path, read_checkpoint(path)
+        except ValueError as err:
+            note(f"[train] note: skipping unreadable checkpoint {path} ({err})")
+    return None
+
+
+def checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
+    """(iteration, path) of every ``model_<it>.pt`` in ``run_dir``."""
+    return [(int(m.group(1)), p) for p in Path(run_dir).glob("model_*.pt") if (m := _CKPT.search(p.name))]
+
+
+def remove_stale_tmp(run_dir: Path) -> list[Path]:
+    """Delete ``*.pt.tmp`` left by a save that was killed half-way; returns what was removed."""
+    stale = sorted(Path(run_dir).glob("*.pt.tmp"))
+    for p in stale:
+        p.unlink(missing_ok=True)
+    return stale
+
+
+def new_run_dir(task_dir: Path) -> Path:
+    """Create ``<task_dir>/<date_time>`` (``_2``, ``_3`` ... if taken, e.g. two runs in one second)."""
+    stem = task_dir / time.strftime("%Y-%m-%d_%H-%M-%S")
+    task_dir.mkdir(parents=True, exist_ok=True)
+    for k in range(1, 1000):
+        run_dir = stem if k == 1 else stem.with_name(f"{stem.name}_{k}")
+        try:
+            run_dir.mkdir()  # atomic: exactly one process creates a given name
+            return run_dir
+        except FileExistsError:
+            continue
+    raise RuntimeError(f"could not create a new run directory next to {stem}")
 
 
 def runner_config(agent: dict, iterations: int | None = None, seed: int | None = None) -> dict:
@@ -45,7 +207,7 @@ def runner_config(agent: dict, iterations: int | None = None, seed: int | None =
 
 def latest_checkpoint(run_dir: Path) -> Path | None:
     """The ``model_<it>.pt`` with the highest iteration in ``run_dir`` (None if there is none)."""
-    found = [(int(m.group(1)), p) for p in Path(run_dir).glob("model_*.pt") if (m := _CKPT.search(p.name))]
+    found = checkpoints(run_dir)
     return max(found)[1] if found else None
 
 

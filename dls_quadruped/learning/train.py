@@ -3,9 +3,14 @@
     python -m dls_quadruped.learning.train --task rough --num-envs 64 --iterations 100 --device cpu --seed 0
     python -m dls_quadruped.learning.train --task rough --resume          # continue the latest run
 
-Checkpoints every ``agent.save_interval`` iterations (``--save-interval`` overrides), written
-atomically; ``--resume`` reloads the newest checkpoint of the newest run (or of ``--run-dir``) and
-continues for ``--iterations`` more. At the end the actor is exported to TorchScript and ONNX.
+Checkpoints (written atomically, with the env's curricula, terrain levels, command ranges, reward
+weights and RNG state) every ``--save-interval`` iterations (default: a tenth of the run, at most
+``agent.save_interval``), whenever ``--save-every-min`` minutes passed since the last one, at the
+end, and on SIGINT/SIGTERM (at the end of the current iteration; a second signal stops at once).
+``--resume`` reloads the newest readable checkpoint of the newest run (or of ``--run-dir``),
+restores the env state and continues for ``--iterations`` more; a checkpoint that does not fit
+the task is refused before anything in the run directory is written. At the end the actor is
+exported to TorchScript and ONNX.
 Multi-GPU: launch with ``torchrun --nproc_per_node=G -m dls_quadruped.learning.train --device cuda``
 (each process takes ``cuda:$LOCAL_RANK``);
 rsl-rl-lib reads WORLD_SIZE/RANK itself (see docs/train.md; untested here, no GPUs).
@@ -15,36 +20,91 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
+import signal
 from pathlib import Path
 
 import torch
 
-from dls_quadruped.envs.config import load_task
+from dls_quadruped.cli import ArgumentParser, UserError, run_cli
+from dls_quadruped.envs.config import load_task, save_resolved
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.learning.runner import (
     AtomicOnPolicyRunner,
+    CheckpointMismatch,
+    TrainingInterrupted,
     export_policy,
-    latest_checkpoint,
     latest_run,
+    new_run_dir,
+    newest_readable_checkpoint,
+    remove_stale_tmp,
     runner_config,
     write_yaml,
 )
 
+DEFAULT_SAVE_EVERY_MIN = 5.0
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def _non_negative_int(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0.0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="base", help="task name in tasks/ or a YAML path")
-    p.add_argument("--num-envs", type=int, default=None)
-    p.add_argument("--iterations", type=int, default=None, help="PPO iterations (default: agent.max_iterations)")
+    p.add_argument("--num-envs", type=_positive_int, default=None)
+    p.add_argument("--iterations", type=_positive_int, default=None,
+                   help="PPO iterations (default: agent.max_iterations)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--resume", action="store_true", help="continue from the newest checkpoint")
-    p.add_argument("--run-dir", type=Path, default=None, help="run directory (default: <log-root>/<task>/<time>)")
+    p.add_argument("--resume", action="store_true", help="continue from the newest readable checkpoint")
+    p.add_argument("--run-dir", type=Path, default=None,
+                   help="run directory (default: a new <log-root>/<task>/<time>); must be empty unless --resume")
     p.add_argument("--log-root", type=Path, default=Path("runs"))
-    p.add_argument("--save-interval", type=int, default=None)
-    p.add_argument("--num-workers", type=int, default=None, help="simulator worker processes (scene.num_workers)")
+    p.add_argument("--save-interval", type=_positive_int, default=None,
+                   help="save every K iterations (default: iterations/10, at most agent.save_interval)")
+    p.add_argument("--save-every-min", type=_positive_float, default=DEFAULT_SAVE_EVERY_MIN,
+                   help=f"also save when this many minutes passed since the last save ({DEFAULT_SAVE_EVERY_MIN})")
+    p.add_argument("--num-workers", type=_non_negative_int, default=None,
+                   help="simulator worker processes (scene.num_workers; 0 = in-process)")
     return p.parse_args(argv)
+
+
+def default_save_interval(iterations: int, agent_interval: int) -> int:
+    """Ten checkpoints per run, never fewer iterations apart than 1 nor more than ``agent_interval``."""
+    return max(1, min(int(agent_interval), iterations // 10))
+
+
+def _resume_dir(args: argparse.Namespace, task_dir: Path) -> Path:
+    run_dir = args.run_dir or latest_run(task_dir)
+    if run_dir is None or not run_dir.is_dir():
+        raise UserError(f"--resume: no run with a checkpoint under {args.run_dir or task_dir}")
+    return run_dir
+
+
+def _fresh_dir(args: argparse.Namespace, task_dir: Path) -> Path:
+    if args.run_dir is None:
+        return new_run_dir(task_dir)
+    if args.run_dir.exists() and any(args.run_dir.iterdir()):
+        raise UserError(f"--run-dir {args.run_dir} is not empty; add --resume to continue it or choose a new one")
+    args.run_dir.mkdir(parents=True, exist_ok=True)
+    return args.run_dir
 
 
 def main(argv: list[str] | None = None) -> Path:
@@ -55,29 +115,48 @@ def main(argv: list[str] | None = None) -> Path:
     overrides = {"scene": {"num_workers": args.num_workers}} if args.num_workers is not None else None
     task = load_task(args.task, overrides=overrides)
     task_dir = args.log_root / task.name
-    resume_from = None
-    if args.resume:
-        run_dir = args.run_dir or latest_run(task_dir)
-        resume_from = latest_checkpoint(run_dir) if run_dir is not None else None
-        if resume_from is None:
-            raise SystemExit(f"--resume: no checkpoint found under {args.run_dir or task_dir}")
-    else:
-        run_dir = args.run_dir or task_dir / time.strftime("%Y-%m-%d_%H-%M-%S")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    torch.manual_seed(args.seed)
-    env = LocomotionEnv(task, num_envs=args.num_envs, device=args.device, seed=args.seed, run_dir=run_dir)
     cfg = runner_config(task.data["agent"], args.iterations, args.seed)
-    if args.save_interval is not None:
-        cfg["save_interval"] = args.save_interval
-    write_yaml(cfg, run_dir / "agent.yaml")
-    runner = AtomicOnPolicyRunner(env, cfg, log_dir=str(run_dir), device=args.device)
-    if resume_from is not None:
-        runner.load(str(resume_from))
-        # model_<it>.pt holds the state after iteration <it>: continue with the next one
-        runner.current_learning_iteration += 1
-        print(f"[train] resumed from {resume_from} at iteration {runner.current_learning_iteration}")
+    cfg["save_interval"] = args.save_interval or default_save_interval(int(cfg["max_iterations"]),
+                                                                       cfg.get("save_interval", 50))
+    found = None
+    if args.resume:
+        run_dir = _resume_dir(args, task_dir)
+        found = newest_readable_checkpoint(run_dir)
+        if found is None:
+            raise UserError(f"--resume: no readable checkpoint in {run_dir}")
+    else:
+        run_dir = _fresh_dir(args, task_dir)
+    torch.manual_seed(args.seed)
+    env = LocomotionEnv(task, num_envs=args.num_envs, device=args.device, seed=args.seed)
     try:
-        runner.learn(int(cfg["max_iterations"]), init_at_random_ep_len=resume_from is None)
+        runner = AtomicOnPolicyRunner(env, cfg, log_dir=str(run_dir), device=args.device,
+                                      save_every_s=60.0 * args.save_every_min)
+        if found is not None:
+            path, ckpt = found
+            try:
+                runner.load_checkpoint(ckpt, str(path))  # checked against the task before anything is written
+            except CheckpointMismatch as err:
+                raise UserError(f"--resume: {err}") from None
+            # model_<it>.pt holds the state after iteration <it>: continue with the next one
+            runner.current_learning_iteration += 1
+            restored = "env state restored" if "env_state" in ckpt else "no env state in it: curricula start afresh"
+            print(f"[train] resumed from {path} at iteration {runner.current_learning_iteration} ({restored}; "
+                  f"curriculum {dict(env.curriculum_manager.values)})", flush=True)
+        for stale in remove_stale_tmp(run_dir):
+            print(f"[train] note: removed {stale} (left by a save that was killed)")
+        save_resolved(task, run_dir / "task.yaml")
+        write_yaml(cfg, run_dir / "agent.yaml")
+        previous = runner.install_signal_handlers()
+        try:
+            runner.learn(int(cfg["max_iterations"]), init_at_random_ep_len=found is None)
+        except TrainingInterrupted as stop:
+            print(f"[train] stopped by {signal.Signals(stop.signum).name}; "
+                  + (f"saved {stop.path}; continue with --resume --run-dir {run_dir}" if stop.path
+                     else "no iteration had finished, nothing saved"), flush=True)
+            raise SystemExit(128 + stop.signum) from None
+        finally:
+            for signum, handler in previous.items():
+                signal.signal(signum, handler)
         exported = export_policy(runner, run_dir / "exported")
         print(f"[train] run dir {run_dir}; exported {exported}")
     finally:
@@ -86,4 +165,4 @@ def main(argv: list[str] | None = None) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)

@@ -1,0 +1,56 @@
+"""Command-line conventions shared by every entry point (train, play, mpc.run, demo, eval, ...).
+
+A user error (a bad flag, a bad task file, a missing or unfitting checkpoint, an existing run
+directory) prints one line ``<prog>: error: <message>`` on stderr and exits with status 2; a
+Ctrl-C exits with 130 and one line. Anything else is a bug and keeps its traceback.
+
+    if __name__ == "__main__":
+        run_cli(main)
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Callable
+from typing import Any, NoReturn
+
+from dls_quadruped.envs.config import ConfigError
+
+USER_ERROR_STATUS = 2
+
+
+class UserError(Exception):
+    """An error the user can fix from the message alone (printed as one line, no traceback)."""
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """``argparse.ArgumentParser`` whose usage errors are one line (the usage is in ``--help``)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(USER_ERROR_STATUS, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def user_errors() -> tuple[type[BaseException], ...]:
+    """Exception types reported as one line: ours, task-file errors and missing input files."""
+    return UserError, ConfigError, FileNotFoundError
+
+
+def _prog() -> str:
+    main = sys.modules.get("__main__")
+    spec = getattr(main, "__spec__", None)
+    return spec.name if spec is not None else os.path.basename(sys.argv[0])
+
+
+def run_cli(main: Callable[..., Any], *args: Any) -> None:
+    """Call ``main(*args)``; report user errors and Ctrl-C as one line and exit non-zero."""
+    try:
+        main(*args)
+    except KeyboardInterrupt:
+        print(f"{_prog()}: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
+    except user_errors() as err:
+        message = str(err).strip().splitlines()
+        print(f"{_prog()}: error: {' '.join(message) if message else type(err).__name__}", file=sys.stderr)
+        raise SystemExit(USER_ERROR_STATUS) from None
