@@ -195,6 +195,10 @@ def update_builds_docs(rows: list[dict], info: dict, path: Path) -> None:
     """Replace the '## MPC C++ kernel builds' section of ``path`` (new: right after '## MPC solve time')."""
     peak = info.get("peak_gflops_per_core")
     m, n = rows[0]["M"], rows[0]["N"]
+    load = max(info["load_avg_1_5_15"][0], (info.get("load_avg_end") or [0.0])[0])
+    load_note = (f"the {info['cpu_count']} cores were shared with other jobs (load above 1.5), which hits the "
+                 "multi-threaded rows hardest (OpenMP waits for a descheduled thread): compare builds within a "
+                 "thread count, the 1-thread rows are the steadiest" if load > 1.5 else "the machine was otherwise idle")
     peak_note = (f"fp32 peak per core {peak:.0f} GFLOP/s = {info['cpu_mhz']:.0f} MHz x {FLOP_PER_CYCLE} FLOP/cycle "
                  "(two 256-bit FMA pipes), times the threads used" if peak else "fp32 peak unknown (no clock)")
     body = (
@@ -208,11 +212,11 @@ def update_builds_docs(rows: list[dict], info: dict, path: Path) -> None:
         "validation, layout, re-drawing and decoding the winner). "
         f"Machine: {info['cpu']}, {info['cpu_count']} cores at {info.get('cpu_mhz') or '?'} MHz, SIMD flags "
         f"{', '.join(info['simd_flags']) or '-'}, {info['compiler']}, torch {info['torch']}; load average "
-        f"(1, 5, 15 min) at start {info['load_avg_1_5_15']} and end {info.get('load_avg_end')}.\n\n"
+        f"(1, 5, 15 min) at start {info['load_avg_1_5_15']} and end {info.get('load_avg_end')}: {load_note}.\n\n"
         + "".join(f"* {note}\n" for note in build_notes(rows)) + "\n"
         f"{builds_table(rows, peak)}\n\n"
         f"GFLOP/s take the kernel's work as {ROLLOUT_MFLOP:.0f} MFLOP per solve at M = 10 000, N = 10 (scaled by "
-        f"M N); {peak_note}. Raw numbers: `results/bench/mpc_builds.json`.\n"
+        f"M N); {peak_note}. Raw numbers: `results/bench/mpc_builds.json`.\n\n"
     )
     text = path.read_text() if path.exists() else "# Benchmarks\n"
     if BUILDS_SECTION in text:
