@@ -30,6 +30,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
@@ -138,15 +139,50 @@ class LocomotionEnv(VecEnv):
     def get_observations(self) -> TensorDict:
         return self.obs_buf
 
-    def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
-        self.action_manager.process(actions.to(self.device))
+    def check_actions(self, actions: torch.Tensor | np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        """Validate a batch of actions before any buffer is touched.
+
+        Args:
+            actions: (num_envs, num_actions) tensor or numpy array, any float dtype and device;
+                autograd history is dropped (a policy called outside ``torch.no_grad``).
+
+        Returns:
+            (actions on ``device`` as float32 with non-finite rows replaced by zeros,
+             (num_envs,) bool mask of the rows that were not finite).
+
+        Raises:
+            TypeError: not a tensor/array of numbers. ValueError: wrong shape (no broadcasting:
+            a (28,) or (1, 28) action for a batch of robots is an error).
+        """
+        if isinstance(actions, np.ndarray):
+            if not np.issubdtype(actions.dtype, np.number) or np.issubdtype(actions.dtype, np.complexfloating):
+                raise TypeError(f"actions must be real numbers, got a numpy array of {actions.dtype}")
+            actions = torch.from_numpy(np.ascontiguousarray(actions))
+        if not isinstance(actions, torch.Tensor):
+            raise TypeError(f"actions must be a torch.Tensor or numpy array, got {type(actions).__name__}")
+        if actions.dtype == torch.bool or actions.is_complex():
+            raise TypeError(f"actions must be real numbers, got {actions.dtype}")
+        want = (self.num_envs, self.num_actions)
+        if tuple(actions.shape) != want:
+            raise ValueError(f"actions must have shape {want} (num_envs, num_actions), got {tuple(actions.shape)}")
+        actions = actions.detach().to(device=self.device, dtype=torch.float32)
+        nonfinite = ~torch.isfinite(actions).all(dim=1)
+        if nonfinite.any():
+            actions = torch.where(nonfinite[:, None], torch.zeros_like(actions), actions)
+        return actions, nonfinite
+
+    def step(self, actions: torch.Tensor | np.ndarray) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        """One policy step; see the module docstring. A robot whose action row is not finite gets a
+        zero action this step, is terminated (``Episode_Termination/nonfinite_action``) and reset."""
+        actions, nonfinite = self.check_actions(actions)
+        self.action_manager.process(actions)
         self.scene.sim.step(self.decimation)
         self._refresh()
         self.episode_length_buf += 1
         self.common_step_counter += 1
         self._vel_err_sum += torch.linalg.vector_norm(
             obs_mdp.base_lin_vel(self)[:, :2] - self.command_manager.command[:, :2], dim=-1)
-        dones = self.termination_manager.compute()
+        dones = self.termination_manager.compute(nonfinite)
         reward = self.reward_manager.compute(self.step_dt)
         time_outs = self.termination_manager.time_outs.clone()
         self.extras = {"log": {}}

@@ -19,8 +19,12 @@ Usage::
 
 from __future__ import annotations
 
+import ast
 import multiprocessing as mp
 import os
+import signal
+import sys
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -48,6 +52,10 @@ class SimConfig:
     num_workers: int = -1
     nthread: int = 0
     control: LowLevelConfig = field(default_factory=LowLevelConfig)
+    reply_timeout_s: float = 120.0
+    """Longest wait for a worker's answer before it is declared hung (a step takes milliseconds)."""
+    start_timeout_s: float = 600.0
+    """Longest wait for a worker to build its shard (imports and model loading on a busy machine)."""
 
 
 def _execute(shard: Shard, cmd: str, arg: Any) -> None:
@@ -68,8 +76,16 @@ def _execute(shard: Shard, cmd: str, arg: Any) -> None:
         raise ValueError(f"unknown backend command {cmd!r}")
 
 
+class WorkerError(RuntimeError):
+    """A simulator worker process died, hung or could not start."""
+
+
 def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: SimConfig) -> None:
-    """Worker process loop: execute commands on one shard until 'close'."""
+    """Worker process loop: execute commands on one shard until 'close' (or until the parent is gone)."""
+    # Ctrl-C in a terminal and a SIGTERM to the process group reach the workers too; the trainer
+    # handles them (it saves a checkpoint first), and a worker ends when its pipe closes.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     torch.set_num_threads(1)
     try:
         shard = Shard(model, buffers, cfg.control, nthread=1)
@@ -78,7 +94,10 @@ def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: 
         conn.send(("error", repr(err)))
         return
     while True:
-        cmd, arg = conn.recv()
+        try:
+            cmd, arg = conn.recv()
+        except (EOFError, OSError):  # the parent died or closed the pipe: nothing left to serve
+            return
         if cmd == "close":
             conn.send(("ok", None))
             return
@@ -87,6 +106,70 @@ def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: 
             conn.send(("ok", None))
         except Exception as err:
             conn.send(("error", f"{cmd}: {err!r}"))
+
+
+def _process_state(pid: int) -> str:
+    """Linux process state letter and meaning from /proc (e.g. 'T (stopped)'), or 'unknown'."""
+    names = {"R": "running", "S": "sleeping", "D": "disk wait", "T": "stopped", "t": "traced", "Z": "zombie"}
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            letter = fh.read().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return "unknown"
+    return f"{letter} ({names.get(letter, '?')})"
+
+
+def check_main_guard() -> None:
+    """Refuse to start worker processes from a script's unguarded module-level code.
+
+    Workers are started with ``spawn``: each one re-imports the main script, so a script that
+    builds the simulator at module level outside ``if __name__ == "__main__":`` would start
+    workers from the workers (Python refuses, the workers die). Detected before any worker starts
+    from the calling frames: a module-level frame of ``__main__`` whose line is not inside such a
+    guard in the script's source.
+
+    Raises:
+        WorkerError: naming the script and line, with the fix.
+    """
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if path is None or getattr(main, "__spec__", None) is not None:  # interactive, -c, -m: nothing re-imported
+        return
+    frame = sys._getframe(1)
+    while frame is not None:
+        if frame.f_code.co_name == "<module>" and frame.f_globals.get("__name__") == "__main__":
+            line = frame.f_lineno
+            if not _inside_main_guard(path, line):
+                raise WorkerError(
+                    f"{path}:{line} starts simulator worker processes from module-level code without an "
+                    "`if __name__ == \"__main__\":` guard; the workers re-import the script (spawn) and would "
+                    "start workers themselves. Put that code under the guard (see docs/env.md) or use "
+                    "num_workers=0 (scene.num_workers: 0)")
+            return
+        frame = frame.f_back
+
+
+def _inside_main_guard(path: str, line: int) -> bool:
+    """Whether ``line`` of the script lies in the body of a top-level ``if __name__ == "__main__":``."""
+    try:
+        with open(path) as fh:
+            tree = ast.parse(fh.read())
+    except (OSError, SyntaxError):
+        return True  # cannot tell: do not block
+    for node in tree.body:
+        if (isinstance(node, ast.If) and _is_main_test(node.test)
+                and any(n.lineno <= line <= (n.end_lineno or n.lineno) for n in node.body)):
+            return True
+    return False
+
+
+def _is_main_test(test: ast.expr) -> bool:
+    if not (isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], ast.Eq)):
+        return False
+    sides = [test.left, test.comparators[0]]
+    names = [s.id for s in sides if isinstance(s, ast.Name)]
+    consts = [s.value for s in sides if isinstance(s, ast.Constant)]
+    return names == ["__name__"] and consts == ["__main__"]
 
 
 class VecSim:
@@ -118,12 +201,14 @@ class VecSim:
         if workers == 0:
             self._shard = Shard(model, self.buf, cfg.control, nthread=cfg.nthread)
         else:
+            check_main_guard()
             ctx = mp.get_context("spawn")
             for w in range(workers):
                 parent, child = ctx.Pipe()
                 rows = self.buf.rows(self._bounds[w], self._bounds[w + 1])
                 proc = ctx.Process(target=_worker_main, args=(child, model, rows, cfg), daemon=True)
                 proc.start()
+                child.close()  # only the worker holds its end: a dead worker then reads as EOF, not a hang
                 self._conns.append(parent)
                 self._procs.append(proc)
             self._gather("start")
@@ -155,10 +240,46 @@ class VecSim:
         self.state.diverged = self.buf.state["diverged"] > 0
         return self.state
 
+    def _died(self, w: int, during: str) -> WorkerError:
+        """The error for a worker that is gone (waits briefly for its exit code)."""
+        proc = self._procs[w]
+        proc.join(timeout=1.0)
+        msg = f"simulator worker {w} (pid {proc.pid}) died with exit code {proc.exitcode} during {during}"
+        if proc.exitcode is not None and proc.exitcode < 0:
+            msg += f" (killed by {signal.Signals(-proc.exitcode).name})"
+        if during == "start":
+            msg += ("; if the script builds the env or VecSim at module level, put that code under "
+                    "`if __name__ == \"__main__\":` (workers are spawned and re-import the script), "
+                    "or use num_workers=0")
+        return WorkerError(msg)
+
+    def _send(self, w: int, message: tuple, during: str) -> None:
+        try:
+            self._conns[w].send(message)
+        except (BrokenPipeError, ConnectionResetError, EOFError, OSError):
+            raise self._died(w, during) from None
+
+    def _recv(self, w: int, during: str) -> tuple[str, Any]:
+        """Worker ``w``'s answer; a dead worker or no answer within the timeout raises ``WorkerError``."""
+        conn, proc = self._conns[w], self._procs[w]
+        timeout = self.cfg.start_timeout_s if during == "start" else self.cfg.reply_timeout_s
+        deadline = time.monotonic() + timeout
+        while not conn.poll(0.5):
+            if not proc.is_alive():
+                raise self._died(w, during)
+            if time.monotonic() > deadline:
+                raise WorkerError(f"simulator worker {w} (pid {proc.pid}) gave no answer within {timeout:g} s "
+                                  f"during {during} (process state: {_process_state(proc.pid)}); "
+                                  "SimConfig.reply_timeout_s sets the limit")
+        try:
+            return conn.recv()
+        except (EOFError, ConnectionResetError, OSError):
+            raise self._died(w, during) from None
+
     def _gather(self, what: str) -> None:
         errors = []
-        for w, conn in enumerate(self._conns):
-            status, msg = conn.recv()
+        for w in range(len(self._conns)):
+            status, msg = self._recv(w, what)
             if status != "ok":
                 errors.append(f"worker {w}: {msg}")
         if errors:
@@ -173,8 +294,10 @@ class VecSim:
                 arg = ids.numpy() if payload is None else (payload[0], ids.numpy(), payload[1])
             _execute(self._shard, cmd, arg)
             return
+        if not self._conns:
+            raise WorkerError("the simulator is closed (a worker failed earlier or close() was called)")
         busy = []
-        for w, conn in enumerate(self._conns):
+        for w in range(len(self._conns)):
             lo, hi = self._bounds[w], self._bounds[w + 1]
             if ids is None:
                 arg = payload
@@ -184,9 +307,9 @@ class VecSim:
                     continue
                 local = (ids[mask] - lo).numpy()
                 arg = local if payload is None else (payload[0], local, payload[1][mask.numpy()])
-            conn.send((cmd, arg))
-            busy.append(conn)
-        errors = [msg for conn in busy for status, msg in [conn.recv()] if status != "ok"]
+            self._send(w, (cmd, arg), cmd)
+            busy.append(w)
+        errors = [msg for w in busy for status, msg in [self._recv(w, cmd)] if status != "ok"]
         if errors:
             raise RuntimeError("simulator backend failed: " + "; ".join(errors))
 
@@ -294,17 +417,25 @@ class VecSim:
         self._dispatch("model_field", ids, (name, values))
 
     def close(self) -> None:
-        """Stop the worker processes (idempotent)."""
+        """Stop the worker processes (idempotent; a dead or hung worker is killed, not waited for)."""
+        deadline = time.monotonic() + 5.0  # for all workers together
         for conn in self._conns:
             try:
                 conn.send(("close", None))
-                conn.recv()
             except (BrokenPipeError, EOFError, OSError):
                 pass
+        for conn in self._conns:
+            try:
+                if conn.poll(max(0.0, deadline - time.monotonic())):
+                    conn.recv()
+            except (BrokenPipeError, EOFError, OSError):
+                pass
+            conn.close()
         for proc in self._procs:
-            proc.join(timeout=5)
+            proc.join(timeout=max(0.0, deadline - time.monotonic()))
             if proc.is_alive():
-                proc.terminate()
+                proc.kill()  # SIGTERM is ignored by workers; a stopped one ignores everything but SIGKILL
+                proc.join(timeout=5)
         self._conns, self._procs = [], []
 
     def __enter__(self) -> VecSim:

@@ -1,4 +1,9 @@
-"""Termination manager: dones = any term; ``time_out`` terms are reported separately as time-outs."""
+"""Termination manager: dones = any term; ``time_out`` terms are reported separately as time-outs.
+
+Besides the task's terms, robots the env hands in as ``nonfinite_action`` (their action had a NaN
+or an infinity and was replaced by zeros) are terminated and counted as
+``Episode_Termination/nonfinite_action``, as a diverged simulation is.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,8 @@ import torch
 from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import format_table, resolve_terms
 from dls_quadruped.envs.mdp import terminations as term_mdp
+
+NONFINITE_ACTION = "nonfinite_action"
 
 
 class TerminationManager:
@@ -17,11 +24,19 @@ class TerminationManager:
         self.terminated = torch.zeros(n, dtype=torch.bool, device=env.device)
         self.time_outs = torch.zeros(n, dtype=torch.bool, device=env.device)
         self.term_dones = {t.name: torch.zeros(n, dtype=torch.bool, device=env.device) for t in self.terms}
+        self.term_dones[NONFINITE_ACTION] = torch.zeros(n, dtype=torch.bool, device=env.device)
 
-    def compute(self) -> torch.Tensor:
-        """(B,) bool dones = terminated | time_outs (a robot that fails on its last step is terminated)."""
+    def compute(self, nonfinite_action: torch.Tensor | None = None) -> torch.Tensor:
+        """(B,) bool dones = terminated | time_outs (a robot that fails on its last step is terminated).
+
+        Args:
+            nonfinite_action: (B,) bool, robots whose action was not finite (terminated).
+        """
         self.terminated[:] = False
         self.time_outs[:] = False
+        bad = self.term_dones[NONFINITE_ACTION]
+        bad[:] = False if nonfinite_action is None else nonfinite_action
+        self.terminated |= bad
         for t in self.terms:
             d = t(self.env).bool()
             self.term_dones[t.name][:] = d
