@@ -76,3 +76,17 @@ train: $(STAMP)
 
 play: $(STAMP)
 	$(PY) -m dls_quadruped.learning.play --task $(TASK) --seconds $(PLAY_SECONDS) $(if $(CHECKPOINT),--checkpoint $(CHECKPOINT),)
+
+# ---------------------------------------------------------------------------------------------
+# Policy evaluation (issue 14; scenarios in dls_quadruped/eval/scenarios.py, see docs/eval.md).
+# `make eval POLICY=docs/policies/base_actor.pt SCENARIO=simple EPISODES=256 EVAL_OUT=results/eval/base`
+POLICY ?= docs/policies/base_actor.pt
+SCENARIO ?= simple
+EPISODES ?= 256
+EVAL_OUT ?=
+
+.PHONY: eval
+
+eval: $(STAMP)
+	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval --policy $(POLICY) --scenario $(SCENARIO) --episodes $(EPISODES) \
+		$(if $(EVAL_OUT),--out $(EVAL_OUT),)

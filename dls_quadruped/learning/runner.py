@@ -26,6 +26,8 @@ import torch
 import yaml
 from rsl_rl.runners import OnPolicyRunner
 
+from dls_quadruped.learning.symmetry import check_symmetry_cfg
+
 _CKPT = re.compile(r"model_(\d+)\.pt$")
 
 
@@ -48,6 +50,7 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
 
     def __init__(self, env, train_cfg: dict, log_dir: str | None = None, device: str = "cpu",
                  save_every_s: float | None = None):
+        check_symmetry_cfg(env, train_cfg)  # a bad mirror map fails here, naming its term (issue 14)
         super().__init__(env, train_cfg, log_dir=log_dir, device=device)
         self.save_every_s = save_every_s
         self.stop_signal: int | None = None

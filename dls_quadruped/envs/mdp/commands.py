@@ -33,3 +33,12 @@ def omnidirectional_velocity(env, env_ids: torch.Tensor, max_speed: float, ang_v
     cmd = torch.stack([speed * torch.cos(heading), speed * torch.sin(heading), _uniform(n, ang_vel_z, dev)], dim=-1)
     stand = torch.rand(n, device=dev) < standing_fraction
     return torch.where(stand[:, None], torch.zeros_like(cmd), cmd)
+
+
+def fixed_velocity(env, env_ids: torch.Tensor, values: list[list[float]]) -> torch.Tensor:
+    """Preset commands for evaluation: env i always gets row i of ``values`` ((num_envs, 3): v_x, v_y
+    [m/s], omega_z [rad/s]); with a resampling time beyond the episode, one command per episode."""
+    table = torch.as_tensor(values, dtype=torch.float32, device=env.device)
+    if table.shape != (env.num_envs, 3):
+        raise ValueError(f"fixed_velocity: values must be (num_envs, 3) = ({env.num_envs}, 3), got {tuple(table.shape)}")
+    return table[env_ids]

@@ -1,0 +1,79 @@
+"""Evaluate a policy on a standard scenario (SPEC 10): JSON + plot.
+
+    python -m dls_quadruped.eval --policy docs/policies/base_actor.pt --scenario simple [--episodes 256] [--out DIR]
+    make eval POLICY=docs/policies/base_actor.pt SCENARIO=simple
+
+``--policy``: an exported actor (TorchScript, e.g. ``runs/base/<run>/exported/policy.pt``) or an
+rsl-rl checkpoint (``runs/base/<run>/model_<it>.pt``). Writes ``<out>/<scenario>.json`` and
+``<out>/<scenario>.png`` (default ``results/eval/<policy stem>``) and prints the headline figures
+and the targets. Scenarios: see ``dls_quadruped/eval/scenarios.py`` and docs/eval.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from dls_quadruped.eval.scenario import EvalOptions
+from dls_quadruped.eval.scenarios import SCENARIOS
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--policy", type=Path, required=True, help="exported actor .pt or model_<it>.pt checkpoint")
+    p.add_argument("--scenario", default="simple", choices=sorted(SCENARIOS),
+                   help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()))
+    p.add_argument("--episodes", type=int, default=256, help="episodes, all in parallel")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--num-workers", type=int, default=-1, help="simulator worker processes (-1: one per core)")
+    p.add_argument("--episode-length-s", type=float, default=None, help="override the task's episode length [s]")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default results/eval/<policy stem>)")
+    return p.parse_args(argv)
+
+
+def headline(res: dict) -> str:
+    """A few lines of the main figures (scenarios with tracking metrics)."""
+    lines = [f"[eval] {res['scenario']}: {res['policy']}, {res['episodes']} episodes of {res['episode_length_s']:g} s"]
+    s = res["survival"]
+    lines.append(f"  survival {100 * s['rate']:.1f} % (95 % CI {100 * s['ci95'][0]:.1f}-{100 * s['ci95'][1]:.1f})")
+    for name, a in res.get("axes", {}).items():
+        m = res.get("mirror", {}).get(name, {})
+        lines.append(f"  {name:8s} slope {a['slope']:.3f}  mean error {a['mean_error']:+.3f}"
+                     + (f"  mirror |diff| {m['mean_abs_diff']:.3f} (mean diff {m['mean_diff']:+.3f})" if m else ""))
+    if "tracking" in res:
+        t = res["tracking"]
+        lines.append(f"  |v_xy - cmd| median {t['vxy_error']['median']:.3f} (IQR {t['vxy_error']['q1']:.3f}-"
+                     f"{t['vxy_error']['q3']:.3f}) m/s; |omega_z - cmd| median {t['yaw_rate_error']['median']:.3f} "
+                     f"(IQR {t['yaw_rate_error']['q1']:.3f}-{t['yaw_rate_error']['q3']:.3f}) rad/s")
+    if "reward" in res:
+        lines.append(f"  reward per step {res['reward']['per_step']:.3f} (thesis RL baseline "
+                     f"{res['reward']['thesis_rl_baseline']})")
+    if "targets" in res:
+        missed = [k for k, v in res["targets"].items() if not v["met"]]
+        lines.append(f"  targets met {len(res['targets']) - len(missed)}/{len(res['targets'])}"
+                     + (f"; missed: {', '.join(missed)}" if missed else ""))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = parse_args(argv)
+    scenario = SCENARIOS[args.scenario]
+    opts = EvalOptions(episodes=args.episodes, seed=args.seed, num_workers=args.num_workers,
+                       episode_length_s=args.episode_length_s, device=args.device)
+    t0 = time.perf_counter()
+    res = scenario.evaluate(args.policy, opts)
+    res["wall_s"] = round(time.perf_counter() - t0, 1)
+    out = args.out or Path("results/eval") / args.policy.stem
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{scenario.name}.json").write_text(json.dumps(res, indent=1))
+    scenario.plot(res, out / f"{scenario.name}.png")
+    print(headline(res))
+    print(f"[eval] wrote {out / (scenario.name + '.json')} and .png ({res['wall_s']} s)")
+    return res
+
+
+if __name__ == "__main__":
+    main()

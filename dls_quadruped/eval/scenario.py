@@ -1,0 +1,68 @@
+"""What an evaluation scenario is (``Scenario``), its options, and the evaluation reward.
+
+The table of scenarios by name is ``scenarios.SCENARIOS``.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from dls_quadruped.envs.config import TASKS_DIR, TaskConfig, load_task
+
+EVAL_REWARDS_FILE = TASKS_DIR / "_base_rewards.yaml"
+"""Table 4, base column: the evaluation reward of every scenario and policy."""
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """Size and placement of an evaluation.
+
+    Attributes:
+        episodes: episodes, all run in parallel (one env each).
+        seed: seed of the commands and of the env.
+        num_workers: simulator worker processes (-1 one per core, 0 in-process).
+        episode_length_s: [s] episode length; None keeps the task's (15 s).
+        device: torch device of the env and the policy.
+    """
+
+    episodes: int = 256
+    seed: int = 0
+    num_workers: int = -1
+    episode_length_s: float | None = None
+    device: str = "cpu"
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One evaluation scenario.
+
+    Attributes:
+        name: command-line name.
+        description: one line for ``--help`` and the results.
+        evaluate: (policy path, options) -> JSON-able results.
+        plot: (results, png path) -> None.
+    """
+
+    name: str
+    description: str
+    evaluate: Callable[[Path, EvalOptions], dict]
+    plot: Callable[[dict, Path], None]
+
+
+def eval_rewards() -> dict:
+    """The evaluation reward terms (Table 4, base column), as a task ``rewards`` section."""
+    return copy.deepcopy(load_task(EVAL_REWARDS_FILE).data["rewards"])
+
+
+def replace_sections(task: TaskConfig, sections: dict, source: str) -> TaskConfig:
+    """A copy of ``task`` whose top-level ``sections`` are replaced whole (not deep-merged), their
+    provenance recorded as ``source``."""
+    data = copy.deepcopy(task.data)
+    data.update(copy.deepcopy(sections))
+    sources = {k: v for k, v in task.sources.items() if k.split(".")[0] not in sections}
+    sources.update({name: source for name in sections})
+    return dataclasses.replace(task, data=data, sources=sources)
