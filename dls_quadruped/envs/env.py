@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -59,9 +59,9 @@ class EnvConfig:
     """``env`` section: num_envs, episode_length_s [s] (15), decimation (4 physics steps per policy
     step), seed."""
 
-    num_envs: int = 64
-    episode_length_s: float = 15.0
-    decimation: int = 4
+    num_envs: int = field(default=64, metadata={"min": 1})
+    episode_length_s: float = field(default=15.0, metadata={"gt": 0.0})
+    decimation: int = field(default=4, metadata={"min": 1})
     seed: int = 0
 
 

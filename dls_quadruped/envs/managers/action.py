@@ -19,16 +19,21 @@ from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
 from dls_quadruped.envs.managers.base import format_table
 
 
+def resolve_action_config(task: TaskConfig) -> LatentActionConfig:
+    """The ``actions`` section checked: only ``latent``, with ``LatentActionConfig`` fields."""
+    section = task.section("actions")
+    unknown = sorted(set(section) - {"latent"})
+    if unknown:
+        raise task.error(f"actions.{unknown[0]}", "unknown action term; allowed: ['latent']")
+    return dataclass_from_dict(LatentActionConfig, section.get("latent") or {}, task, "actions.latent")
+
+
 class ActionManager:
     """Holds the raw, previous raw, applied (network units) and applied physical actions, (B, 28) each."""
 
     def __init__(self, task: TaskConfig, env):
         self.env = env
-        section = task.section("actions")
-        unknown = sorted(set(section) - {"latent"})
-        if unknown:
-            raise task.error(f"actions.{unknown[0]}", "unknown action term; allowed: ['latent']")
-        self.cfg = dataclass_from_dict(LatentActionConfig, section.get("latent") or {}, task, "actions.latent")
+        self.cfg = resolve_action_config(task)
         self.interface = ActionInterface(self.cfg, env.scene.terrain.height_at)
         n, dev = env.num_envs, env.device
         self.num_actions = ACTION_DIM

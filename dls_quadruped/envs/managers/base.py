@@ -11,6 +11,13 @@ A term entry in a task file looks like::
 The function's first parameter is the env; every other parameter without a default must appear in
 ``params`` and every key of ``params`` must be a parameter name, or building the env fails with
 an error naming the file, the key and the allowed values.
+
+Values are checked too (``load_task`` runs the same checks, so a bad file fails before anything is
+built): each parameter against the function's annotation (``sigma: float`` refuses ``"wide"``,
+``true`` and NaN), ``[low, high]`` pairs must be ordered, and the conventions of
+``PARAM_RULES`` hold (a kernel width ``sigma`` is > 0, scales and fractions are >= 0). Manager keys
+follow ``KEY_CHECKS``: ``weight`` a finite number (not a bool), ``noise`` >= 0, ``time_out`` a
+bool, ``resampling_time_s`` / ``interval_s`` ordered non-negative ``[low, high]`` seconds.
 """
 
 from __future__ import annotations
@@ -21,7 +28,12 @@ from dataclasses import dataclass, field
 from types import ModuleType
 from typing import Any
 
-from dls_quadruped.envs.config import TaskConfig
+from dls_quadruped.envs.config import (
+    TaskConfig,
+    interval_problem,
+    type_hints,
+    type_problem,
+)
 
 
 @dataclass
@@ -42,6 +54,69 @@ class Term:
 
     def __call__(self, env, *args) -> Any:
         return self.func(env, *args, **self.params)
+
+
+def _number(value: Any) -> str | None:
+    return type_problem(value, float)
+
+
+def _non_negative(value: Any) -> str | None:
+    return type_problem(value, float) or (f"must be >= 0, got {value}" if value < 0 else None)
+
+
+def _positive(value: Any) -> str | None:
+    return type_problem(value, float) or (f"must be > 0, got {value}" if not value > 0 else None)
+
+
+def _seconds_interval(value: Any) -> str | None:
+    problem = interval_problem(value, non_negative=True)
+    if problem is None and not value[1] > 0:
+        return f"must end after 0 s, got {list(value)}"
+    return problem
+
+
+def _optional_seconds_interval(value: Any) -> str | None:
+    return None if value is None else _seconds_interval(value)
+
+
+def _boolean(value: Any) -> str | None:
+    return type_problem(value, bool)
+
+
+KEY_CHECKS: dict[str, Callable[[Any], str | None]] = {
+    "weight": _number,
+    "noise": _non_negative,
+    "time_out": _boolean,
+    "resampling_time_s": _seconds_interval,
+    "interval_s": _optional_seconds_interval,
+}
+"""Checks of the manager keys of a term entry (rewards ``weight``, observations ``noise``, ...)."""
+
+PARAM_RULES: dict[str, Callable[[Any], str | None]] = {
+    "sigma": _positive,  # a zero or negative kernel width zeroes or inverts a tracking reward
+    "joint_scale": lambda v: interval_problem(v, non_negative=True),
+    "scale_range": lambda v: interval_problem(v, non_negative=True),
+    "friction_range": lambda v: interval_problem(v, non_negative=True),
+    "standing_fraction": _non_negative,
+    "max_speed": _non_negative,
+    "alpha": _non_negative,
+    "alpha_max": _non_negative,
+}
+"""Range conventions of term parameters, by parameter name (types come from the annotations)."""
+
+
+def check_params(task: TaskConfig, key: str, func: Callable, params: dict[str, Any]) -> None:
+    """Type-check ``params`` against ``func``'s annotations, order ``[low, high]`` pairs, apply ``PARAM_RULES``."""
+    hints = type_hints(func)
+    for name, value in params.items():
+        annotation = hints.get(name, Any)
+        problem = type_problem(value, annotation)
+        if problem is None and annotation == tuple[float, float]:
+            problem = interval_problem(value)
+        if problem is None and name in PARAM_RULES:
+            problem = PARAM_RULES[name](value)
+        if problem is not None:
+            raise task.error(f"{key}.params.{name}", problem)
 
 
 def public_functions(module: ModuleType) -> dict[str, Callable]:
@@ -77,7 +152,11 @@ def resolve_terms(task: TaskConfig, section: str, module: ModuleType, extra_keys
         unknown = sorted(set(spec) - allowed_keys)
         if unknown:
             raise task.error(f"{key}.{unknown[0]}", f"unknown key; allowed: {sorted(allowed_keys)}")
+        if not isinstance(spec.get("params") or {}, dict):
+            raise task.error(f"{key}.params", f"must be a mapping of parameter names to values, got {spec['params']!r}")
         func_name = spec.get("func", name)
+        if not isinstance(func_name, str):
+            raise task.error(f"{key}.func", f"must be a function name, got {func_name!r}")
         if func_name not in registry:
             raise task.error(f"{key}.func", f"unknown term function {func_name!r}; allowed: {sorted(registry)}")
         func = registry[func_name]
@@ -90,11 +169,14 @@ def resolve_terms(task: TaskConfig, section: str, module: ModuleType, extra_keys
         missing = [p for p in names if sig.parameters[p].default is inspect.Parameter.empty and p not in params]
         if missing:
             raise task.error(f"{key}.params", f"missing required parameter(s) {missing} of {func_name}")
+        check_params(task, key, func, params)
         extra = {}
         for k, default in extra_keys.items():
             if k not in spec and default is ...:
                 raise task.error(key, f"missing required key {k!r}")
             extra[k] = spec.get(k, default)
+            if k in spec and k in KEY_CHECKS and (problem := KEY_CHECKS[k](spec[k])) is not None:
+                raise task.error(f"{key}.{k}", problem)
         terms.append(Term(name, func, params, extra))
     return terms
 

@@ -14,18 +14,23 @@ from __future__ import annotations
 import torch
 
 from dls_quadruped.envs.config import TaskConfig
-from dls_quadruped.envs.managers.base import format_table, resolve_terms
+from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
 from dls_quadruped.envs.mdp import commands as cmd_mdp
+
+
+def resolve_command(task: TaskConfig) -> Term:
+    """The ``commands`` section checked and resolved: exactly one term; ``resampling_time_s`` ordered, >= 0."""
+    terms = resolve_terms(task, "commands", cmd_mdp, {"resampling_time_s": [10.0, 10.0]},
+                          positional=("env", "env_ids"))
+    if len(terms) != 1:
+        raise task.error("commands", f"exactly one command term is supported, got {[t.name for t in terms]}")
+    return terms[0]
 
 
 class CommandManager:
     def __init__(self, task: TaskConfig, env):
         self.env = env
-        terms = resolve_terms(task, "commands", cmd_mdp, {"resampling_time_s": [10.0, 10.0]},
-                              positional=("env", "env_ids"))
-        if len(terms) != 1:
-            raise task.error("commands", f"exactly one command term is supported, got {[t.name for t in terms]}")
-        self.term = terms[0]
+        self.term = resolve_command(task)
         self.params = self.term.params  # mutable: curricula widen the ranges
         self.resampling_time_s = tuple(float(x) for x in self.term.extra["resampling_time_s"])
         self.command = torch.zeros(env.num_envs, 3, device=env.device)

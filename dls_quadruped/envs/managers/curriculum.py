@@ -6,14 +6,19 @@ from __future__ import annotations
 import torch
 
 from dls_quadruped.envs.config import TaskConfig
-from dls_quadruped.envs.managers.base import format_table, resolve_terms
+from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
 from dls_quadruped.envs.mdp import curriculum as cur_mdp
+
+
+def resolve_curriculum(task: TaskConfig) -> list[Term]:
+    """The ``curriculum`` section checked and resolved."""
+    return resolve_terms(task, "curriculum", cur_mdp, {}, positional=("env", "env_ids"))
 
 
 class CurriculumManager:
     def __init__(self, task: TaskConfig, env):
         self.env = env
-        self.terms = resolve_terms(task, "curriculum", cur_mdp, {}, positional=("env", "env_ids"))
+        self.terms = resolve_curriculum(task)
         self.state: dict = {}
         self.values: dict[str, float] = {}
 

@@ -6,27 +6,32 @@ from __future__ import annotations
 import torch
 
 from dls_quadruped.envs.config import TaskConfig
-from dls_quadruped.envs.managers.base import format_table, resolve_terms
+from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
 from dls_quadruped.envs.mdp import events as event_mdp
 
 MODES = ("startup", "reset", "interval")
 
 
+def resolve_events(task: TaskConfig) -> list[Term]:
+    """The ``events`` section checked and resolved: known modes, ``interval_s`` on interval events."""
+    terms = resolve_terms(task, "events", event_mdp, {"mode": ..., "interval_s": None}, positional=("env", "env_ids"))
+    for t in terms:
+        key = f"events.{t.name}"
+        if t.extra["mode"] not in MODES:
+            raise task.error(f"{key}.mode", f"unknown mode {t.extra['mode']!r}; allowed: {list(MODES)}")
+        if t.extra["mode"] == "interval" and t.extra["interval_s"] is None:
+            raise task.error(f"{key}.interval_s", "interval events need interval_s: [low, high] seconds")
+    return terms
+
+
 class EventManager:
     def __init__(self, task: TaskConfig, env):
         self.env = env
-        terms = resolve_terms(task, "events", event_mdp, {"mode": ..., "interval_s": None},
-                              positional=("env", "env_ids"))
         # placement first: VecSim.reset clears the base wrench, so e.g. external_wrench must come after it
-        self.terms = sorted(terms, key=lambda t: t.func is not event_mdp.reset_robot)
+        self.terms = sorted(resolve_events(task), key=lambda t: t.func is not event_mdp.reset_robot)
         self.timers: dict[str, torch.Tensor] = {}
         for t in self.terms:
-            key = f"events.{t.name}"
-            if t.extra["mode"] not in MODES:
-                raise task.error(f"{key}.mode", f"unknown mode {t.extra['mode']!r}; allowed: {list(MODES)}")
             if t.extra["mode"] == "interval":
-                if t.extra["interval_s"] is None or len(t.extra["interval_s"]) != 2:
-                    raise task.error(f"{key}.interval_s", "interval events need interval_s: [low, high] seconds")
                 self.timers[t.name] = self._draw(t, env.num_envs)
 
     def _draw(self, term, n: int) -> torch.Tensor:

@@ -14,11 +14,29 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
-from dls_quadruped.envs.config import TaskConfig
+from dls_quadruped.envs.config import TaskConfig, type_problem
 from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
 from dls_quadruped.envs.mdp import observations as obs_mdp
 
 GROUP_KEYS = ("noise_scale", "terms")
+
+
+def resolve_groups(task: TaskConfig) -> tuple[dict[str, list[Term]], dict[str, float]]:
+    """The ``observations`` section checked and resolved: ({group: terms}, {group: noise_scale >= 0})."""
+    groups: dict[str, list[Term]] = {}
+    noise_scale: dict[str, float] = {}
+    for group, spec in task.section("observations").items():
+        key = f"observations.{group}"
+        if not isinstance(spec, dict) or set(spec) - set(GROUP_KEYS):
+            raise task.error(key, f"a group is a mapping with keys {list(GROUP_KEYS)}")
+        scale = spec.get("noise_scale", 1.0)
+        problem = type_problem(scale, float) or (f"must be >= 0, got {scale}" if scale < 0 else None)
+        if problem is not None:
+            raise task.error(f"{key}.noise_scale", problem)
+        noise_scale[group] = float(scale)
+        groups[group] = resolve_terms(task, "observations", obs_mdp, {"noise": 0.0},
+                                      entries=spec.get("terms") or {}, key_prefix=f"{key}.terms")
+    return groups, noise_scale
 
 
 class ObservationManager:
@@ -26,15 +44,7 @@ class ObservationManager:
 
     def __init__(self, task: TaskConfig, env):
         self.env = env
-        self.groups: dict[str, list[Term]] = {}
-        self.noise_scale: dict[str, float] = {}
-        for group, spec in task.section("observations").items():
-            key = f"observations.{group}"
-            if not isinstance(spec, dict) or set(spec) - set(GROUP_KEYS):
-                raise task.error(key, f"a group is a mapping with keys {list(GROUP_KEYS)}")
-            self.noise_scale[group] = float(spec.get("noise_scale", 1.0))
-            self.groups[group] = resolve_terms(task, "observations", obs_mdp, {"noise": 0.0},
-                                               entries=spec.get("terms") or {}, key_prefix=f"{key}.terms")
+        self.groups, self.noise_scale = resolve_groups(task)
         self.dims: dict[str, dict[str, int]] = {}
 
     def compute(self) -> TensorDict:

@@ -9,17 +9,19 @@ from __future__ import annotations
 import torch
 
 from dls_quadruped.envs.config import TaskConfig
-from dls_quadruped.envs.managers.base import format_table, resolve_terms
+from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
 from dls_quadruped.envs.mdp import rewards as reward_mdp
+
+
+def resolve_rewards(task: TaskConfig) -> list[Term]:
+    """The ``rewards`` section checked and resolved (``weight``: a finite number, not a bool)."""
+    return resolve_terms(task, "rewards", reward_mdp, {"weight": ...})
 
 
 class RewardManager:
     def __init__(self, task: TaskConfig, env):
         self.env = env
-        self.terms = resolve_terms(task, "rewards", reward_mdp, {"weight": ...})
-        for t in self.terms:
-            if not isinstance(t.extra["weight"], (int, float)):
-                raise task.error(f"rewards.{t.name}.weight", "must be a number")
+        self.terms = resolve_rewards(task)
         self.weights = {t.name: float(t.extra["weight"]) for t in self.terms}
         self.episode_sums = {t.name: torch.zeros(env.num_envs, device=env.device) for t in self.terms}
         self.step_reward = torch.zeros(env.num_envs, len(self.terms), device=env.device)

@@ -10,16 +10,21 @@ from __future__ import annotations
 import torch
 
 from dls_quadruped.envs.config import TaskConfig
-from dls_quadruped.envs.managers.base import format_table, resolve_terms
+from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
 from dls_quadruped.envs.mdp import terminations as term_mdp
 
 NONFINITE_ACTION = "nonfinite_action"
 
 
+def resolve_terminations(task: TaskConfig) -> list[Term]:
+    """The ``terminations`` section checked and resolved (``time_out``: a bool)."""
+    return resolve_terms(task, "terminations", term_mdp, {"time_out": False})
+
+
 class TerminationManager:
     def __init__(self, task: TaskConfig, env):
         self.env = env
-        self.terms = resolve_terms(task, "terminations", term_mdp, {"time_out": False})
+        self.terms = resolve_terminations(task)
         n = env.num_envs
         self.terminated = torch.zeros(n, dtype=torch.bool, device=env.device)
         self.time_outs = torch.zeros(n, dtype=torch.bool, device=env.device)
