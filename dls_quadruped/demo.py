@@ -15,12 +15,18 @@ import os
 # the GL backend is chosen when mujoco is first imported: headless EGL unless the user chose one
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
+from dls_quadruped.cli import (
+    ArgumentParser,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_cli,
+)
+from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.balance_run import BalanceRun, run_balance
 from dls_quadruped.sim.backend import SimConfig
 from dls_quadruped.viz.video import render_gif
@@ -57,25 +63,24 @@ def plot_run(run: BalanceRun, path: Path, robot: int = 0) -> None:
     plt.close(fig)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description="Stand then trot in place with the balance-controller baseline.")
-    parser.add_argument("--num-envs", type=int, default=64)
-    parser.add_argument("--seconds", type=float, default=5.0, help="duration of each phase (stand, trot) [s]")
+def main(argv: list[str] | None = None) -> dict:
+    parser = ArgumentParser(description="Stand then trot in place with the balance-controller baseline.")
+    parser.add_argument("--num-envs", type=positive_int, default=64)
+    parser.add_argument("--seconds", type=positive_float, default=5.0, help="duration of each phase (stand, trot) [s]")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--workers", type=int, default=0, help="backend worker processes (0: in-process)")
+    parser.add_argument("--workers", type=non_negative_int, default=0, help="backend worker processes (0: in-process)")
     parser.add_argument("--out", type=Path, default=Path("results/demo"))
-    args = parser.parse_args()
-    if args.num_envs < 1 or args.seconds <= 0:
-        parser.error("--num-envs must be >= 1 and --seconds > 0")
+    args = parser.parse_args(argv)
     run = run_balance(num_envs=args.num_envs, stand_seconds=args.seconds, trot_seconds=args.seconds, seed=args.seed,
                       sim_cfg=SimConfig(num_workers=args.workers))
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "summary.json").write_text(json.dumps(run.summary, indent=2))
+    text = write_json(run.summary, args.out / "summary.json")
     plot_run(run, args.out / "balance.png")
-    print(json.dumps(run.summary, indent=2))
+    print(text)
     print(f"wrote {args.out / 'summary.json'} and {args.out / 'balance.png'}")
     print(render_gif(run, args.out / "trot.gif"))
+    return run.summary
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)

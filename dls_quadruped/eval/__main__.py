@@ -12,16 +12,17 @@ and the targets. Scenarios: see ``dls_quadruped/eval/scenarios.py`` and docs/eva
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
+from dls_quadruped.cli import ArgumentParser, run_cli
+from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.scenario import EvalOptions
 from dls_quadruped.eval.scenarios import SCENARIOS
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--policy", type=Path, required=True, help="exported actor .pt or model_<it>.pt checkpoint")
     p.add_argument("--scenario", default="simple", choices=sorted(SCENARIOS),
                    help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()))
@@ -68,7 +69,7 @@ def main(argv: list[str] | None = None) -> dict:
     res["wall_s"] = round(time.perf_counter() - t0, 1)
     out = args.out or Path("results/eval") / args.policy.stem
     out.mkdir(parents=True, exist_ok=True)
-    (out / f"{scenario.name}.json").write_text(json.dumps(res, indent=1))
+    write_json(res, out / f"{scenario.name}.json", indent=1)  # strict JSON: a NaN metric becomes null, listed
     scenario.plot(res, out / f"{scenario.name}.png")
     print(headline(res))
     print(f"[eval] wrote {out / (scenario.name + '.json')} and .png ({res['wall_s']} s)")
@@ -76,4 +77,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)  # user errors (missing policy, bad flag) as one line, exit 2 (issue 9)

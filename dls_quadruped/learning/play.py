@@ -26,10 +26,23 @@ import mujoco
 import numpy as np
 import torch
 
+from dls_quadruped.cli import (
+    ArgumentParser,
+    UserError,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_cli,
+)
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.envs.mdp.observations import base_lin_vel, foot_contact
-from dls_quadruped.learning.runner import AtomicOnPolicyRunner, runner_config
+from dls_quadruped.learning.runner import (
+    AtomicOnPolicyRunner,
+    CheckpointMismatch,
+    read_checkpoint,
+    runner_config,
+)
 from dls_quadruped.robots.aliengo import constants as C
 
 
@@ -112,29 +125,38 @@ def plot_gait(trace: dict, path: Path, dt: float) -> None:
 
 
 def main(argv: list[str] | None = None) -> Path:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="base")
     p.add_argument("--checkpoint", type=Path, default=None, help="model_<it>.pt; none = zero action (feed-forward)")
-    p.add_argument("--num-envs", type=int, default=4)
-    p.add_argument("--seconds", type=float, default=10.0)
+    p.add_argument("--num-envs", type=positive_int, default=4)
+    p.add_argument("--seconds", type=positive_float, default=10.0)
     p.add_argument("--out", type=Path, default=None)
-    p.add_argument("--num-workers", type=int, default=0)
+    p.add_argument("--num-workers", type=non_negative_int, default=0)
     p.add_argument("--no-video", action="store_true")
     args = p.parse_args(argv)
     if args.checkpoint is not None and not args.checkpoint.is_file():
         p.error(f"--checkpoint {args.checkpoint}: no such file (expected a runs/<task>/<run>/model_<it>.pt)")
+    ckpt = None
+    if args.checkpoint is not None:
+        try:
+            ckpt = read_checkpoint(args.checkpoint)
+        except ValueError as err:
+            raise UserError(f"--checkpoint {args.checkpoint}: unreadable ({err})") from None
     task = load_task(args.task, overrides={"scene": {"num_workers": args.num_workers}})
     env = LocomotionEnv(task, num_envs=args.num_envs, verbose=False)
     out = args.out or (args.checkpoint.parent / "play" if args.checkpoint else Path("runs") / task.name / "play")
-    out.mkdir(parents=True, exist_ok=True)
     try:
-        if args.checkpoint is not None:
+        if ckpt is not None:
             runner = AtomicOnPolicyRunner(env, runner_config(task.data["agent"]), log_dir=None)
-            runner.load(str(args.checkpoint))
+            try:  # the networks only: play shows the task's own command ranges and terrain
+                runner.load_checkpoint(ckpt, str(args.checkpoint), env_state=False)
+            except CheckpointMismatch as err:
+                raise UserError(f"--checkpoint {err} (task {task.name})") from None
             policy = runner.get_inference_policy()
         else:
             def policy(obs):
                 return torch.zeros(env.num_envs, env.num_actions)
+        out.mkdir(parents=True, exist_ok=True)
         recorder = None
         if not args.no_video:
             try:
@@ -154,4 +176,4 @@ def main(argv: list[str] | None = None) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)

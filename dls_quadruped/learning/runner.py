@@ -118,8 +118,9 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         self._last_save_time = time.monotonic()
         self.logger.save_model(path, self.current_learning_iteration)
 
-    def load_checkpoint(self, ckpt: dict, path: str) -> None:
-        """Load an already read checkpoint: networks, optimiser, iteration and (if saved) the env state.
+    def load_checkpoint(self, ckpt: dict, path: str, env_state: bool = True) -> None:
+        """Load an already read checkpoint: networks, optimiser, iteration and (if saved and
+        ``env_state``) the env state.
 
         Raises:
             CheckpointMismatch: the checkpoint was trained on other observation or action sizes.
@@ -136,7 +137,7 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
             raise CheckpointMismatch(f"{path} does not fit this task's networks: "
                                      f"{' '.join(line.strip() for line in first[:3])}") from err
         self.current_learning_iteration = ckpt["iter"]
-        if "env_state" in ckpt and hasattr(self.env, "load_state_dict"):
+        if env_state and "env_state" in ckpt and hasattr(self.env, "load_state_dict"):
             try:
                 self.env.load_state_dict(ckpt["env_state"])
             except (KeyError, ValueError) as err:

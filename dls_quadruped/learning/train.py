@@ -25,7 +25,14 @@ from pathlib import Path
 
 import torch
 
-from dls_quadruped.cli import ArgumentParser, UserError, run_cli
+from dls_quadruped.cli import (
+    ArgumentParser,
+    UserError,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_cli,
+)
 from dls_quadruped.envs.config import load_task, save_resolved
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.learning.runner import (
@@ -44,32 +51,11 @@ from dls_quadruped.learning.runner import (
 DEFAULT_SAVE_EVERY_MIN = 5.0
 
 
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
-def _non_negative_int(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    value = float(text)
-    if not value > 0.0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
-
-
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="base", help="task name in tasks/ or a YAML path")
-    p.add_argument("--num-envs", type=_positive_int, default=None)
-    p.add_argument("--iterations", type=_positive_int, default=None,
+    p.add_argument("--num-envs", type=positive_int, default=None)
+    p.add_argument("--iterations", type=positive_int, default=None,
                    help="PPO iterations (default: agent.max_iterations)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--seed", type=int, default=0)
@@ -77,11 +63,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--run-dir", type=Path, default=None,
                    help="run directory (default: a new <log-root>/<task>/<time>); must be empty unless --resume")
     p.add_argument("--log-root", type=Path, default=Path("runs"))
-    p.add_argument("--save-interval", type=_positive_int, default=None,
+    p.add_argument("--save-interval", type=positive_int, default=None,
                    help="save every K iterations (default: iterations/10, at most agent.save_interval)")
-    p.add_argument("--save-every-min", type=_positive_float, default=DEFAULT_SAVE_EVERY_MIN,
+    p.add_argument("--save-every-min", type=positive_float, default=DEFAULT_SAVE_EVERY_MIN,
                    help=f"also save when this many minutes passed since the last save ({DEFAULT_SAVE_EVERY_MIN})")
-    p.add_argument("--num-workers", type=_non_negative_int, default=None,
+    p.add_argument("--num-workers", type=non_negative_int, default=None,
                    help="simulator worker processes (scene.num_workers; 0 = in-process)")
     return p.parse_args(argv)
 

@@ -10,6 +10,7 @@ Three small dataclasses, all frozen and hashable (the compiled kernel is cached 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, fields
 
 from dls_quadruped.control.latent_action import LatentActionConfig
@@ -54,8 +55,8 @@ class CostWeights:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            if not getattr(self, f.name) >= 0:
-                raise ValueError(f"CostWeights.{f.name} must be >= 0, got {getattr(self, f.name)!r}")
+            if not 0 <= getattr(self, f.name) < math.inf:
+                raise ValueError(f"CostWeights.{f.name} must be >= 0 and finite, got {getattr(self, f.name)!r}")
 
     def q_diag(self) -> tuple[float, ...]:
         """The 24 diagonal entries of Q in state order [p, v, Phi, omega, p_f]."""
@@ -147,12 +148,12 @@ class SamplerConfig:
         if not isinstance(self.horizon, int) or self.horizon < 1:
             raise ValueError(f"SamplerConfig.horizon must be an int >= 1, got {self.horizon!r}")
         for name in ("dt", "mpc_period"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"SamplerConfig.{name} must be > 0, got {getattr(self, name)!r}")
+            if not 0 < getattr(self, name) < math.inf:
+                raise ValueError(f"SamplerConfig.{name} must be > 0 and finite, got {getattr(self, name)!r}")
         for name in ("sigma_f", "sigma_d", "sigma_p", "sigma_F"):
-            if not getattr(self, name) >= 0:
+            if not 0 <= getattr(self, name) < math.inf:  # inf noise turns every sample into NaN/inf
                 raise ValueError(
-                    f"SamplerConfig.{name} must be >= 0 (0 switches that variable's optimisation off), "
+                    f"SamplerConfig.{name} must be >= 0 and finite (0 switches that variable's optimisation off), "
                     f"got {getattr(self, name)!r}"
                 )
         if self.kernel not in KERNELS:

@@ -14,13 +14,20 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported anywhere
 
-import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
+from dls_quadruped.cli import (
+    ArgumentParser,
+    UserError,
+    finite_float,
+    positive_float,
+    positive_int,
+    run_cli,
+)
+from dls_quadruped.core.json_io import write_json
 from dls_quadruped.mpc.baseline import BaselineConfig, BaselineRun, run_baseline
 from dls_quadruped.mpc.config import KERNELS, SamplerConfig
 from dls_quadruped.viz.video import render_gif
@@ -55,44 +62,61 @@ def plot_baseline(run: BaselineRun, cmd: tuple[float, float, float], path: Path,
     plt.close(fig)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--vx", type=float, default=0.5, help="forward velocity command [m/s]")
-    parser.add_argument("--vy", type=float, default=0.0, help="lateral velocity command [m/s]")
-    parser.add_argument("--yaw-rate", type=float, default=0.0, help="yaw-rate command [rad/s]")
-    parser.add_argument("--seconds", type=float, default=15.0)
-    parser.add_argument("--samples", type=int, default=10000, help="M, samples per solve")
-    parser.add_argument("--horizon", type=int, default=10, help="N, rollout steps of dt = 0.02 s")
+SETTLE_S = 2.0
+"""Velocity statistics start after this much time [s] (the gait starts from standing)."""
+
+
+def summarize(run: BaselineRun, cmd: tuple[float, float, float], settle_s: float = SETTLE_S) -> dict:
+    """Mean planar velocity after ``settle_s`` and its error; over the whole run when it is shorter
+    (``velocity_window_s`` says which), so a short run never averages an empty window into NaN."""
+    window = run.time > settle_s
+    if not window.any():
+        window = np.ones_like(run.time, dtype=bool)
+    vel = run.base_vel_w[window, 0, :2].mean(axis=0)
+    return {
+        "velocity_window_s": [float(run.time[window][0]), float(run.time[window][-1])],
+        "mean_velocity_xy": vel.tolist(), "velocity_error_xy": (vel - np.array(cmd[:2])).tolist(),
+        "fallen": bool(run.fallen[0]),
+        "median_rollout_cost": float(np.median(run.best_cost[:, 0])),
+        "median_initial_cost": float(np.median(run.initial_cost[:, 0])),
+    }
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--vx", type=finite_float, default=0.5, help="forward velocity command [m/s]")
+    parser.add_argument("--vy", type=finite_float, default=0.0, help="lateral velocity command [m/s]")
+    parser.add_argument("--yaw-rate", type=finite_float, default=0.0, help="yaw-rate command [rad/s]")
+    parser.add_argument("--seconds", type=positive_float, default=15.0)
+    parser.add_argument("--samples", type=positive_int, default=10000, help="M, samples per solve")
+    parser.add_argument("--horizon", type=positive_int, default=10, help="N, rollout steps of dt = 0.02 s")
     parser.add_argument("--kernel", choices=KERNELS, default=SamplerConfig.kernel)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-video", action="store_true")
     parser.add_argument("--out", type=Path, default=Path("results/mpc_baseline"))
-    args = parser.parse_args()
-    if args.seconds <= 0:
-        parser.error("--seconds must be > 0")
+    args = parser.parse_args(argv)
     cmd = (args.vx, args.vy, args.yaw_rate)
-    cfg = BaselineConfig(sampler=SamplerConfig(num_samples=args.samples, horizon=args.horizon, kernel=args.kernel))
+    try:
+        cfg = BaselineConfig(sampler=SamplerConfig(num_samples=args.samples, horizon=args.horizon, kernel=args.kernel))
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    if args.seconds < cfg.sampler.mpc_period:
+        raise UserError(f"--seconds must cover at least one MPC period ({cfg.sampler.mpc_period} s), got {args.seconds}")
     t0 = time.perf_counter()
     run = run_baseline(cmd, args.seconds, cfg=cfg, seed=args.seed, device=args.device)
     wall = time.perf_counter() - t0
-    settle = run.time > 2.0
-    vel = run.base_vel_w[settle, 0, :2].mean(axis=0)
-    summary = {
-        "command": cmd, "seconds": args.seconds, "samples": args.samples, "horizon": args.horizon,
-        "kernel": args.kernel, "device": args.device, "mean_velocity_xy_after_2s": vel.tolist(),
-        "velocity_error_xy": (vel - np.array(cmd[:2])).tolist(), "fallen": bool(run.fallen[0]),
-        "median_rollout_cost": float(np.median(run.best_cost[:, 0])),
-        "median_initial_cost": float(np.median(run.initial_cost[:, 0])), "wall_seconds": wall,
-    }
+    summary = {"command": cmd, "seconds": args.seconds, "samples": args.samples, "horizon": args.horizon,
+               "kernel": args.kernel, "device": args.device, **summarize(run, cmd), "wall_seconds": wall}
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
+    text = write_json(summary, args.out / "summary.json")
     plot_baseline(run, cmd, args.out / "baseline.png")
-    print(json.dumps(summary, indent=2))
+    print(text)
     print(f"wrote {args.out / 'summary.json'} and {args.out / 'baseline.png'}")
     if not args.no_video:
         print(render_gif(run, args.out / "walk.gif"))
+    return summary
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)

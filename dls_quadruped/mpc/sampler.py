@@ -6,8 +6,11 @@
 
 Per solve: validate inputs -> split M into warm-start groups -> draw/clip/decode -> roll out and
 cost every sample (``cpp``, ``fast`` or ``reference`` kernel, :mod:`kernel`) -> argmin -> re-draw and decode
-the winner's first action. Robots whose state is not finite get the previous solution back
-(``fallback`` flag and ``reason``) instead of a meaningless argmin.
+the winner's first action. Robots with a non-finite input (state, phase, base
+position or yaw, terrain height, any reference) get the previous solution back (``fallback`` flag and
+``reason`` naming the robots and the input) instead of a meaningless argmin; a solution that is
+not finite for any other reason is replaced the same way, so ``fallback = False`` always means a
+finite action.
 """
 
 from __future__ import annotations
@@ -51,8 +54,9 @@ class MPCResult:
         best_index: (B,) long, winning sample (-1 for a fallback robot).
         warm_start_index: (B,) long, warm start whose group the winner came from (-1 for a fallback).
         best_encoded: (B, D) winning encoded action (box-clipped), for the naive warm start.
-        fallback: (B,) bool, True where the state was not finite and the previous solution (or the
-            first warm start if there was none) was returned unchanged.
+        fallback: (B,) bool, True where an input (state, phase, base_xy_w, base_yaw, terrain_z_w, a
+            reference) or the solution was not finite and the previous solution (or the first warm
+            start if there was none) was returned unchanged. False always means a finite action.
         reason: "" or a sentence naming the fallback robots and why.
     """
 
@@ -201,7 +205,8 @@ class SamplingMPC:
         b, dev = state.batch_size, self.device
         state = state.to(dev)
         refs = refs.to(dev)
-        finite = state.finite_mask()
+        bad_inputs: dict[str, torch.Tensor] = {"state": ~state.finite_mask()}
+        finite = ~bad_inputs["state"]
         x0 = torch.where(finite[:, None], state.as_vector(), torch.zeros(()).to(dev))  # keep NaN out of the kernel
         safe_state = SRBDState.from_vector(x0)
         if base_yaw is None:
@@ -215,11 +220,22 @@ class SamplingMPC:
         for name, value, shape in (("base_xy_w", base_xy_w, (b, 2)), ("base_yaw", base_yaw, (b,)),
                                    ("terrain_z_w", terrain_z_w, (b, 4))):
             _check_tensor(name, value, shape)
+        # every other per-robot input: a non-finite row sends that robot to the fallback, zeros go to the kernel
+        inputs = {"phase": phase, "base_xy_w": base_xy_w, "base_yaw": base_yaw, "terrain_z_w": terrain_z_w,
+                  "refs.com_height_w": refs.com_height_w, "refs.lin_vel_w": refs.lin_vel_w,
+                  "refs.yaw_rate": refs.yaw_rate, "refs.foothold_w": refs.foothold_w}
+        clean = {}
+        for name, value in inputs.items():
+            value = value.to(dev, torch.float32)
+            ok = torch.isfinite(value).reshape(b, -1).all(dim=1)
+            bad_inputs[name] = ~ok
+            clean[name] = torch.where(torch.isfinite(value), value, torch.zeros((), device=dev))
+        refs = Refs(clean["refs.com_height_w"], clean["refs.lin_vel_w"], clean["refs.yaw_rate"], clean["refs.foothold_w"])
+        finite = ~torch.stack(list(bad_inputs.values())).any(dim=0)
         group, perturb = self._layout(props)
         seed = torch.randint(0, 2**31 - 1, (), generator=self.generator).to(dev)
-        inp = KernelInputs(seed, ws, group, perturb, x0, phase.to(dev, torch.float32),
-                           base_xy_w.to(dev, torch.float32), base_yaw.to(dev, torch.float32),
-                           terrain_z_w.to(dev, torch.float32), refs)
+        inp = KernelInputs(seed, ws, group, perturb, x0, clean["phase"], clean["base_xy_w"], clean["base_yaw"],
+                           clean["terrain_z_w"], refs)
         if self.cfg.kernel == "cpp":
             costs = cpp_costs(inp, self.cfg, self.model)
         elif self.cfg.kernel == "fast":
@@ -228,8 +244,11 @@ class SamplingMPC:
             costs = reference_costs(inp, self.cfg, self.model)
         best_cost, best_index = costs.min(dim=1)
         result = self._extract(inp, best_index, best_cost, initial_cost(x0, refs, self.cfg.weights))
-        if not bool(finite.all()):
-            result = self._fallback(result, ~finite, inp)
+        # last guard: whatever the cause, a non-finite action never leaves with fallback = False
+        bad_inputs["solution"] = finite & ~_action_finite(result)
+        bad = torch.stack(list(bad_inputs.values())).any(dim=0)
+        if bool(bad.any()):
+            result = self._fallback(result, bad, inp, _describe_bad(bad_inputs))
         self.last_result = result
         return result
 
@@ -248,9 +267,8 @@ class SamplingMPC:
             fallback=torch.zeros(b, dtype=torch.bool, device=best_index.device),
         )
 
-    def _fallback(self, result: MPCResult, bad: torch.Tensor, inp: KernelInputs) -> MPCResult:
-        """Robots with a non-finite state keep the previous solution (or the first warm start, decoded)."""
-        robots = torch.nonzero(bad).flatten().tolist()
+    def _fallback(self, result: MPCResult, bad: torch.Tensor, inp: KernelInputs, why: str) -> MPCResult:
+        """Robots with a non-finite input keep the previous solution (or the first warm start, decoded)."""
         prev = self.last_result
         if prev is not None and prev.f.shape[0] == bad.shape[0] and prev.f.device == bad.device:
             source = "the previous solution"
@@ -269,5 +287,25 @@ class SamplingMPC:
             best_index=torch.where(bad, minus, result.best_index),
             warm_start_index=torch.where(bad, minus, result.warm_start_index),
             fallback=bad.clone(),
-            reason=f"state of robots {robots} is not finite (NaN/inf): returned {source} for them",
+            reason=f"{why}: returned {source} for them",
         )
+
+
+_ACTION_FIELDS = ("f", "d", "foot_target_w", "force_w", "p_h", "F_h", "best_encoded")
+
+
+def _action_finite(result: MPCResult) -> torch.Tensor:
+    """(B,) bool: every action field of the robot is finite."""
+    b = result.f.shape[0]
+    return torch.stack([torch.isfinite(getattr(result, n)).reshape(b, -1).all(dim=1) for n in _ACTION_FIELDS]).all(0)
+
+
+def _describe_bad(bad_inputs: dict[str, torch.Tensor]) -> str:
+    """'state of robots [1] is not finite (NaN/inf); refs.lin_vel_w of robots [0, 2] is not finite ...'."""
+    parts = []
+    for name, mask in bad_inputs.items():
+        if bool(mask.any()):
+            robots = torch.nonzero(mask).flatten().tolist()
+            what = "the solution" if name == "solution" else name
+            parts.append(f"{what} of robots {robots} is not finite (NaN/inf)")
+    return "; ".join(parts)
