@@ -3,7 +3,8 @@
 Measures, in one run on the same cores:
 
 * ``raw``: open-loop ``mujoco.batch.Batch`` physics (all threads, constant standing
-  torques, no controller) — the ceiling;
+  torques, no controller) — the ceiling; also with the robot's self-collision switched off
+  (``conaffinity = 0`` on its geoms), which prices the self-collision pairs;
 * ``python loop``: the alternative to ``Batch``, ``mj_step`` on one ``MjData`` per robot in a
   Python loop (GIL held, one core);
 * ``backend``: the full backend (physics + Pinocchio + low-level control at every physics
@@ -55,6 +56,14 @@ def raw_physics(model: mujoco.MjModel, n: int, seconds: float) -> float:
     return n * steps / (time.perf_counter() - t0)
 
 
+def without_self_collision(model: mujoco.MjModel) -> mujoco.MjModel:
+    """A copy of ``model`` whose robot geoms collide with the ground only (the pre-issue-8 robot)."""
+    m = model.__copy__()
+    robot = (m.geom_bodyid != 0) & (m.geom_contype != 0)
+    m.geom_conaffinity[robot] = 0
+    return m
+
+
 def loop_physics(model: mujoco.MjModel, n: int, seconds: float) -> float:
     """The alternative to ``Batch``: a Python loop of ``mj_step`` over n MjData (one thread, GIL held)."""
     datas = [mujoco.MjData(model) for _ in range(n)]
@@ -93,13 +102,15 @@ def main() -> None:
     rows = []
     for n in args.sizes:
         raw = raw_physics(model, n, args.seconds)
+        raw_noself = raw_physics(without_self_collision(model), n, args.seconds)
         loop = loop_physics(model, n, args.seconds)
         workers = full_backend(model, n, args.seconds, workers=-1)
         inproc = full_backend(model, n, args.seconds, workers=0)
-        rows.append({"num_envs": n, "raw_steps_per_s": raw, "python_loop_mj_step_per_s": loop, "backend_workers_steps_per_s": workers,
+        rows.append({"num_envs": n, "raw_steps_per_s": raw, "raw_no_self_collision_steps_per_s": raw_noself,
+                     "self_collision_cost": 1.0 - raw / raw_noself, "python_loop_mj_step_per_s": loop, "backend_workers_steps_per_s": workers,
                      "backend_inprocess_steps_per_s": inproc, "ratio_workers_to_raw": workers / raw,
                      "ratio_inprocess_to_raw": inproc / raw})
-        print(f"N={n}: raw {raw:,.0f}/s (python mj_step loop {loop:,.0f}/s), backend ({cores} workers) {workers:,.0f}/s ({workers / raw:.2f} x raw), "
+        print(f"N={n}: raw {raw:,.0f}/s (without self-collision {raw_noself:,.0f}/s), (python mj_step loop {loop:,.0f}/s), backend ({cores} workers) {workers:,.0f}/s ({workers / raw:.2f} x raw), "
               f"in-process {inproc:,.0f}/s ({inproc / raw:.2f} x raw)", flush=True)
     result = {
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": cores, "python": platform.python_version(),
@@ -111,11 +122,11 @@ def main() -> None:
     tmp = args.out / "env_throughput.json.tmp"
     tmp.write_text(json.dumps(result, indent=2))
     tmp.replace(args.out / "env_throughput.json")
-    print("\n| N | raw Batch physics [steps/s] | python mj_step loop [steps/s] | full backend, workers [steps/s] | ratio "
+    print("\n| N | raw Batch physics [steps/s] | raw, no self-collision | python mj_step loop [steps/s] | full backend, workers [steps/s] | ratio "
           "| full backend, in-process [steps/s] | ratio |")
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['num_envs']} | {r['raw_steps_per_s']:,.0f} | {r['python_loop_mj_step_per_s']:,.0f} | {r['backend_workers_steps_per_s']:,.0f} | "
+        print(f"| {r['num_envs']} | {r['raw_steps_per_s']:,.0f} | {r['raw_no_self_collision_steps_per_s']:,.0f} | {r['python_loop_mj_step_per_s']:,.0f} | {r['backend_workers_steps_per_s']:,.0f} | "
               f"{r['ratio_workers_to_raw']:.2f} | {r['backend_inprocess_steps_per_s']:,.0f} | {r['ratio_inprocess_to_raw']:.2f} |")
 
 

@@ -6,22 +6,8 @@ quantities the swing law ``tau = M J^-1 (a - Jdot qdot) + h`` and the stance law
 h = C(q, qdot) qdot + G(q), the world-aligned 3x3 foot Jacobians, ``Jdot qdot`` and the foot
 positions/velocities.
 
-Conventions (MuJoCo free joint vs Pinocchio free flyer)
--------------------------------------------------------
-* qpos = [p_w (3), quat (w, x, y, z), q_legs (12)];  Pinocchio q = [p_w, quat (x, y, z, w), q_legs].
-* qvel = [v_w (3): base-origin velocity in the WORLD frame, omega_b (3): BASE frame, qd (12)];
-  Pinocchio v = [v_b = R^T v_w, omega_b, qd] (both base parts in the base frame).
-  So ``qvel = T v`` with ``T = blockdiag(R, I_3, I_12)``.
-* Leg coordinates are identical in both, hence leg blocks of M (``M_mj = T^-T M_pin T^-1``),
-  leg entries of generalized forces and leg columns of Jacobians coincide.
-* "Zero acceleration" differs. MuJoCo's ``qfrc_bias`` and ``mj_jacDot @ qvel`` are taken at
-  qacc = d(qvel)/dt = 0, i.e. world linear acceleration 0 and body angular acceleration 0.
-  Since v_b = R^T v_w:  d(v_b)/dt = -omega_b x v_b + R^T d(v_w)/dt,  so MuJoCo's qacc = 0 is the
-  Pinocchio acceleration  ``a0 = [-omega_b x v_b, 0_3, 0_12]``  (see :func:`zero_qacc_acceleration`).
-  Pinocchio's ``nle`` (taken at v_dot = 0) differs from qfrc_bias on the leg rows by
-  ``M_pin[leg, 0:3] (omega_b x v_b)``; we use ``rnea(q, v, a0)`` instead, which is MuJoCo's bias
-  exactly. Likewise ``Jdot qdot`` here is the foot acceleration at a0 (MuJoCo's convention), so
-  ``foot_acc = J_full qacc_mj + Jdot_qdot`` with the MuJoCo qacc.
+Conventions: ``control/conventions.py`` (MuJoCo free joint vs Pinocchio free flyer, and why
+the bias and ``Jdot qdot`` are taken at MuJoCo's zero acceleration ``a0``).
 
 Algorithm and speed
 -------------------
@@ -39,7 +25,7 @@ runs over contiguous memory, with preallocated work buffers (fresh ~0.4 MB tempo
 page-faulted on every call and cost ~1 us per robot).
 
 CPU time per robot, B = 1024, on the 2-core development VM while other jobs were running
-(``python -m dls_quadruped.control.dynamics``): total ~8.3-8.6 us, of which the Pinocchio loop
+(``python -m dls_quadruped.bench.dynamics``): total ~8.3-8.6 us, of which the Pinocchio loop
 ~4.6 us (3.5 us in the two calls, ~1.1 us copying M, J, dJ), rneaInParallel ~1.8 us, numpy ~2 us.
 Alternatives measured in the same run: computeAllTerms + reading M, nle, J, dJ ~8.4-8.7 us (before
 any foot work), the per-foot getFrameJacobian / getFrameClassicalAcceleration path ~10.7 us,
@@ -55,119 +41,15 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from dls_quadruped.control.conventions import (
+    NQ_MJ,
+    NV_MJ,
+    check_state,
+    mujoco_to_pinocchio_into,
+)
 from dls_quadruped.robots.aliengo import constants as C
 
-NQ_MJ = 7 + C.NUM_JOINTS
-"""MuJoCo qpos size (19)."""
-NV_MJ = 6 + C.NUM_JOINTS
-"""MuJoCo qvel size (18)."""
-
 _AXIS_OF_JOINT = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0), "JointModelRZ": (0.0, 0.0, 1.0)}
-
-
-# ---------------------------------------------------------------------------- conventions
-def quat_wxyz_to_matrix(quat_wxyz: np.ndarray) -> np.ndarray:
-    """Rotation matrices of (not necessarily unit) quaternions.
-
-    Args:
-        quat_wxyz: (B, 4) quaternions (w, x, y, z), MuJoCo order; normalised here.
-
-    Returns:
-        (B, 3, 3) rotation matrices (base -> world for a base orientation).
-    """
-    return np.ascontiguousarray(_rotation_batch_last(np.asarray(quat_wxyz, dtype=np.float64).T).transpose(2, 0, 1))
-
-
-def _rotation_batch_last(quat_t: np.ndarray) -> np.ndarray:
-    """(4, B) quaternions (w, x, y, z), any norm -> (3, 3, B) rotation matrices (batch last)."""
-    w, x, y, z = quat_t / np.sqrt((quat_t * quat_t).sum(axis=0))
-    return np.array(
-        [
-            [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-            [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-            [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
-        ]
-    )
-
-
-def mujoco_to_pinocchio(qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Convert MuJoCo free-joint coordinates to Pinocchio free-flyer coordinates.
-
-    Args:
-        qpos: (B, 19) [p_w (m), quat (w, x, y, z), 12 joint angles (rad)].
-        qvel: (B, 18) [v_w (m/s) world frame, omega_b (rad/s) base frame, 12 joint rates].
-
-    Returns:
-        q: (B, 19) [p_w, unit quat (x, y, z, w), joints].
-        v: (B, 18) [v_b = R^T v_w, omega_b, joint rates] (Pinocchio's LOCAL base velocity).
-    """
-    qpos, qvel = _check_state(qpos, qvel)
-    q, v = np.empty_like(qpos), np.empty_like(qvel)
-    _mujoco_to_pinocchio_into(qpos, qvel, q, v)
-    return q, v
-
-
-def pinocchio_to_mujoco(q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse of :func:`mujoco_to_pinocchio`.
-
-    Args:
-        q: (B, 19) [p_w, quat (x, y, z, w), joints].
-        v: (B, 18) [v_b base frame, omega_b, joint rates].
-
-    Returns:
-        qpos: (B, 19) [p_w, unit quat (w, x, y, z), joints]; qvel: (B, 18) [v_w, omega_b, rates].
-    """
-    q, v = np.asarray(q, dtype=np.float64), np.asarray(v, dtype=np.float64)
-    qpos, qvel = q.copy(), v.copy()
-    quat = q[:, [6, 3, 4, 5]]
-    qpos[:, 3:7] = quat / np.linalg.norm(quat, axis=-1, keepdims=True)
-    R = quat_wxyz_to_matrix(qpos[:, 3:7])
-    qvel[:, 0:3] = (R @ v[:, 0:3, None])[..., 0]  # v_w = R v_b
-    return qpos, qvel
-
-
-def zero_qacc_acceleration(v: np.ndarray) -> np.ndarray:
-    """Pinocchio acceleration v_dot that corresponds to MuJoCo's qacc = 0.
-
-    qacc = 0 means d(v_w)/dt = 0 and d(omega_b)/dt = 0; with v_b = R^T v_w,
-    d(v_b)/dt = -omega_b x v_b, so  a0 = [-omega_b x v_b, 0_3, 0_12].
-
-    Args:
-        v: (B, 18) Pinocchio velocity [v_b, omega_b, joint rates].
-
-    Returns:
-        (B, 18) acceleration a0.
-    """
-    a0 = np.zeros_like(v)
-    a0[:, 0:3] = -np.cross(v[:, 3:6], v[:, 0:3])
-    return a0
-
-
-def _check_state(qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    qpos = np.asarray(qpos, dtype=np.float64)
-    qvel = np.asarray(qvel, dtype=np.float64)
-    if qpos.ndim != 2 or qpos.shape[1] != NQ_MJ or qvel.ndim != 2 or qvel.shape[1] != NV_MJ:
-        raise ValueError(
-            f"expected MuJoCo qpos (B, {NQ_MJ}) and qvel (B, {NV_MJ}) arrays, got {qpos.shape} and {qvel.shape}"
-        )
-    if qpos.shape[0] != qvel.shape[0]:
-        raise ValueError(f"qpos and qvel batch sizes differ: {qpos.shape[0]} vs {qvel.shape[0]}")
-    return qpos, qvel
-
-
-def _mujoco_to_pinocchio_into(qpos: np.ndarray, qvel: np.ndarray, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Fill preallocated q (B, 19), v (B, 18); returns the base rotations, batch last (3, 3, B)."""
-    quat_t = qpos[:, 3:7].T  # (4, B): w, x, y, z
-    quat_t = quat_t / np.sqrt((quat_t * quat_t).sum(axis=0))
-    Rt = _rotation_batch_last(quat_t)
-    q[:, 0:3] = qpos[:, 0:3]
-    q[:, 3:6] = quat_t[1:4].T  # x, y, z
-    q[:, 6] = quat_t[0]  # w
-    q[:, 7:] = qpos[:, 7:]
-    vw = qvel[:, 0:3].T
-    v[:, 0:3] = (Rt[0] * vw[0] + Rt[1] * vw[1] + Rt[2] * vw[2]).T  # v_b = R^T v_w
-    v[:, 3:] = qvel[:, 3:]
-    return Rt
 
 
 # ---------------------------------------------------------------------------- results
@@ -329,7 +211,7 @@ class LegDynamics:
         Returns:
             The reused result buffers (see :class:`LegDynamicsResult`).
         """
-        qpos, qvel = _check_state(qpos, qvel)
+        qpos, qvel = check_state(qpos, qvel)
         B = qpos.shape[0]
         if B != self._batch:
             self._allocate(B)
@@ -341,7 +223,7 @@ class LegDynamics:
     def _compute(self, qpos: np.ndarray, qvel: np.ndarray) -> LegDynamicsResult:
         B = qpos.shape[0]
         q, v, out = self._q, self._v, self.out
-        Rt = _mujoco_to_pinocchio_into(qpos, qvel, q, v)  # (3, 3, B) base -> world
+        Rt = mujoco_to_pinocchio_into(qpos, qvel, q, v)  # (3, 3, B) base -> world
 
         # The one Python loop over robots: Pinocchio has no batched M, J or dJ.
         model, data = self.model, self.data
@@ -445,79 +327,3 @@ class LegDynamics:
 def _cross3(a: list[np.ndarray] | np.ndarray, b: list[np.ndarray]) -> list[np.ndarray]:
     """a x b with both given as 3 component arrays (broadcasting)."""
     return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-
-
-def _timing(batch: int = 1024, repeats: int = 7) -> None:
-    """Print the per-robot CPU time of :meth:`LegDynamics.compute`, its parts and alternatives."""
-    import time
-
-    rng = np.random.default_rng(0)
-    qpos = np.tile(np.r_[0.0, 0.0, C.STANDING_BASE_HEIGHT, 1.0, 0.0, 0.0, 0.0, C.NOMINAL_JOINT_POS], (batch, 1))
-    qpos[:, 3:7] += 0.1 * rng.standard_normal((batch, 4))
-    qpos[:, 7:] += 0.2 * rng.standard_normal((batch, C.NUM_JOINTS))
-    qvel = rng.standard_normal((batch, NV_MJ))
-    dyn = LegDynamics()
-    dyn.compute(qpos, qvel)
-    m, d = dyn.model, dyn.data
-    q, v = mujoco_to_pinocchio(qpos, qvel)
-    a0 = zero_qacc_acceleration(v)
-    feet = [m.getFrameId(name) for name in C.FOOT_NAMES]
-    pool2 = pin.ModelPool(m, 2)
-    LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-    def best(fn, wall: bool = False) -> float:  # CPU time (robust to other processes), best of N
-        clock = time.perf_counter if wall else time.process_time
-        fn()
-        times = []
-        for _ in range(repeats):
-            t0 = clock()
-            fn()
-            times.append(clock() - t0)
-        return min(times) / batch * 1e6
-
-    def pin_loop() -> None:  # the loop inside compute(), alone
-        M_view, J_view, dJ_view = dyn._M_view, dyn._J_view, dyn._dJ_view
-        for qi, vi, Mi, Ji, dJi in zip(q, v, dyn._M, dyn._JdJ[:, :6], dyn._JdJ[:, 6:]):
-            pin.computeJointJacobiansTimeVariation(m, d, qi, vi)
-            pin.crba(m, d, qi)
-            Mi[...], Ji[...], dJi[...] = M_view, J_view, dJ_view
-
-    def all_terms() -> None:  # computeAllTerms + reading M, nle, J, dJ (no placements)
-        for qi, vi, Mi, Ji, dJi, hi in zip(q, v, dyn._M, dyn._JdJ[:, :6], dyn._JdJ[:, 6:], dyn._h):
-            pin.computeAllTerms(m, d, qi, vi)
-            Mi[...], Ji[...], dJi[...], hi[...] = d.M, d.J, d.dJ, d.nle
-
-    def per_foot() -> None:  # the naive path: frame Jacobian and classical acceleration per foot
-        for qi, vi, ai in zip(q, v, a0):
-            pin.forwardKinematics(m, d, qi, vi, ai)
-            pin.computeJointJacobians(m, d, qi)
-            pin.crba(m, d, qi)
-            pin.rnea(m, d, qi, vi, ai)
-            for fid in feet:
-                pin.getFrameJacobian(m, d, fid, LWA)
-                pin.getFrameClassicalAcceleration(m, d, fid, LWA)
-                pin.updateFramePlacement(m, d, fid)
-
-    def nle_loop() -> None:
-        for qi, vi, hi in zip(q, v, dyn._h):
-            hi[...] = pin.nonLinearEffects(m, d, qi, vi)
-
-    rows = [
-        ("LegDynamics.compute, total", best(lambda: dyn.compute(qpos, qvel))),
-        ("  its Pinocchio loop (jac dot + crba + copies)", best(pin_loop)),
-        ("  its rneaInParallel, 1 thread", best(lambda: pin.rneaInParallel(1, dyn._pool, q.T, v.T, a0.T, dyn._h.T))),
-        (
-            "rneaInParallel, 2 threads (wall clock)",
-            best(lambda: pin.rneaInParallel(2, pool2, q.T, v.T, a0.T, dyn._h.T), True),
-        ),
-        ("nonLinearEffects loop (alternative for h)", best(nle_loop)),
-        ("computeAllTerms + reads (alternative)", best(all_terms)),
-        ("per-foot frame Jacobian/acceleration path", best(per_foot)),
-    ]
-    print(f"B = {batch}, CPU us per robot, best of {repeats}")
-    for name, us in rows:
-        print(f"  {name:48s} {us:6.2f}")
-
-
-if __name__ == "__main__":
-    _timing()

@@ -162,8 +162,13 @@ def run_baseline(
     seed: int = 0,
     device: str = "cpu",
     model: mujoco.MjModel | None = None,
+    origin_w: tuple[float, float] = (0.0, 0.0),
 ) -> BaselineRun:
-    """Walk B robots on flat ground with the model-based baseline."""
+    """Walk B robots on flat ground with the model-based baseline.
+
+    ``model`` defaults to the scene's plane; a terrain scene (``sim.terrain.build_scene``) works
+    too, with the robots spawned at ``origin_w`` (x, y) [m] on a flat patch at z = 0.
+    """
     from dls_quadruped.eval.balance_run import home_state
 
     model = model if model is not None else mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))
@@ -174,7 +179,9 @@ def run_baseline(
                                             "best_cost", "initial_cost", "qpos")}
     fallen = np.zeros(num_robots, dtype=bool)
     with VecSim(model, num_robots, SimConfig(num_workers=0)) as sim:
-        state = sim.reset(torch.arange(num_robots), **home_state(num_robots, seed, 0.0))
+        home = home_state(num_robots, seed, 0.0)
+        home["base_pos_w"] = home["base_pos_w"] + torch.tensor([*origin_w, 0.0], dtype=torch.float64)
+        state = sim.reset(torch.arange(num_robots), **home)
         for k in range(int(round(seconds / cfg.sampler.mpc_period))):
             result, _ = ctrl.step(state, cmd)
             sim.set_references(result.f, result.d, result.foot_target_w, result.force_w)

@@ -12,13 +12,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from dls_quadruped.control.dynamics import (
-    LegDynamics,
+from dls_quadruped.control.conventions import (
     mujoco_to_pinocchio,
     pinocchio_to_mujoco,
     quat_wxyz_to_matrix,
     zero_qacc_acceleration,
 )
+from dls_quadruped.control.dynamics import LegDynamics
 from dls_quadruped.robots.aliengo import constants as C
 
 TOL = 1e-8

@@ -12,7 +12,7 @@ from dls_quadruped.envs.mdp import events as ev_mdp
 
 OBS_DIM = 3 + 3 + 3 + 12 + 12 + 28 + 4 + 4 + 187 + 3  # Table 2 + velocity command
 SMALL = {"scene": {"num_workers": 0},
-         "terrain": {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0, "horizontal_scale": 0.1}}
+         "terrain": {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0}}
 
 
 def make_env(name: str, num_envs: int = 4, **extra) -> LocomotionEnv:

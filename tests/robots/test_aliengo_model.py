@@ -7,7 +7,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from dls_quadruped.control.dynamics import mujoco_to_pinocchio
+from dls_quadruped.control.conventions import mujoco_to_pinocchio
 from dls_quadruped.robots.aliengo import constants as C
 
 

@@ -14,10 +14,10 @@ from dls_quadruped.sim.terrain import (
     TERRAIN_TYPES,
     TerrainConfig,
     build_scene,
-    generate_heights,
+    generate_tiles,
 )
 
-SMALL = {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0, "horizontal_scale": 0.1}
+SMALL = {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0}
 
 
 @pytest.fixture(scope="module")
@@ -79,12 +79,11 @@ def test_types_have_their_shape(scene):
 
 def test_rugged_amplitude_grows_with_row():
     cfg = TerrainConfig(types=("rugged",), seed=1, **SMALL)
-    heights, _ = generate_heights(cfg)
-    hs = cfg.horizontal_scale
-    n_tile, n_b = int(cfg.tile_size / hs), int(cfg.border / hs)
-    amps = [np.abs(heights[:, n_b + r * n_tile:n_b + (r + 1) * n_tile]).max() for r in range(cfg.num_rows)]
+    tiles = generate_tiles(cfg)
+    amps = np.abs(tiles.rugged[:, 0]).max(axis=(1, 2))
     assert amps[0] <= cfg.rugged_amplitude[0] + 1e-9 and amps[-1] <= cfg.rugged_amplitude[1] + 1e-9
     assert amps[-1] > 0.5 * cfg.rugged_amplitude[1] and amps[0] < amps[-1]
+    assert np.all(tiles.rugged[:, 0, [0, -1], :] == 0) and np.all(tiles.rugged[:, 0, :, [0, -1]] == 0)
 
 
 def test_unknown_type_is_rejected():
