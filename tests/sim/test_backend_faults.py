@@ -105,3 +105,33 @@ def test_script_without_main_guard_is_explained_not_hung(guarded, tmp_path):
     else:
         assert out.returncode != 0
         assert f"{script}:" in out.stderr and 'without an `if __name__ == "__main__":` guard' in out.stderr
+
+
+def test_workers_exit_when_their_parent_is_killed(tmp_path):
+    script = tmp_path / "parent.py"
+    script.write_text(SCRIPT.replace('        sim.step(1)\n', '        sim.step(1)\n'
+                                     '        print(*[p.pid for p in sim._procs], flush=True)\n'
+                                     '        import time; time.sleep(600)\n')
+                      .replace("SimConfig(num_workers=1)", "SimConfig(num_workers=2)")
+                      + 'if __name__ == "__main__":\n    go()\n')
+    parent = subprocess.Popen([sys.executable, str(script)], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        pids = [int(p) for p in parent.stdout.readline().split()]
+        assert len(pids) == 2
+    finally:
+        parent.kill()
+        parent.wait(timeout=30)
+    deadline = time.monotonic() + 20.0
+    alive = pids
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.2)
+        alive = [pid for pid in pids if _running(pid)]
+    assert not alive, f"workers {alive} outlived their parent"
+
+
+def _running(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
