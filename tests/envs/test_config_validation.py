@@ -97,3 +97,10 @@ def test_shipped_tasks_validate(name):
 ])
 def test_type_problem(value, annotation, ok):
     assert (type_problem(value, annotation) is None) == ok
+
+
+@pytest.mark.parametrize("body, key", [({"scene": {"num_workers": -2}}, "scene.num_workers"),
+                                       ({"scene": {"max_init_level": -1}}, "scene.max_init_level")])
+def test_scene_bounds(tmp_path, body, key):
+    with pytest.raises(ConfigError, match=f"{key}: must be >= "):
+        load_task(_task(tmp_path, body))

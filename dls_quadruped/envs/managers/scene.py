@@ -11,7 +11,7 @@ the columns). Robots reset onto their tile origin; the terrain curriculum moves 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import torch
@@ -28,8 +28,8 @@ class SceneConfig:
     """num_workers: simulator worker processes (-1 one per core, 0 in-process);
     max_init_level: envs start on rows U{0..max_init_level}."""
 
-    num_workers: int = -1
-    max_init_level: int = 0
+    num_workers: int = field(default=-1, metadata={"min": -1})
+    max_init_level: int = field(default=0, metadata={"min": 0})
 
 
 class SceneManager:
