@@ -81,7 +81,9 @@ class LocomotionEnv(VecEnv):
                  seed: int | None = None, run_dir: Path | None = None, verbose: bool = True):
         self.task = task if isinstance(task, TaskConfig) else load_task(task)
         self.env_cfg = dataclass_from_dict(EnvConfig, self.task.section("env"), self.task, "env")
-        self.num_envs = int(num_envs or self.env_cfg.num_envs)
+        self.num_envs = self.env_cfg.num_envs if num_envs is None else num_envs
+        if isinstance(self.num_envs, bool) or not isinstance(self.num_envs, int) or self.num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")  # 0 used to mean the default
         self.device = torch.device(device)
         self.seed = self.env_cfg.seed if seed is None else seed
         torch.manual_seed(self.seed)

@@ -102,3 +102,9 @@ def test_env_state_round_trips_into_a_fresh_env():
     finally:
         a.close()
         b.close()
+
+
+@pytest.mark.parametrize("num_envs", [0, -3, 2.5])
+def test_num_envs_zero_is_an_error_not_the_default(num_envs):
+    with pytest.raises(ValueError, match="num_envs must be an integer >= 1"):
+        LocomotionEnv(load_task("base", overrides=SMALL), num_envs=num_envs, verbose=False)
