@@ -424,15 +424,17 @@ class VecSim:
                 conn.send(("close", None))
             except (BrokenPipeError, EOFError, OSError):
                 pass
-        for conn in self._conns:
+        for conn, proc in zip(self._conns, self._procs):
             try:
-                if conn.poll(max(0.0, deadline - time.monotonic())):
+                stopped = _process_state(proc.pid).startswith(("T", "t"))  # cannot answer: kill it below
+                if not stopped and conn.poll(max(0.0, deadline - time.monotonic())):
                     conn.recv()
             except (BrokenPipeError, EOFError, OSError):
                 pass
             conn.close()
         for proc in self._procs:
-            proc.join(timeout=max(0.0, deadline - time.monotonic()))
+            if not _process_state(proc.pid).startswith(("T", "t")):
+                proc.join(timeout=max(0.0, deadline - time.monotonic()))
             if proc.is_alive():
                 proc.kill()  # SIGTERM is ignored by workers; a stopped one ignores everything but SIGKILL
                 proc.join(timeout=5)
