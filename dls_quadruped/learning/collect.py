@@ -1,0 +1,159 @@
+"""Datapoint collection from all vectorised envs at once (thesis Algorithms 3 and 4, Fig. 14-15).
+
+A datapoint is ``(s_t, P(a_t, a_{t+k}, ..., a_{t+(H-1)k}))``: the observation at t and the expert's
+raw actions at the states actually visited over the next H actions spaced dt = k env steps,
+encoded with P (:func:`student.encode_labels`). Every env step, the expert (and, in DAgger, the
+student) is called once on the whole batch; :class:`SlidingWindows` keeps the last (H-1)k+1
+steps of every env in a ring and emits each window as soon as it is complete. A reset (time-out
+or fall) restarts the env's count, so a window never spans two episodes.
+
+Applied action (Algorithm 4, line 8): ``beta * a_exp + (1 - beta) * first_action(student)``;
+beta = 1 is naive imitation (the expert drives) and skips the student.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+import torch
+
+from dls_quadruped.learning.distill_config import SelectorSection
+from dls_quadruped.mpc.config import EncodingConfig
+
+ActionFn = Callable[[torch.Tensor], torch.Tensor]
+"""(B, 259) observations -> (B, 28) raw actions."""
+
+
+def beta(selector: SelectorSection, epoch: int) -> float:
+    """Policy selector beta(i) of eq. 5.2.1 at epoch i = 0, 1, ...: alpha^i or the indicator 1[i = 0]."""
+    if selector.kind == "indicator":
+        return 1.0 if epoch == 0 else 0.0
+    return float(selector.alpha ** epoch)
+
+
+class SlidingWindows:
+    """Ring of the last ``span = (H-1) k + 1`` (observation, action) pairs of every env.
+
+    Args:
+        num_envs: B.
+        obs_dim, act_dim: sizes of one observation and one action.
+        horizon: H actions per window.
+        stride: k env steps between two actions of a window (dt / step_dt).
+    """
+
+    def __init__(self, num_envs: int, obs_dim: int, act_dim: int, horizon: int, stride: int,
+                 device: torch.device | str = "cpu"):
+        if horizon < 1 or stride < 1:
+            raise ValueError(f"horizon and stride must be >= 1, got {horizon}, {stride}")
+        self.horizon, self.stride = horizon, stride
+        self.span = (horizon - 1) * stride + 1
+        self.obs = torch.zeros(self.span, num_envs, obs_dim, device=device)
+        self.act = torch.zeros(self.span, num_envs, act_dim, device=device)
+        self.count = torch.zeros(num_envs, dtype=torch.long, device=device)  # steps of the current episode held
+        self.t = 0
+        self._offsets = torch.arange(horizon, device=device) * stride
+
+    def push(self, obs: torch.Tensor, act: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Record step t for every env and return the windows that end at t.
+
+        Args:
+            obs: (B, obs_dim) observation s_t; act: (B, act_dim) expert action at s_t.
+
+        Returns:
+            env_ids (n,), start observations (n, obs_dim) s_{t-span+1}, actions (n, H, act_dim) at
+            steps t-span+1, t-span+1+k, ..., t, for the n envs whose last ``span`` steps are one episode.
+        """
+        slot = self.t % self.span
+        self.obs[slot] = obs
+        self.act[slot] = act
+        self.count += 1
+        self.t += 1
+        ready = torch.nonzero(self.count >= self.span).flatten()
+        first = self.t % self.span  # slot of step t - span + 1 (the oldest one held)
+        slots = (first + self._offsets) % self.span
+        acts = self.act[slots][:, ready].transpose(0, 1)  # (n, H, act_dim)
+        return ready, self.obs[first, ready], acts
+
+    def reset(self, done: torch.Tensor) -> None:
+        """Envs with ``done`` (B,) start a new episode at the next push: their held steps are dropped."""
+        self.count[done.bool()] = 0
+
+
+class Progress:
+    """One line every ``every_s`` seconds: what, how many of how many, rate, ETA."""
+
+    def __init__(self, what: str, total: int, unit: str, every_s: float = 10.0, printer: Callable = print):
+        self.what, self.total, self.unit, self.every_s, self.printer = what, total, unit, every_s, printer
+        self.t0 = self._last = time.monotonic()
+
+    def update(self, done: int, extra: str = "", force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now - self._last < self.every_s:
+            return
+        self._last = now
+        rate = done / max(now - self.t0, 1e-9)
+        eta = (self.total - done) / rate if rate > 0 else math.inf
+        self.printer(f"[distill] {self.what}: {done}/{self.total} {self.unit} ({rate:.0f}/s, ETA {eta:.0f} s)"
+                     + (f" {extra}" if extra else ""), flush=True)
+
+    @property
+    def elapsed(self) -> float:
+        return time.monotonic() - self.t0
+
+
+@torch.no_grad()
+def collect(env, expert: ActionFn, encode: Callable[[torch.Tensor], torch.Tensor], count: int,
+            cfg: EncodingConfig, stride: int, sink: Callable[[torch.Tensor, torch.Tensor], None],
+            beta_value: float = 1.0, student: ActionFn | None = None, obs_group: str = "policy",
+            progress: Progress | None = None, flush_every: int = 8192) -> dict:
+    """Step ``env`` until ``count`` datapoints were produced; hand them to ``sink(obs, labels)``.
+
+    Args:
+        env: ``LocomotionEnv`` (or a stand-in with ``get_observations``, ``step``, ``num_envs``).
+        expert: raw expert action of a batch of observations.
+        encode: (n, H, 28) actions -> (n, D) labels.
+        count: datapoints to produce (the last batch is cut to it).
+        stride: env steps between the actions of a horizon.
+        sink: receives (obs, labels) chunks of about ``flush_every`` rows (e.g. ``DiskDataset.append``).
+        beta_value: expert share of the applied action; < 1 needs ``student``.
+
+    Returns:
+        {"datapoints", "env_steps", "seconds", "resets"}.
+    """
+    if beta_value < 1.0 and student is None:
+        raise ValueError("a student is needed when beta < 1")
+    obs = env.get_observations()[obs_group]
+    windows = SlidingWindows(env.num_envs, obs.shape[1], env.num_actions, cfg.horizon, stride, obs.device)
+    done_count, steps, resets = 0, 0, 0
+    pending_obs: list[torch.Tensor] = []
+    pending_lab: list[torch.Tensor] = []
+    pending = 0
+    t0 = time.monotonic()
+    while done_count < count:
+        a_exp = expert(obs)
+        if beta_value >= 1.0:
+            applied = a_exp
+        else:
+            applied = beta_value * a_exp + (1.0 - beta_value) * student(obs)  # Algorithm 4, line 8
+        _, start_obs, acts = windows.push(obs, a_exp)
+        if len(start_obs):
+            take = min(len(start_obs), count - done_count)
+            pending_obs.append(start_obs[:take].clone())
+            pending_lab.append(encode(acts[:take]))
+            pending += take
+            done_count += take
+        if pending >= flush_every or (done_count >= count and pending):
+            sink(torch.cat(pending_obs), torch.cat(pending_lab))
+            pending_obs, pending_lab, pending = [], [], 0
+        if done_count >= count:
+            break
+        obs_td, _, dones, _ = env.step(applied)
+        obs = obs_td[obs_group]
+        windows.reset(dones)
+        resets += int(dones.sum())
+        steps += 1
+        if progress is not None:
+            progress.update(done_count)
+    return {"datapoints": done_count, "env_steps": steps, "seconds": time.monotonic() - t0, "resets": resets}

@@ -1,0 +1,265 @@
+"""Distil an RL expert into a horizon student (thesis 5.2): naive imitation or DAgger.
+
+    python -m dls_quadruped.learning.distill                       # tasks/agents/distill.yaml (Table 7)
+    python -m dls_quadruped.learning.distill --encoding first-spline --horizon 10 --dt 0.02 \\
+        --algo dagger --epochs 5 --datapoints-per-epoch 4000 --run-dir runs/distill/small
+    python -m dls_quadruped.learning.distill --resume --run-dir runs/distill/small
+
+A run directory holds ``distill.yaml`` (the resolved settings), ``dataset/`` and ``test/``
+(disk-backed datasets), ``checkpoint.pt`` (after every epoch, atomic), TensorBoard events,
+``metrics.json``, ``mse_sp.png`` and ``exported/student.pt`` (TorchScript) with
+``exported/student.json`` (encoding metadata, also inside the archive). ``--resume`` continues
+the newest run (or ``--run-dir``) after its last finished epoch; rows collected since are kept.
+See docs/distill.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+from pathlib import Path
+
+import torch
+import yaml
+
+from dls_quadruped.cli import (
+    ArgumentParser,
+    UserError,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_cli,
+)
+from dls_quadruped.core.json_io import write_json
+from dls_quadruped.envs.config import load_task
+from dls_quadruped.learning.dataset import DatasetError
+from dls_quadruped.learning.distill_config import (
+    ALGORITHMS,
+    DEFAULT_CONFIG,
+    SELECTORS,
+    load_distill_config,
+)
+from dls_quadruped.learning.distill_trainer import CHECKPOINT, DistillTrainer
+from dls_quadruped.learning.runner import new_run_dir
+from dls_quadruped.mpc.config import ENCODING_KINDS
+
+RESOLVED = "distill.yaml"
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--config", type=Path, default=None, help=f"distillation YAML (default {DEFAULT_CONFIG.name}; "
+                   f"on --resume the run's own {RESOLVED})")
+    p.add_argument("--expert", default=None, help="TorchScript expert actor (default: the config's)")
+    p.add_argument("--encoding", default=None, help="<p>-<F>, each discrete|spline|first, e.g. first-spline")
+    p.add_argument("--horizon", type=int, default=None, help="H, actions in the horizon (>= 1; >= 4 with a spline)")
+    p.add_argument("--dt", type=positive_float, default=None, help="[s] spacing of the H actions (multiple of 0.02)")
+    p.add_argument("--algo", choices=ALGORITHMS, default=None)
+    p.add_argument("--selector", choices=SELECTORS, default=None, help="DAgger beta(i)")
+    p.add_argument("--alpha", type=positive_float, default=None, help="beta(i) = alpha^i")
+    p.add_argument("--epochs", type=positive_int, default=None)
+    p.add_argument("--datapoints-per-epoch", type=positive_int, default=None)
+    p.add_argument("--dataset-cap", type=positive_int, default=None)
+    p.add_argument("--batch-size", type=positive_int, default=None)
+    p.add_argument("--num-envs", type=positive_int, default=None)
+    p.add_argument("--num-workers", type=non_negative_int, default=None, help="simulator processes (0: in-process)")
+    p.add_argument("--test-datapoints", type=positive_int, default=None)
+    p.add_argument("--sp-episodes", type=positive_int, default=None)
+    p.add_argument("--sp-every", type=non_negative_int, default=None, help="SP every k epochs (0: last only)")
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--run-dir", type=Path, default=None, help="default: a new runs/distill/<time>")
+    p.add_argument("--log-root", type=Path, default=Path("runs") / "distill")
+    p.add_argument("--resume", action="store_true", help="continue after the last finished epoch")
+    p.add_argument("--out", type=Path, default=None, help="also copy the export (student.pt/.json) to this directory")
+    return p.parse_args(argv)
+
+
+def overrides_from_args(args: argparse.Namespace) -> dict:
+    """Nested config overrides for the flags that were given."""
+    over: dict = {}
+
+    def put(section: str | None, key: str, value) -> None:
+        if value is not None:
+            (over.setdefault(section, {}) if section else over)[key] = value
+
+    if args.encoding is not None:
+        parts = args.encoding.split("-")
+        if len(parts) != 2 or any(k not in ENCODING_KINDS for k in parts):
+            raise UserError(f"--encoding {args.encoding!r}: unknown encoding; allowed: <p>-<F> with each of "
+                            f"{'|'.join(ENCODING_KINDS)}, e.g. first-spline")
+        put("encoding", "p", parts[0])
+        put("encoding", "F", parts[1])
+    put("encoding", "horizon", args.horizon)
+    put("encoding", "dt", args.dt)
+    put(None, "expert", args.expert)
+    put(None, "algorithm", args.algo)
+    put("selector", "kind", args.selector)
+    put("selector", "alpha", args.alpha)
+    for key in ("epochs", "datapoints_per_epoch", "dataset_cap", "batch_size", "seed"):
+        put("train", key, getattr(args, key))
+    put("collect", "num_envs", args.num_envs)
+    put("collect", "num_workers", args.num_workers)
+    for key in ("test_datapoints", "sp_episodes", "sp_every"):
+        put("evaluate", key, getattr(args, key))
+    return over
+
+
+def load_expert(path: str | Path) -> torch.jit.ScriptModule:
+    """The TorchScript expert actor (checked for size against the env by :func:`check_expert`)."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"expert {path} not found (a TorchScript actor such as docs/policies/base_actor.pt)")
+    try:
+        return torch.jit.load(str(path), map_location="cpu").eval()
+    except (RuntimeError, ValueError) as err:
+        raise UserError(f"expert {path} is not a TorchScript actor ({str(err).splitlines()[0][:120]}); "
+                        "export one with `make train` (exported/policy.pt)") from None
+
+
+def check_expert(expert, path: str | Path, obs_dim: int, num_actions: int) -> None:
+    """Refuse an expert whose observation or action size is not the task's."""
+    first = next((p for p in expert.parameters() if p.dim() == 2), None)
+    if first is not None and first.shape[1] != obs_dim:
+        raise UserError(f"expert {path} takes {first.shape[1]} observations; the task gives {obs_dim}")
+    try:
+        with torch.no_grad():
+            out = expert(torch.zeros(2, obs_dim))
+    except RuntimeError as err:
+        raise UserError(f"expert {path} does not accept {obs_dim} observations: {str(err).splitlines()[0][:160]}") \
+            from None
+    if tuple(out.shape) != (2, num_actions):
+        raise UserError(f"expert {path} outputs {tuple(out.shape[1:])} actions per robot; the task needs {num_actions}")
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def distill_task(task: str, num_workers: int | None):
+    """The expert's task without curricula (fixed, full reward weights), 15 s episodes."""
+    from dls_quadruped.eval.scenario import replace_sections
+
+    cfg = load_task(task, overrides={"scene": {"num_workers": num_workers}} if num_workers is not None else None)
+    return replace_sections(cfg, {"curriculum": {}}, source="<distill: no curriculum>")
+
+
+def _run_dir(args: argparse.Namespace) -> Path:
+    if args.resume:
+        run_dir = args.run_dir
+        if run_dir is None:
+            runs = sorted(args.log_root.glob(f"*/{CHECKPOINT}"), key=lambda p: p.stat().st_mtime)
+            run_dir = runs[-1].parent if runs else None
+        if run_dir is None or not (run_dir / CHECKPOINT).is_file():
+            raise UserError(f"--resume: no {CHECKPOINT} under {args.run_dir or args.log_root}")
+        return run_dir
+    if args.run_dir is None:
+        return new_run_dir(args.log_root)
+    if args.run_dir.exists() and any(args.run_dir.iterdir()):
+        raise UserError(f"--run-dir {args.run_dir} is not empty; add --resume to continue it or choose a new one")
+    args.run_dir.mkdir(parents=True, exist_ok=True)
+    return args.run_dir
+
+
+def _read_checkpoint(run_dir: Path) -> dict:
+    path = run_dir / CHECKPOINT
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # noqa: BLE001 -- any unpickling failure means unreadable
+        raise UserError(f"--resume: {path} is unreadable ({type(err).__name__}); the datasets in {run_dir} are "
+                        "kept: start a new run with --run-dir elsewhere") from None
+    if not isinstance(state, dict) or "student" not in state:
+        raise UserError(f"--resume: {path} is not a distillation checkpoint")
+    return state
+
+
+def write_outputs(trainer: DistillTrainer, run_dir: Path, out: Path | None) -> dict:
+    """metrics.json, mse_sp.png and the export."""
+    exported = trainer.export(run_dir / "exported")
+    final = trainer.history[-1] if trainer.history else {}
+    metrics = {"config": trainer.cfg.to_dict(), "expert": trainer.expert_info, "encoding": trainer.meta,
+               "final": {k: final.get(k) for k in ("epoch", "test_mse", "sp", "dataset_size")},
+               "sp_reference": None if trainer.reference is None else {
+                   k: {"mean_return": float(v["return"].mean()), "episodes": len(v["return"])}
+                   for k, v in trainer.reference.items() if isinstance(v, dict)},
+               "history": trainer.history, "export": str(exported)}
+    write_json(metrics, run_dir / "metrics.json")
+    from dls_quadruped.learning.distill_plot import plot_history
+
+    plot_history(trainer.history, run_dir / "mse_sp.png", title=f"{trainer.cfg.algorithm} "
+                 f"{trainer.enc.p}-{trainer.enc.F} H={trainer.enc.horizon} dt={trainer.cfg.encoding.dt:g}")
+    if out is not None:
+        import shutil
+
+        out.mkdir(parents=True, exist_ok=True)
+        for f in (exported, exported.with_suffix(".json")):
+            shutil.copy2(f, out / f.name)
+    return metrics
+
+
+def main(argv: list[str] | None = None) -> Path:
+    """Run (or continue) a distillation; returns the run directory."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    args = parse_args(argv)
+    over = overrides_from_args(args)
+    config_path = args.config
+    if args.resume and config_path is None and args.run_dir is not None and (args.run_dir / RESOLVED).is_file():
+        config_path = args.run_dir / RESOLVED
+    cfg = load_distill_config(config_path, over)
+    expert = load_expert(cfg.expert)
+    run_dir = _run_dir(args)
+    state = None
+    if args.resume:
+        if args.config is None and (run_dir / RESOLVED).is_file():
+            cfg = load_distill_config(run_dir / RESOLVED, over)
+        state = _read_checkpoint(run_dir)
+        if state["config"]["encoding"] != cfg.to_dict()["encoding"] or state["config"]["algorithm"] != cfg.algorithm:
+            raise UserError(f"--resume: {run_dir} was started with {state['config']['algorithm']} "
+                            f"{state['config']['encoding']}, not {cfg.algorithm} {cfg.to_dict()['encoding']}")
+    task = distill_task(cfg.task, cfg.collect.num_workers)
+    torch.manual_seed(cfg.train.seed)
+    env = LocomotionEnv(task, num_envs=cfg.collect.num_envs, seed=cfg.train.seed, verbose=False)
+    try:
+        obs_dim = int(env.get_observations()["policy"].shape[1])
+        check_expert(expert, cfg.expert, obs_dim, env.num_actions)
+        try:
+            cfg.encoding.stride(env.step_dt)
+        except ValueError as err:
+            raise UserError(str(err)) from None
+        agent_actor = task.data.get("agent", {}).get("actor", {})
+        hidden = list(cfg.student.hidden_dims or agent_actor.get("hidden_dims", [512, 256, 128]))
+        activation = cfg.student.activation or agent_actor.get("activation", "elu")
+        info = {"path": str(cfg.expert), "sha256": _sha256(Path(cfg.expert))}
+        trainer = DistillTrainer(cfg, env, expert, run_dir, hidden, activation, expert_info=info)
+        if state is not None:
+            trainer.load_state_dict(state)
+            print(f"[distill] resumed {run_dir} after epoch {trainer.epoch}/{cfg.train.epochs}", flush=True)
+        try:
+            trainer.open_datasets(resume=state is not None)
+        except DatasetError as err:
+            raise UserError(str(err)) from None
+        for stale in run_dir.glob("*.tmp"):
+            stale.unlink()
+        (run_dir / RESOLVED).write_text(f"# resolved distillation settings (from {cfg.path})\n"
+                                        + yaml.safe_dump(cfg.to_dict(), sort_keys=False))
+        trainer.writer = SummaryWriter(log_dir=str(run_dir))
+        print(f"[distill] run dir {run_dir}: {cfg.algorithm}, {trainer.enc.p}-{trainer.enc.F}, H={trainer.enc.horizon}, "
+              f"dt={cfg.encoding.dt:g} s (every {trainer.stride} env steps), output {trainer.meta['output_dim']}, "
+              f"{env.num_envs} envs, expert {cfg.expert}", flush=True)
+        trainer.collect_test_set()
+        trainer.reference_returns()
+        trainer.save()
+        while trainer.epoch < cfg.train.epochs:
+            trainer.run_epoch()
+        trainer.writer.close()
+        metrics = write_outputs(trainer, run_dir, args.out)
+        print(f"[distill] done: test MSE {metrics['final']['test_mse']:.4f}; exported {metrics['export']}", flush=True)
+    finally:
+        env.close()
+    return run_dir
+
+
+if __name__ == "__main__":
+    run_cli(main)
