@@ -14,7 +14,7 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install test test-all demo bench bench-env bench-mpc bench-rl lint clean
+.PHONY: install test test-all demo bench bench-env bench-terrain bench-mpc bench-rl lint clean
 
 $(STAMP): setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -36,10 +36,13 @@ lint: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m dls_quadruped.demo --num-envs $(NUM_ENVS) --seconds $(SECONDS_PER_PHASE) --out $(OUT)/demo
 
-bench: bench-env bench-mpc bench-rl
+bench: bench-env bench-terrain bench-mpc bench-rl
 
 bench-env: $(STAMP)
 	$(PY) -m dls_quadruped.bench.env --out $(OUT)/bench
+
+bench-terrain: $(STAMP)
+	$(PY) -m dls_quadruped.bench.terrain --out $(OUT)/bench
 
 bench-mpc: $(STAMP)
 	$(PY) -m dls_quadruped.bench.mpc

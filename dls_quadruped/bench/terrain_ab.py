@@ -1,0 +1,112 @@
+"""Rough-task RL throughput with two terrain implementations side by side, in one process.
+
+Builds three envs — ``base``, ``rough`` with a terrain module given as a file (e.g. an older
+``sim/terrain.py`` from git), and ``rough`` with the current one — and steps them in turn, a few RL
+steps per env per round with random actions (std 1), so machine load hits all three alike; prints
+and writes (``results/bench/terrain_ab.json``) the median RL steps/s and the ratio to base. The
+other module must provide ``TerrainConfig`` and ``build_scene(cfg) -> (model, terrain)`` with
+``terrain.height_at``/``tile_origins_w``/``num_rows``/``num_cols``; config fields it lacks keep its
+defaults. Usage::
+
+    git show 705da13:dls_quadruped/sim/terrain.py > /tmp/old_terrain.py
+    python -m dls_quadruped.bench.terrain_ab --baseline-terrain /tmp/old_terrain.py --sizes 1024 4096
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+import dls_quadruped.envs.managers.scene as scene_module
+from dls_quadruped.core.json_io import write_json
+from dls_quadruped.envs.env import LocomotionEnv
+
+
+def load_terrain_module(path: Path):
+    """Import a terrain implementation from a file under a private module name."""
+    name = f"_terrain_baseline_{abs(hash(str(path)))}"
+    spec = importlib.util.spec_from_file_location(name, path)
+    if spec is None or spec.loader is None:
+        raise SystemExit(f"terrain_ab: error: cannot import {path}")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up while the file runs
+    spec.loader.exec_module(module)
+    return module
+
+
+def make_env(task: str, n: int, terrain_module=None) -> LocomotionEnv:
+    """A ``LocomotionEnv``; with ``terrain_module``, its scene is built by that module instead."""
+    current = scene_module.build_scene
+    if terrain_module is not None:
+        fields = terrain_module.TerrainConfig.__dataclass_fields__
+
+        def build(cfg):
+            kept = {k: getattr(cfg, k) for k in cfg.__dataclass_fields__ if k in fields}
+            return terrain_module.build_scene(terrain_module.TerrainConfig(**kept))
+
+        scene_module.build_scene = build
+    try:
+        return LocomotionEnv(task, num_envs=n, verbose=False)
+    finally:
+        scene_module.build_scene = current
+
+
+def measure(n: int, rounds: int, steps: int, baseline) -> dict[str, dict[str, float]]:
+    """Median RL steps/s per env over interleaved rounds."""
+    envs = {"base": make_env("base", n), "rough_baseline_terrain": make_env("rough", n, baseline),
+            "rough": make_env("rough", n)}
+    gen = torch.Generator().manual_seed(0)
+    rates: dict[str, list[float]] = {k: [] for k in envs}
+    try:
+        for env in envs.values():
+            env.reset()
+            for _ in range(steps):  # warm-up
+                env.step(torch.randn(n, 28, generator=gen))
+        for _ in range(rounds):
+            for name, env in envs.items():
+                t0 = time.perf_counter()
+                for _ in range(steps):
+                    env.step(torch.randn(n, 28, generator=gen))
+                rates[name].append(n * steps / (time.perf_counter() - t0))
+    finally:
+        for env in envs.values():
+            env.close()
+    base = statistics.median(rates["base"])
+    return {k: {"median": statistics.median(v), "min": min(v), "max": max(v), "ratio_to_base": statistics.median(v) / base}
+            for k, v in rates.items()}
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--baseline-terrain", type=Path, required=True, help="a terrain.py to compare against")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1024, 4096])
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--steps", type=int, default=3, help="RL steps per env per round")
+    parser.add_argument("--out", type=Path, default=Path("results/bench"))
+    args = parser.parse_args(argv)
+    if not args.baseline_terrain.is_file():
+        parser.error(f"--baseline-terrain {args.baseline_terrain}: no such file")
+    torch.set_num_threads(1)
+    baseline = load_terrain_module(args.baseline_terrain)
+    result = {"baseline_terrain": str(args.baseline_terrain), "load_avg_before": os.getloadavg(), "rows": {}}
+    for n in args.sizes:
+        result["rows"][n] = measure(n, args.rounds, args.steps, baseline)
+        r = result["rows"][n]
+        print(f"N={n}: base {r['base']['median']:,.0f}, rough (baseline terrain) {r['rough_baseline_terrain']['median']:,.0f} "
+              f"({r['rough_baseline_terrain']['ratio_to_base']:.2f} x base), rough {r['rough']['median']:,.0f} "
+              f"({r['rough']['ratio_to_base']:.2f} x base) RL steps/s", flush=True)
+    result["load_avg_after"] = os.getloadavg()
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_json(result, args.out / "terrain_ab.json")
+    return result
+
+
+if __name__ == "__main__":
+    main()
