@@ -93,3 +93,24 @@ EVAL_OUT ?=
 eval: $(STAMP)
 	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval --policy $(POLICY) --scenario $(SCENARIO) --episodes $(EPISODES) \
 		$(if $(EVAL_OUT),--out $(EVAL_OUT),)
+
+# ---------------------------------------------------------------------------------------------
+# Distillation of an expert into a horizon student (issue 10; docs/distill.md). Defaults: Table 7
+# (tasks/agents/distill.yaml), first-spline, H = 10, dt = 0.02 s, DAgger alpha = 0.6.
+# `make distill EXPERT=... ENCODING=discrete-discrete HORIZON=5 DT=0.04 ALGO=naive EPOCHS=20`
+EXPERT ?= docs/policies/base_actor.pt
+ENCODING ?= first-spline
+HORIZON ?= 10
+DT ?= 0.02
+ALGO ?= dagger
+EPOCHS ?= 30
+DISTILL_NUM_ENVS ?= 128
+DISTILL_OUT ?= results/distill
+DISTILL_ARGS ?=
+
+.PHONY: distill
+
+distill: $(STAMP)
+	OMP_NUM_THREADS=$(TRAIN_THREADS) $(PY) -m dls_quadruped.learning.distill --expert $(EXPERT) --encoding $(ENCODING) \
+		--horizon $(HORIZON) --dt $(DT) --algo $(ALGO) --epochs $(EPOCHS) --num-envs $(DISTILL_NUM_ENVS) \
+		--out $(DISTILL_OUT) $(if $(RESUME),--resume,) $(DISTILL_ARGS)

@@ -50,6 +50,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", type=Path, default=None, help=f"distillation YAML (default {DEFAULT_CONFIG.name}; "
                    f"on --resume the run's own {RESOLVED})")
+    p.add_argument("--task", default=None, help="env task name or YAML path (default: the config's, base)")
     p.add_argument("--expert", default=None, help="TorchScript expert actor (default: the config's)")
     p.add_argument("--encoding", default=None, help="<p>-<F>, each discrete|spline|first, e.g. first-spline")
     p.add_argument("--horizon", type=int, default=None, help="H, actions in the horizon (>= 1; >= 4 with a spline)")
@@ -70,7 +71,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--run-dir", type=Path, default=None, help="default: a new runs/distill/<time>")
     p.add_argument("--log-root", type=Path, default=Path("runs") / "distill")
     p.add_argument("--resume", action="store_true", help="continue after the last finished epoch")
-    p.add_argument("--out", type=Path, default=None, help="also copy the export (student.pt/.json) to this directory")
+    p.add_argument("--out", type=Path, default=None, help="also copy student.pt/.json, metrics.json and mse_sp.png here")
     return p.parse_args(argv)
 
 
@@ -92,6 +93,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict:
     put("encoding", "horizon", args.horizon)
     put("encoding", "dt", args.dt)
     put(None, "expert", args.expert)
+    put(None, "task", args.task)
     put(None, "algorithm", args.algo)
     put("selector", "kind", args.selector)
     put("selector", "alpha", args.alpha)
@@ -143,7 +145,9 @@ def distill_task(task: str, num_workers: int | None):
     return replace_sections(cfg, {"curriculum": {}}, source="<distill: no curriculum>")
 
 
-def _run_dir(args: argparse.Namespace) -> Path:
+def _run_dir(args: argparse.Namespace) -> Path | None:
+    """The run directory to continue (--resume), or the --run-dir to create (checked empty), or None
+    (a new one under --log-root). Nothing is created here."""
     if args.resume:
         run_dir = args.run_dir
         if run_dir is None:
@@ -152,11 +156,8 @@ def _run_dir(args: argparse.Namespace) -> Path:
         if run_dir is None or not (run_dir / CHECKPOINT).is_file():
             raise UserError(f"--resume: no {CHECKPOINT} under {args.run_dir or args.log_root}")
         return run_dir
-    if args.run_dir is None:
-        return new_run_dir(args.log_root)
-    if args.run_dir.exists() and any(args.run_dir.iterdir()):
+    if args.run_dir is not None and args.run_dir.exists() and any(args.run_dir.iterdir()):
         raise UserError(f"--run-dir {args.run_dir} is not empty; add --resume to continue it or choose a new one")
-    args.run_dir.mkdir(parents=True, exist_ok=True)
     return args.run_dir
 
 
@@ -191,7 +192,7 @@ def write_outputs(trainer: DistillTrainer, run_dir: Path, out: Path | None) -> d
         import shutil
 
         out.mkdir(parents=True, exist_ok=True)
-        for f in (exported, exported.with_suffix(".json")):
+        for f in (exported, exported.with_suffix(".json"), run_dir / "metrics.json", run_dir / "mse_sp.png"):
             shutil.copy2(f, out / f.name)
     return metrics
 
@@ -229,9 +230,16 @@ def main(argv: list[str] | None = None) -> Path:
         except ValueError as err:
             raise UserError(str(err)) from None
         agent_actor = task.data.get("agent", {}).get("actor", {})
+        if run_dir is None:  # created only now that every input was checked
+            run_dir = new_run_dir(args.log_root)
+        run_dir.mkdir(parents=True, exist_ok=True)
         hidden = list(cfg.student.hidden_dims or agent_actor.get("hidden_dims", [512, 256, 128]))
         activation = cfg.student.activation or agent_actor.get("activation", "elu")
         info = {"path": str(cfg.expert), "sha256": _sha256(Path(cfg.expert))}
+        if state is not None and state.get("expert", {}).get("sha256") not in (None, info["sha256"]):
+            raise UserError(f"--resume: expert {cfg.expert} changed since {run_dir} started (sha256 "
+                            f"{state['expert']['sha256'][:12]}..., now {info['sha256'][:12]}...); its labels "
+                            "would mix two experts: start a new run")
         trainer = DistillTrainer(cfg, env, expert, run_dir, hidden, activation, expert_info=info)
         if state is not None:
             trainer.load_state_dict(state)

@@ -22,12 +22,11 @@ import numpy as np
 import torch
 
 from dls_quadruped.eval.metrics import wilson_interval
-from dls_quadruped.eval.rollout import run_episodes
 from dls_quadruped.learning.dataset import DiskDataset
 
 
 @torch.no_grad()
-def test_mse(net: Callable[[torch.Tensor], torch.Tensor], data: DiskDataset, batch: int = 8192) -> float:
+def held_out_mse(net: Callable[[torch.Tensor], torch.Tensor], data: DiskDataset, batch: int = 8192) -> float:
     """Mean squared error (all rows, all outputs) of ``net`` (label-space outputs) on ``data``."""
     positions = data.positions()
     total, n = 0.0, 0
@@ -38,20 +37,37 @@ def test_mse(net: Callable[[torch.Tensor], torch.Tensor], data: DiskDataset, bat
     return total / max(n, 1)
 
 
+@torch.no_grad()
 def episode_returns(env, policy: Callable[[torch.Tensor], torch.Tensor], seeds: list[int],
                     obs_group: str = "policy") -> dict[str, np.ndarray]:
     """One batch of episodes per seed (torch seeded, then every env reset), first episode only.
 
+    Like ``eval.rollout.run_episodes`` but under ``no_grad`` instead of ``inference_mode``: the
+    env goes on collecting afterwards, and an in-process simulator would keep inference tensors
+    created at a reset, which later in-place updates refuse.
+
     Returns:
-        {"return": (E,) summed reward [reward of the env, i.e. Σ w r dt], "survived": (E,) bool}.
+        {"return": (E,) summed reward of the env (Σ_t Σ_k w_k r_k dt) until the first termination
+        or the time-out, "survived": (E,) bool, not terminated before the time-out}.
     """
     returns, survived = [], []
     for seed in seeds:
         torch.manual_seed(seed)
-        env.reset()
-        traces = run_episodes(env, lambda obs: policy(obs[obs_group]))
-        returns.append(np.nansum(traces.reward, axis=0) * traces.step_dt)  # traces hold reward / step_dt
-        survived.append(~traces.fell & (traces.length >= traces.valid.shape[0]))
+        obs = env.reset()[0][obs_group]
+        total = torch.zeros(env.num_envs, dtype=torch.float64)
+        alive = torch.ones(env.num_envs, dtype=torch.bool)
+        fell = torch.zeros(env.num_envs, dtype=torch.bool)
+        for _ in range(int(env.max_episode_length)):
+            obs_td, reward, dones, extras = env.step(policy(obs))
+            obs = obs_td[obs_group]
+            total += torch.where(alive, reward.double().cpu(), 0.0)  # the ending step's reward counts
+            done = dones.bool().cpu()
+            fell |= alive & done & ~extras["time_outs"].bool().cpu()
+            alive &= ~done
+            if not alive.any():
+                break
+        returns.append(total.numpy())
+        survived.append((~fell).numpy())
     return {"return": np.concatenate(returns), "survived": np.concatenate(survived)}
 
 

@@ -37,9 +37,9 @@ from dls_quadruped.learning.dataset import DiskDataset
 from dls_quadruped.learning.distill_config import DistillConfig
 from dls_quadruped.learning.distill_metrics import (
     episode_returns,
+    held_out_mse,
     simulation_performance,
     survival,
-    test_mse,
 )
 from dls_quadruped.learning.student import (
     Student,
@@ -215,7 +215,7 @@ class DistillTrainer:
         row = {"epoch": self.epoch + 1, "beta": None if collected is None else collected["beta"],
                "collect": collected, "train": trained, "train_loss": trained["loss"],
                "lr": self.scheduler.get_last_lr()[0], "dataset_size": len(self.dataset),
-               "test_mse": test_mse(self.student.net, self.test_set)}
+               "test_mse": held_out_mse(self.student.net, self.test_set)}
         last = self.epoch + 1 == cfg.train.epochs
         every = cfg.evaluate.sp_every
         if last or (every > 0 and (self.epoch + 1) % every == 0):
@@ -258,7 +258,8 @@ class DistillTrainer:
                 "optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict(),
                 "generator": self.gen.get_state(), "rng_cpu": torch.get_rng_state(),
                 "written_at_epoch_start": self.written_at_epoch_start, "history": self.history,
-                "reference": self.reference, "config": self.cfg.to_dict(), "meta": self.meta}
+                "reference": self.reference, "config": self.cfg.to_dict(), "meta": self.meta,
+                "expert": self.expert_info}
 
     def save(self) -> Path:
         path = self.run_dir / CHECKPOINT
