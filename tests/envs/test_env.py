@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -9,6 +10,7 @@ from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.envs.mdp import curriculum as cur_mdp
 from dls_quadruped.envs.mdp import events as ev_mdp
+from dls_quadruped.robots.aliengo import constants as C
 
 OBS_DIM = 3 + 3 + 3 + 12 + 12 + 28 + 4 + 4 + 187 + 3  # Table 2 + velocity command
 SMALL = {"scene": {"num_workers": 0},
@@ -67,8 +69,11 @@ def test_events_touch_only_targeted_envs():
         assert (values[:, others] == env.scene.model.geom_friction[others]).all()
         ev_mdp.randomize_base_mass(env, ids, scale_range=(0.85, 1.15))
         _, mass = captured["body_mass"]
-        ratio = mass[:, 1] / env.scene.model.body_mass[1]
+        # Table 3: +-15 % of the whole robot's mass (24.64 kg), carried by the trunk, not +-15 % of the trunk
+        ratio = mass.sum(axis=1) / env.scene.model.body_mass.sum()
         assert ((ratio >= 0.85) & (ratio <= 1.15)).all() and (mass[:, 2:] == env.scene.model.body_mass[2:]).all()
+        added = mass[:, 1] - env.scene.model.body_mass[1]
+        np.testing.assert_allclose(added, (ratio - 1.0) * C.TOTAL_MASS, rtol=1e-9)
         # push: only envs 0 and 2 change velocity, by at most 0.5 m/s per axis
         before = env.state.base_lin_vel_w.clone()
         ev_mdp.push_robot(env, torch.tensor([0, 2]), velocity_range=(-0.5, 0.5))

@@ -53,12 +53,18 @@ def randomize_friction(env, env_ids: torch.Tensor, friction_range: tuple[float, 
 
 
 def randomize_base_mass(env, env_ids: torch.Tensor, scale_range: tuple[float, float]) -> None:
-    """Trunk mass x U(scale_range) per env (0.85-1.15 "high"); the controller keeps the nominal model."""
+    """Robot mass x U(scale_range) per env (Table 3: 0.85-1.15 "high", 0.95-1.05 speed/"low").
+
+    The scale is of the whole robot's mass (24.64 kg), as Table 3 states, and the difference is
+    carried by the trunk (a payload): trunk mass + (s - 1) m_robot. The controller keeps the
+    nominal model.
+    """
     model = env.scene.model
     bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)
     scale = _uniform((len(env_ids),), scale_range, "cpu").numpy()
     values = np.repeat(model.body_mass[None].copy(), len(env_ids), axis=0)
-    values[:, bid] *= scale
+    robot_mass = float(model.body_subtreemass[bid])
+    values[:, bid] += (scale - 1.0) * robot_mass
     env.scene.sim.set_model_field("body_mass", env_ids.cpu(), values)
 
 
