@@ -425,7 +425,3 @@ def build_scene(cfg: TerrainConfig, scene_path=C.SCENE_PATH) -> tuple[mujoco.MjM
     terrain.tile_origins_w = np.concatenate([tiles.centres, oz[..., None]], axis=-1)
     return model, terrain
 
-
-def ground_geom_ids(model: mujoco.MjModel) -> list[int]:
-    """Ids of the ground's collision geoms (the world body's: plane or terrain tiles)."""
-    return [g for g in range(model.ngeom) if model.geom_bodyid[g] == 0 and model.geom_contype[g]]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+import pytest
 
 from dls_quadruped.robots.aliengo import constants as C
 
@@ -100,3 +101,19 @@ def test_leg_on_trunk_contact_is_not_a_base_contact():
     assert touching and min(c.dist for c in touching) < 0.0  # the pose does put the foot into the trunk
     adr = m.sensor_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, "trunk_contact")]
     assert d.sensordata[adr] == 0.0
+
+
+def test_foot_contact_takes_the_foot_friction_whatever_the_ground():
+    """Friction randomisation writes the feet only: with priority 1 the foot's coefficient is the contact's."""
+    m = _scene()
+    foot = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, C.FOOT_GEOM_NAMES[0])
+    floor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+    assert m.geom_priority[foot] > m.geom_priority[floor]
+    m.geom_friction[foot, 0], m.geom_friction[floor, 0] = 0.42, 1.7
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, 0)
+    mujoco.mj_forward(m, d)
+    d.qpos[2] -= d.geom_xpos[foot, 2] - C.FOOT_RADIUS + 0.001  # the foot 1 mm into the floor
+    mujoco.mj_forward(m, d)
+    mus = [c.friction[0] for c in d.contact[: d.ncon] if foot in (c.geom1, c.geom2)]
+    assert mus and all(mu == pytest.approx(0.42) for mu in mus)

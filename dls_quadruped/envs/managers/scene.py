@@ -20,7 +20,7 @@ from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.backend import SimConfig, VecSim
 from dls_quadruped.sim.height_scan import HeightScanConfig, scan_pattern
-from dls_quadruped.sim.terrain import TerrainConfig, build_scene, ground_geom_ids
+from dls_quadruped.sim.terrain import TerrainConfig, build_scene
 
 
 @dataclass(frozen=True)
@@ -49,8 +49,8 @@ class SceneManager:
         max_init = min(self.cfg.max_init_level, rows - 1)
         self.terrain_levels = torch.randint(0, max_init + 1, (n,), device=dev)
         self.env_origins = self.tile_origins[self.terrain_levels, self.terrain_types].clone()
-        feet = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in C.FOOT_GEOM_NAMES]
-        self.friction_geom_ids = ground_geom_ids(self.model) + feet
+        # foot contacts take the feet's friction (contact priority 1), so randomising the feet is enough
+        self.friction_geom_ids = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in C.FOOT_GEOM_NAMES]
 
     @property
     def difficulty(self) -> torch.Tensor:

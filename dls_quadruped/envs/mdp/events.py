@@ -38,11 +38,12 @@ def reset_robot(env, env_ids: torch.Tensor, joint_scale: tuple[float, float] = (
 
 
 def randomize_friction(env, env_ids: torch.Tensor, friction_range: tuple[float, float]) -> None:
-    """Sliding friction of the feet and the ground, U(friction_range) per env.
+    """Sliding friction of the foot-ground contacts, U(friction_range) per env.
 
-    MuJoCo has one Coulomb coefficient per contact (the max of the two geoms' by default), so the
-    thesis' static/dynamic pair (mu_s in [0.6, 0.8], mu_d in [0.4, 0.6]) maps to one mu in
-    [0.4, 0.8] ("high"); the same value is written to every foot geom and to the ground geom.
+    MuJoCo has one Coulomb coefficient per contact, so the thesis' static/dynamic pair (mu_s in
+    [0.6, 0.8], mu_d in [0.4, 0.6]) maps to one mu in [0.4, 0.8] ("high"). The feet have contact
+    priority 1, so a foot contact takes the foot geom's coefficient whatever the ground's: the
+    value is written to the four foot geoms (``scene.friction_geom_ids``).
     """
     model = env.scene.model
     ids = env.scene.friction_geom_ids
