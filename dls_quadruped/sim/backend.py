@@ -400,11 +400,15 @@ class VecSim:
         self._dispatch("set_lin_vel", ids)
         return self._refresh_state()
 
-    def set_model_field(self, name: str, env_ids: torch.Tensor, values: torch.Tensor | np.ndarray) -> None:
+    def set_model_field(self, name: str, env_ids: torch.Tensor, values: torch.Tensor | np.ndarray,
+                        index: np.ndarray | list[int] | None = None) -> None:
         """Per-robot model values, e.g. ``geom_friction`` (n, ngeom, 3) or ``body_mass`` (n, nbody).
 
-        Written through ``mujoco.batch.Batch.expand``; the controller's Pinocchio model stays
-        nominal (randomisation is unmodelled dynamics for the controller).
+        With ``index``, only those rows of the field's first dimension are written and ``values``
+        is ``(n, len(index), ...)``: e.g. the four foot geoms of a terrain with thousands of geoms,
+        without shipping every geom's row to the workers. Written through
+        ``mujoco.batch.Batch.expand``; the controller's Pinocchio model stays nominal
+        (randomisation is unmodelled dynamics for the controller).
         """
         from mujoco.batch import MODEL_FIELDS
 
@@ -414,7 +418,8 @@ class VecSim:
         values = np.asarray(values, dtype=np.float64)
         if len(values) != len(ids):
             raise ValueError(f"values must have one row per env id ({len(ids)}), got {len(values)}")
-        self._dispatch("model_field", ids, (name, values))
+        key = name if index is None else (name, np.asarray(index, dtype=np.int64))
+        self._dispatch("model_field", ids, (key, values))
 
     def close(self) -> None:
         """Stop the worker processes (idempotent; a dead or hung worker is killed, not waited for)."""

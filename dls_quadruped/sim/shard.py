@@ -201,10 +201,19 @@ class Shard:
         self._terms = self._dynamics_terms()
         self.publish()
 
-    def set_model_field(self, name: str, ids: np.ndarray, values: np.ndarray) -> None:
-        """Per-robot model values (randomisation) through ``Batch.expand``; the controller keeps the nominal model."""
+    def set_model_field(self, key: str | tuple[str, np.ndarray | None], ids: np.ndarray, values: np.ndarray) -> None:
+        """Per-robot model values (randomisation) through ``Batch.expand``; the controller keeps the nominal model.
+
+        ``key`` is the field name, or ``(name, index)`` to write only the rows ``index`` of the
+        field's first dimension (e.g. four foot geoms of ``geom_friction``): ``values`` is then
+        ``(len(ids), len(index), ...)``.
+        """
+        name, index = key if isinstance(key, tuple) else (key, None)
         field = self.batch.expand(name)
-        field[ids] = values
+        if index is None:
+            field[ids] = values
+        else:
+            field[np.ix_(ids, index)] = values
 
     # ------------------------------------------------------------------ output
     def publish(self) -> None:

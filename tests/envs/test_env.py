@@ -58,17 +58,17 @@ def test_events_touch_only_targeted_envs():
     env = make_env("rough")
     try:
         captured = {}
-        env.scene.sim.set_model_field = lambda name, ids, values: captured.__setitem__(name, (ids, values))
+        env.scene.sim.set_model_field = lambda name, ids, values, index=None: captured.__setitem__(name, (ids, values, index))
         ids = torch.tensor([1, 3])
         ev_mdp.randomize_friction(env, ids, friction_range=(0.4, 0.8))
-        got_ids, values = captured["geom_friction"]
-        assert got_ids.tolist() == [1, 3] and values.shape == (2, env.scene.model.ngeom, 3)
+        got_ids, values, index = captured["geom_friction"]
         geoms = env.scene.friction_geom_ids
-        assert ((values[:, geoms, 0] >= 0.4) & (values[:, geoms, 0] <= 0.8)).all()
-        others = [g for g in range(env.scene.model.ngeom) if g not in geoms]
-        assert (values[:, others] == env.scene.model.geom_friction[others]).all()
+        assert got_ids.tolist() == [1, 3] and list(index) == geoms and values.shape == (2, 4, 3)
+        assert [env.scene.model.geom(g).name for g in geoms] == list(C.FOOT_GEOM_NAMES)
+        assert ((values[..., 0] >= 0.4) & (values[..., 0] <= 0.8)).all()
+        assert (values[..., 1:] == env.scene.model.geom_friction[geoms, 1:]).all()  # torsional, rolling kept
         ev_mdp.randomize_base_mass(env, ids, scale_range=(0.85, 1.15))
-        _, mass = captured["body_mass"]
+        _, mass, _ = captured["body_mass"]
         # Table 3: +-15 % of the whole robot's mass (24.64 kg), carried by the trunk, not +-15 % of the trunk
         ratio = mass.sum(axis=1) / env.scene.model.body_mass.sum()
         assert ((ratio >= 0.85) & (ratio <= 1.15)).all() and (mass[:, 2:] == env.scene.model.body_mass[2:]).all()

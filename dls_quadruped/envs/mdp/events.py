@@ -48,9 +48,9 @@ def randomize_friction(env, env_ids: torch.Tensor, friction_range: tuple[float, 
     model = env.scene.model
     ids = env.scene.friction_geom_ids
     mu = _uniform((len(env_ids),), friction_range, "cpu").numpy()
-    values = np.repeat(model.geom_friction[None].copy(), len(env_ids), axis=0)  # (n, ngeom, 3)
-    values[:, ids, 0] = mu[:, None]
-    env.scene.sim.set_model_field("geom_friction", env_ids.cpu(), values)
+    values = np.repeat(model.geom_friction[None, ids].copy(), len(env_ids), axis=0)  # (n, 4, 3)
+    values[:, :, 0] = mu[:, None]
+    env.scene.sim.set_model_field("geom_friction", env_ids.cpu(), values, index=ids)
 
 
 def randomize_base_mass(env, env_ids: torch.Tensor, scale_range: tuple[float, float]) -> None:
