@@ -61,10 +61,11 @@ class DistillTrainer:
         run_dir: where the datasets, checkpoint, TensorBoard events and exports go.
         hidden_dims, activation: student MLP (the expert actor's).
         expert_info: recorded in metrics and the export (path, sha256).
+        sp: evaluate SP during training (False: the caller evaluates, e.g. many students batched).
     """
 
     def __init__(self, cfg: DistillConfig, env, expert, run_dir: Path, hidden_dims, activation: str,
-                 expert_info: dict | None = None, printer=print, writer=None):
+                 expert_info: dict | None = None, printer=print, writer=None, sp: bool = True):
         self.cfg, self.env, self.expert, self.run_dir = cfg, env, expert, Path(run_dir)
         self.print = printer
         self.enc = cfg.encoding.to_encoding()
@@ -85,6 +86,7 @@ class DistillTrainer:
         self.dataset: DiskDataset | None = None
         self.test_set: DiskDataset | None = None
         self.writer = writer
+        self.sp = sp
 
     # ------------------------------------------------------------------ datasets
     def _dataset_meta(self) -> dict:
@@ -218,7 +220,7 @@ class DistillTrainer:
                "test_mse": held_out_mse(self.student.net, self.test_set)}
         last = self.epoch + 1 == cfg.train.epochs
         every = cfg.evaluate.sp_every
-        if last or (every > 0 and (self.epoch + 1) % every == 0):
+        if self.sp and (last or (every > 0 and (self.epoch + 1) % every == 0)):
             row["sp"] = self.evaluate_sp()
         row["seconds"] = time.monotonic() - t0
         self.history.append(row)

@@ -1,0 +1,87 @@
+"""Fig. 24 (thesis 7.2.3): DAgger policy selector, indicator vs exponential decay alpha^i with
+alpha in {0.3, 0.6, 0.9}; SP (a) and test MSE (b) over the epochs. The thesis does not state the
+encoding of this figure; we use discrete-discrete, H = 5, dt = 0.02 s as in Table 12.
+
+    python experiments/fig24_selector.py --scale small
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from dls_quadruped.core.json_io import write_json
+from experiments.distill_common import (
+    Run,
+    batched_sp,
+    parse_args,
+    sp_cell,
+    train_runs,
+    write_config,
+    write_table,
+)
+
+SELECTORS = [("indicator", {"kind": "indicator"}), ("alpha_0.3", {"kind": "exponential", "alpha": 0.3}),
+             ("alpha_0.6", {"kind": "exponential", "alpha": 0.6}), ("alpha_0.9", {"kind": "exponential", "alpha": 0.9})]
+
+
+def runs() -> list[Run]:
+    return [Run(name, {"algorithm": "dagger", "selector": sel,
+                       "encoding": {"p": "discrete", "F": "discrete", "horizon": 5, "dt": 0.02}},
+                snapshots=True, row={"selector": name.replace("_", " = ")}) for name, sel in SELECTORS]
+
+
+def figure(trained: dict, sp: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8))
+    for name, _ in SELECTORS:
+        if name not in sp:
+            continue
+        e = [r["epoch"] for r in sp[name]]
+        v = [100 * r["sp"] for r in sp[name]]
+        line, = a.plot(e, v, "o-", label=name.replace("_", " = "))
+        a.fill_between(e, [100 * r["ci95"][0] for r in sp[name]], [100 * r["ci95"][1] for r in sp[name]],
+                       color=line.get_color(), alpha=0.15)
+        h = trained[name]["history"]
+        b.plot([r["epoch"] for r in h], [r["test_mse"] for r in h], "o-", label=name.replace("_", " = "))
+    a.set_xlabel("epoch")
+    a.set_ylabel("SP [%] (95 % CI shaded)")
+    a.axhline(100, color="k", lw=0.8, ls="--")
+    a.legend()
+    b.set_xlabel("epoch")
+    b.set_ylabel("test MSE")
+    b.set_yscale("log")
+    b.legend()
+    fig.suptitle("Fig. 24: policy selector (DAgger, discrete-discrete, H = 5)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    args = parse_args(__doc__, "fig24_selector")
+    rs = [r for r in runs() if args.only is None or r.name in args.only]
+    trained = train_runs(rs, args)
+    sp = batched_sp(trained, args)
+    rows = []
+    for r in rs:
+        for snap, h in zip(sp[r.name], trained[r.name]["history"]):
+            rows.append({**r.row, "epoch": snap["epoch"], "beta": f"{h['beta']:.3g}", "MSE": f"{h['test_mse']:.4f}",
+                         "SP [95 % CI]": sp_cell(snap), "survival": f"{100 * snap['survival']['rate']:.1f} %",
+                         "SP episodes": snap["episodes"], "dataset": h["dataset_size"]})
+    cols = ["selector", "epoch", "beta", "MSE", "SP [95 % CI]", "survival", "SP episodes", "dataset"]
+    write_table(rows, cols, args.out / "table", f"Fig. 24, scale {args.scale}: policy selector over epochs")
+    write_json({"rows": rows, "sp": sp}, args.out / "results.json")
+    figure(trained, sp, args.out / "fig24.png")
+    write_config(args, rs, trained)
+    print((args.out / "table.md").read_text())
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,82 @@
+"""The distillation experiment scripts run end to end on a tiny scale and write their tables.
+
+The tiny task ends episodes after 0.5 s; one run per script (``--only``), one epoch, 2 robots.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+
+import pytest
+import yaml
+
+from dls_quadruped.envs.config import TASKS_DIR
+from experiments import (
+    distill_common,
+    fig24_selector,
+    table11_naive_vs_dagger,
+    table12_batch_size,
+    table13_encodings,
+)
+
+TINY_SCALE = {"train": {"epochs": 2, "datapoints_per_epoch": 30, "dataset_cap": 1000},
+              "collect": {"num_envs": 2}, "evaluate": {"test_datapoints": 10, "sp_episodes": 2}}
+
+
+@pytest.fixture
+def tiny(tmp_path, monkeypatch):
+    task = tmp_path / "tiny.yaml"
+    task.write_text(yaml.safe_dump({"inherit": str(TASKS_DIR / "base.yaml"), "env": {"episode_length_s": 0.5},
+                                    "scene": {"num_workers": 0}}))
+    monkeypatch.setattr(distill_common, "TASK", str(task))
+    monkeypatch.setitem(distill_common.SCALES, "small", TINY_SCALE)
+    return tmp_path
+
+
+def read_csv(path) -> list[dict]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def run_script(monkeypatch, module, out, only):
+    monkeypatch.setattr(sys, "argv", [module.__file__, "--scale", "small", "--out", str(out), "--only", only])
+    module.main()
+
+
+def test_table11_writes_our_numbers_beside_the_thesis(tiny, monkeypatch):
+    out = tiny / "t11"
+    run_script(monkeypatch, table11_naive_vs_dagger, out, "naive_first-spline")
+    rows = read_csv(out / "table.csv")
+    assert len(rows) == 1 and rows[0]["Algorithm"] == "naive" and rows[0]["thesis SP"] == "55.62 %"
+    assert rows[0]["SP episodes"] == "2" and rows[0]["train datapoints"] == "60"  # naive: 2 epochs x 30 at once
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["runs"]["naive_first-spline"]["resolved"]["algorithm"] == "naive"
+    assert (out / "table11.png").stat().st_size > 0 and "Table 11" in (out / "table.md").read_text()
+    assert not (out / "runs" / "naive_first-spline" / "dataset").exists()  # datasets are not kept by default
+    # a finished run is not trained again
+    mtime = (out / "runs" / "naive_first-spline" / "result.pt").stat().st_mtime
+    run_script(monkeypatch, table11_naive_vs_dagger, out, "naive_first-spline")
+    assert (out / "runs" / "naive_first-spline" / "result.pt").stat().st_mtime == mtime
+
+
+@pytest.mark.slow
+def test_fig24_has_sp_for_every_epoch(tiny, monkeypatch):
+    out = tiny / "f24"
+    run_script(monkeypatch, fig24_selector, out, "indicator")
+    rows = read_csv(out / "table.csv")
+    assert [r["epoch"] for r in rows] == ["1", "2"] and [r["beta"] for r in rows] == ["1", "0"]
+    assert (out / "fig24.png").is_file()
+
+
+@pytest.mark.slow
+def test_table12_and_table13_rows(tiny, monkeypatch):
+    run_script(monkeypatch, table12_batch_size, tiny / "t12", "batch_512")
+    row = read_csv(tiny / "t12" / "table.csv")[0]
+    assert row["batch"] == "512" and row["gradient steps"] == "2"  # 30 then 60 rows: one step per pass
+    run_script(monkeypatch, table13_encodings, tiny / "t13", "12_first-spline_dt0.02_H10")
+    row = read_csv(tiny / "t13" / "table.csv")[0]
+    assert (row["N°"], row["Dim."], row["thesis SP"]) == ("12", "64", "98.7")
+    assert len(table13_encodings.runs()) == 36
+    assert [r.row["Dim."] for r in table13_encodings.runs()][:6] == [108, 96, 100, 88, 76, 64]
