@@ -45,8 +45,8 @@ REPO = Path(__file__).resolve().parents[1]
 TASK = "base"
 """Env task of every experiment (the expert's; tests swap in a tiny one)."""
 SCALES = {
-    "small": {"train": {"epochs": 5, "datapoints_per_epoch": 4000, "dataset_cap": 800_000},
-              "collect": {"num_envs": 64}, "evaluate": {"test_datapoints": 2000, "sp_episodes": 16}},
+    "small": {"train": {"epochs": 5, "datapoints_per_epoch": 3000, "dataset_cap": 800_000},
+              "collect": {"num_envs": 64}, "evaluate": {"test_datapoints": 1000, "sp_episodes": 16}},
     "thesis": {"train": {"epochs": 30, "datapoints_per_epoch": 80_000, "dataset_cap": 800_000},
                "collect": {"num_envs": 128}, "evaluate": {"test_datapoints": 50_000, "sp_episodes": 50_000}},
 }
