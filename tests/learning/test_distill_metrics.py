@@ -40,3 +40,12 @@ def test_mse_is_the_mean_over_rows_and_outputs(tmp_path):
     ds.append(torch.zeros(4, 2), torch.arange(12, dtype=torch.float32).view(4, 3))
     # a net that predicts 1 everywhere: mean of (k - 1)^2 for k = 0..11 = 386 / 12
     assert held_out_mse(lambda obs: torch.ones(len(obs), 3), ds, batch=3) == pytest.approx(386 / 12)
+
+
+def test_table7_gradient_step_count():
+    from dls_quadruped.learning.distill_bench import table7_steps
+
+    # dataset 100, 200, 250 (capped) rows at batch 64: 2 + 4 + 4 steps
+    assert table7_steps(epochs=3, per_epoch=100, cap=250, batch=64) == 10
+    # Table 7: sum over 30 epochs of ceil(min(800k, 80k (i + 1)) / 64)
+    assert table7_steps() == sum(-(-min(800_000, 80_000 * (i + 1)) // 64) for i in range(30)) == 318_750
