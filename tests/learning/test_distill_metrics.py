@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from dls_quadruped.learning.dataset import DiskDataset
+from dls_quadruped.learning.distill_bench import table7_steps
 from dls_quadruped.learning.distill_metrics import (
     held_out_mse,
     simulation_performance,
@@ -43,8 +44,6 @@ def test_mse_is_the_mean_over_rows_and_outputs(tmp_path):
 
 
 def test_table7_gradient_step_count():
-    from dls_quadruped.learning.distill_bench import table7_steps
-
     # dataset 100, 200, 250 (capped) rows at batch 64: 2 + 4 + 4 steps
     assert table7_steps(epochs=3, per_epoch=100, cap=250, batch=64) == 10
     # Table 7: sum over 30 epochs of ceil(min(800k, 80k (i + 1)) / 64)
