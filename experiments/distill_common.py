@@ -8,7 +8,9 @@ student (and every per-epoch snapshot a figure needs) *at once*: one big env hol
 robots [p E, (p+1) E); expert and untrained student are run on the same robots and seeds, so SP
 (eq. 7.2.2) compares the same episodes.
 
-Scales: ``small`` fits a 2-core machine in minutes; ``thesis`` uses Table 7 and 7.2.1 sizes
+Scales: ``small`` fits a 2-core machine in minutes (5 epochs x 3000 datapoints: too few for the
+students to converge, it checks the pipeline); ``medium`` (10 x 10 000) in about three minutes
+per run; ``thesis`` uses Table 7 and 7.2.1 sizes
 (80 000 datapoints per epoch, cap 800 000, 50 000 test datapoints, 50 000 SP episodes).
 Outputs under ``--out`` (default ``results/experiments/<name>``): ``runs/<run>/metrics.json``,
 ``results.json``, ``table.csv``, ``table.md``, the figure, and ``config.json`` (scale, git commit,
@@ -47,6 +49,8 @@ TASK = "base"
 SCALES = {
     "small": {"train": {"epochs": 5, "datapoints_per_epoch": 3000, "dataset_cap": 800_000},
               "collect": {"num_envs": 64}, "evaluate": {"test_datapoints": 1000, "sp_episodes": 16}},
+    "medium": {"train": {"epochs": 10, "datapoints_per_epoch": 10_000, "dataset_cap": 800_000},
+               "collect": {"num_envs": 64}, "evaluate": {"test_datapoints": 2000, "sp_episodes": 32}},
     "thesis": {"train": {"epochs": 30, "datapoints_per_epoch": 80_000, "dataset_cap": 800_000},
                "collect": {"num_envs": 128}, "evaluate": {"test_datapoints": 50_000, "sp_episodes": 50_000}},
 }
