@@ -9,9 +9,12 @@ At every MPC step (100 Hz) for B robots:
        p_h = T_stance / 2 * v_ref + sqrt(z_com / g) (v - v_ref),   T_stance = d / f
 
    (sigma_p = 0: the MPC does not change them; they are also the cost's foothold reference);
-3. forces: the sampling MPC searches around two warm starts, the previous solution shifted by
-   one MPC period (naive) and the nominal trot (m g / 2 per stance leg), with the gait and
-   footholds of steps 1-2 written into both;
+3. forces: the sampling MPC searches around the naive warm start alone (the thesis's naive
+   controller): the previous solution with its swing-step force offsets zeroed, shifted by one MPC
+   period, with the gait and footholds of steps 1-2 written into it. Forces are sampled as offsets
+   from gravity compensation m g / (stance legs of each step) (``samples.forces_from_offsets``), so
+   this is a meaningful controller on its own. Optionally (``anchor_share > 0``, off in the thesis
+   experiments) a share of the samples is drawn around the nominal trot (zero offsets) as well;
 4. the first action ``(f, d, p_0, F_0)`` goes to the low-level controller, which runs at 200 Hz
    inside the simulator backend for ``mpc_period / physics_dt`` physics steps.
 """
@@ -43,18 +46,22 @@ class BaselineConfig:
     Attributes:
         freq, duty: periodic trot [Hz], stance fraction.
         com_height: desired CoM height above the ground [m].
-        proportions: shares of the samples drawn around (previous solution shifted, nominal trot).
-            The nominal group anchors the forces: with the naive warm start alone, the force
-            parameters of legs in swing drift freely (they cost nothing) and are far off when
-            those legs touch down.
+        anchor_share: share of the samples drawn around the nominal trot (zero force offsets) besides
+            the naive warm start; 0 (default, the thesis's naive controller) = naive warm start alone.
+            Before forces were sampled as offsets from gravity compensation, the naive warm start
+            alone collapsed the robot within 0.5 s and a 0.2 anchor share was needed.
         sampler: sampling-MPC settings; sigma_f, sigma_d and sigma_p are forced to 0 (forces only).
     """
 
     freq: float = 1.5
     duty: float = 0.6
     com_height: float = 0.33
-    proportions: tuple[float, float] = (0.8, 0.2)
+    anchor_share: float = 0.0
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.anchor_share < 1.0:
+            raise ValueError(f"BaselineConfig.anchor_share must be in [0, 1), got {self.anchor_share!r}")
 
     def forces_only(self) -> SamplerConfig:
         """The sampler config with gait and foothold optimisation switched off."""
@@ -105,9 +112,12 @@ class ModelBasedBaseline:
         cfg = self.cfg
         p_h = heuristic_footholds_h(state, cmd_vel_h, cfg)
         p_block = self._encode_p(p_h)
-        ws = self.mpc.naive_warm_start(self.default).clone()
-        ws_nominal = self.default.clone()
-        for w in (ws, ws_nominal):
+        warm_starts = [self.mpc.naive_warm_start(self.default).clone()]
+        proportions: tuple[float, ...] = (1.0,)
+        if cfg.anchor_share > 0.0:
+            warm_starts.append(self.default.clone())
+            proportions = (1.0 - cfg.anchor_share, cfg.anchor_share)
+        for w in warm_starts:
             w[:, self.slices["f"]] = cfg.freq
             w[:, self.slices["d"]] = cfg.duty
             w[:, self.slices["p"]] = p_block
@@ -127,7 +137,7 @@ class ModelBasedBaseline:
         ], dim=-1)
         refs = Refs(com_height_w=torch.full((self.num_robots,), cfg.com_height), lin_vel_w=v_ref_w,
                     yaw_rate=cmd[:, 2].clone(), foothold_w=foothold_w)
-        result = self.mpc.solve(srbd, refs, warm_starts=[ws, ws_nominal], proportions=cfg.proportions,
+        result = self.mpc.solve(srbd, refs, warm_starts=warm_starts, proportions=proportions,
                                 phase=state.phase, base_xy_w=base_xy, base_yaw=yaw)
         return result, refs
 

@@ -1,7 +1,7 @@
 """The ``cpp`` kernel: the whole per-sample pipeline in hand-written C++ (rollout_kernel.cpp), CPU only.
 
 Same inputs and semantics as :func:`dls_quadruped.mpc.kernel.reference_costs` (counter-hash noise,
-box clip, decode, Table 1 limits, frames, contacts, explicit-Euler SRBD, quadratic cost, NaN -> +inf),
+box clip, decode, forces from gravity-compensation offsets, Table 1 limits, frames, contacts, explicit-Euler SRBD, quadratic cost, NaN -> +inf),
 computed per sample in registers: one OpenMP loop over blocks of 16 samples, the N steps inside,
 only the (B, M) costs are written. float32 like the torch kernels.
 
@@ -212,8 +212,8 @@ def constants(cfg: SamplerConfig, model: SRBDModel) -> tuple[torch.Tensor, ...]:
     prm = [cfg.dt, model.mass, model.gravity, *inertia.flatten().tolist(),
            *torch.linalg.inv(inertia).flatten().tolist(), act.mu, fz_lo, fz_hi, *act.foothold_x_range,
            *act.foothold_y_range, *(v for leg in act.nominal_foothold_b for v in leg[:2]), act.foot_radius,
-           w.z, w.vx, w.vy, w.vz, w.roll, w.pitch, w.roll_rate, w.pitch_rate, w.yaw_rate, w.foothold_xy]
-    assert len(prm) == 47
+           w.z, w.vx, w.vy, w.vz, w.roll, w.pitch, w.roll_rate, w.pitch_rate, w.yaw_rate, w.foothold_xy, act.weight]
+    assert len(prm) == 48
     lo, hi = encoded_bounds(cfg)
     idx, wts = decode_tables(cfg)
     f32 = functools.partial(torch.tensor, dtype=torch.float32)

@@ -1,7 +1,8 @@
 """Sample costs of one solve: the plain eager ``reference`` kernel and the fused ``fast`` kernel.
 
 Both map the same inputs (:class:`KernelInputs`) to the (B, M) rollout costs of all samples:
-draw -> clip -> decode -> contact sequence -> frames -> SRBD rollout -> cost (Algorithm 2).
+draw -> clip -> decode -> contact sequence -> forces from offsets (gravity compensation per step, zero
+in swing: :func:`samples.forces_from_offsets`) -> frames -> SRBD rollout -> cost (Algorithm 2).
 
 * ``reference``: the straightforward batched formulation (tensors (B, M, N, 4, 3), cross products,
   matmuls, a Python loop over the N steps only), built from :mod:`samples`, :mod:`srbd`, :mod:`cost`.
@@ -94,6 +95,7 @@ def _build_fused(cfg: SamplerConfig, model: SRBDModel) -> Callable[..., torch.Te
     px_lo, px_hi = act.foothold_x_range
     py_lo, py_hi = act.foothold_y_range
     mu, mass, grav = act.mu, model.mass, model.gravity
+    weight = act.weight  # gravity compensation of the force offsets (Table 5 shift)
     inertia = torch.tensor(model.inertia_b, dtype=torch.float64)
     I = inertia.tolist()
     Ii = torch.linalg.inv(inertia).tolist()
@@ -166,19 +168,20 @@ def _build_fused(cfg: SamplerConfig, model: SRBDModel) -> Callable[..., torch.Te
                 acc = acc + w.foothold_xy * (ex * ex + ey * ey)
             r_cost[k] = acc
 
-        # forces (world), clipped to Table 1 and the friction cone
+        # forces (world): offsets + m g / (stance legs of the step), zero in swing (samples.forces_from_offsets),
+        # clipped to Table 1 and the friction cone
+        shift = [weight / torch.clamp(c[k][0] + c[k][1] + c[k][2] + c[k][3], min=1.0) for k in range(n_steps)]
         frc = [[None] * 4 for _ in range(n_steps)]
         for i in range(4):
             fxs, fys, fzs = (block_values(P, enc.F, sl["F"].start, 12, 3 * i + a) for a in range(3))
             for k in range(n_steps):
-                if enc.F == "first" and k > 0:
-                    frc[k][i] = frc[0][i]
-                    continue
-                fz = torch.clamp(fzs[k], fz_lo, fz_hi)
-                nxy = torch.sqrt(fxs[k] * fxs[k] + fys[k] * fys[k])
+                ci = c[k][i]
+                fz = torch.clamp(ci * (fzs[k] + shift[k]), fz_lo, fz_hi)
+                fxr, fyr = ci * fxs[k], ci * fys[k]
+                nxy = torch.sqrt(fxr * fxr + fyr * fyr)
                 lim = mu * fz
                 scale = torch.where(nxy > lim, lim / torch.clamp(nxy, min=1e-12), 1.0)
-                fx, fy = fxs[k] * scale, fys[k] * scale
+                fx, fy = fxr * scale, fyr * scale
                 frc[k][i] = (cyaw * fx - syaw * fy, syaw * fx + cyaw * fy, fz)
 
         # rollout (explicit Euler) and state cost

@@ -2,7 +2,8 @@
 //
 // Same maths as kernel.reference_costs, per sample: counter-hash normals (rng.py) -> perturb and
 // box-clip the encoded sample (samples.sample_encoded) -> decode p, F per step (encodings, as a
-// table of <= 4 (index, weight) pairs per decoded scalar) -> clip p box, F_z range, friction cone
+// table of <= 4 (index, weight) pairs per decoded scalar) -> forces from offsets, F = c (dF + m g /
+// max(sum c, 1) e_z) (samples.forces_from_offsets) -> clip p box, F_z range, friction cone
 // (samples.clip_horizon) -> horizontal -> world frame -> contacts from (phase, f, d) ->
 // explicit-Euler SRBD rollout and quadratic cost (srbd.srbd_step, cost.rollout_cost_reference)
 // -> NaN cost = +inf. float32 throughout, like the torch kernels.
@@ -92,7 +93,8 @@ extern "C" {
 // prm (floats): [0] dt, [1] mass, [2] gravity, [3..11] inertia (row-major), [12..20] inverse
 // inertia, [21] mu, [22] fz_lo, [23] fz_hi, [24] px_lo, [25] px_hi, [26] py_lo, [27] py_hi,
 // [28..35] nominal footholds (x, y per leg), [36] foot radius, [37..46] weights
-// (z, vx, vy, vz, roll, pitch, roll_rate, pitch_rate, yaw_rate, foothold_xy).
+// (z, vx, vy, vz, roll, pitch, roll_rate, pitch_rate, yaw_rate, foothold_xy), [47] m g of the
+// force offsets' gravity compensation.
 // dec_idx / dec_w: (N, 20, 4) decode tables for the 8 p scalars then the 12 F scalars.
 // Returns 0, or -1 if D is too large for the on-stack sample buffer.
 int mpc_costs(int B, int M, int N, int G, int D, int64_t seed, int num_threads,
@@ -115,6 +117,7 @@ int mpc_costs(int B, int M, int N, int G, int D, int64_t seed, int num_threads,
   const float* nominal = prm + 28;
   const float foot_r = prm[36];
   const float* w = prm + 37;
+  const float weight = prm[47];
 
 #pragma omp parallel for num_threads(num_threads) schedule(static) if (num_threads > 1)
   for (long blk = 0; blk < total_blocks; ++blk) {
@@ -212,23 +215,29 @@ int mpc_costs(int B, int M, int N, int G, int D, int64_t seed, int num_threads,
       for (int l = 0; l < L; ++l) {
         float sfx = 0.f, sfy = 0.f, sfz = 0.f, tx = 0.f, ty = 0.f, tzq = 0.f, rcost = 0.f;
         float nf[4][3];
+        // gravity compensation of this step: m g shared by its stance legs, max(n, 1) written as a select of
+        // constants (a std::max on the sum of the selected flags became a branch and stopped the vectoriser)
+        const float nst = cv[0][l] + cv[1][l] + cv[2][l] + cv[3][l];
+        const float shift = weight / (nst + (nst < 0.5f ? 1.0f : 0.0f));
 #pragma GCC unroll 4
         for (int i = 0; i < 4; ++i) {
           const float c = cv[i][l];
           // decoded p_h, F_h of leg i at step k
           const float dec[5] = {dv[2 * i][l], dv[2 * i + 1][l], dv[8 + 3 * i][l], dv[9 + 3 * i][l], dv[10 + 3 * i][l]};
-          // Table 1 limits (samples.clip_horizon)
+          // forces from offsets, zero in swing (samples.forces_from_offsets), then Table 1 limits
+          // (samples.clip_horizon)
           const float qx = clamp(dec[0], px_lo, px_hi) + nominal[2 * i];
           const float qy = clamp(dec[1], py_lo, py_hi) + nominal[2 * i + 1];
-          const float fz = clamp(dec[4], fz_lo, fz_hi);
-          const float nxy = std::sqrt(dec[2] * dec[2] + dec[3] * dec[3]);
+          const float fz = clamp(c * (dec[4] + shift), fz_lo, fz_hi);
+          const float fxr = c * dec[2], fyr = c * dec[3];
+          const float nxy = std::sqrt(fxr * fxr + fyr * fyr);
           const float lim = mu * fz;
           // radial scaling onto the cone: lim / |F_xy| where |F_xy| > lim, else 1, written as
           // lim / max(|F_xy|, lim, 1e-12) so that no float op sits on one side of a select (GCC moves a
           // product or quotient into the arm that uses it); differs only if |F_xy| <= lim < 1e-12 N.
           const float big = nxy > lim ? nxy : lim;
           const float scale = lim / (big > 1e-12f ? big : 1e-12f);
-          const float fxh = dec[2] * scale, fyh = dec[3] * scale;
+          const float fxh = fxr * scale, fyh = fyr * scale;
           // frame H -> world (samples.horizontal_to_world)
           const float tgx = bx + cyaw * qx - syaw * qy, tgy = by + syaw * qx + cyaw * qy, tgz = tz[i] + foot_r;
           const float ex = tgx - fh[3 * i], ey = tgy - fh[3 * i + 1];

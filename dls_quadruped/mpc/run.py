@@ -91,6 +91,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--samples", type=positive_int, default=10000, help="M, samples per solve")
     parser.add_argument("--horizon", type=positive_int, default=10, help="N, rollout steps of dt = 0.02 s")
     parser.add_argument("--kernel", choices=KERNELS, default=SamplerConfig.kernel)
+    parser.add_argument("--anchor-share", type=finite_float, default=0.0,
+                        help="share of the samples drawn around the nominal trot besides the naive warm start "
+                             "(default 0: naive warm start alone, the thesis's naive controller)")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-video", action="store_true")
@@ -98,7 +101,8 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_args(argv)
     cmd = (args.vx, args.vy, args.yaw_rate)
     try:
-        cfg = BaselineConfig(sampler=SamplerConfig(num_samples=args.samples, horizon=args.horizon, kernel=args.kernel))
+        cfg = BaselineConfig(anchor_share=args.anchor_share,
+                             sampler=SamplerConfig(num_samples=args.samples, horizon=args.horizon, kernel=args.kernel))
     except ValueError as err:
         raise UserError(str(err)) from None
     if args.seconds < cfg.sampler.mpc_period:
@@ -107,7 +111,7 @@ def main(argv: list[str] | None = None) -> dict:
     run = run_baseline(cmd, args.seconds, cfg=cfg, seed=args.seed, device=args.device)
     wall = time.perf_counter() - t0
     summary = {"command": cmd, "seconds": args.seconds, "samples": args.samples, "horizon": args.horizon,
-               "kernel": args.kernel, "device": args.device, **summarize(run, cmd), "wall_seconds": wall}
+               "kernel": args.kernel, "device": args.device, "anchor_share": args.anchor_share, **summarize(run, cmd), "wall_seconds": wall}
     args.out.mkdir(parents=True, exist_ok=True)
     text = write_json(summary, args.out / "summary.json")
     plot_baseline(run, cmd, args.out / "baseline.png")

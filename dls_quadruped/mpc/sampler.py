@@ -21,9 +21,10 @@ from dataclasses import dataclass
 
 import torch
 
+from dls_quadruped.mpc import warm_start
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import Refs, initial_cost
-from dls_quadruped.mpc.encodings import encoded_dim, shift_encoded
+from dls_quadruped.mpc.encodings import encoded_dim
 from dls_quadruped.mpc.kernel import (
     KernelInputs,
     cpp_costs,
@@ -53,7 +54,9 @@ class MPCResult:
         initial_cost: (B,) state cost of the current state (thesis 7.3.1).
         best_index: (B,) long, winning sample (-1 for a fallback robot).
         warm_start_index: (B,) long, warm start whose group the winner came from (-1 for a fallback).
-        best_encoded: (B, D) winning encoded action (box-clipped), for the naive warm start.
+        best_encoded: (B, D) winning encoded action (box-clipped; F block = force offsets from gravity
+            compensation, ``samples.forces_from_offsets``), for the naive warm start.
+        contact_horizon: (B, N, 4) bool, the winner's contact sequence over the horizon (step 0 = ``contact``).
         fallback: (B,) bool, True where an input (state, phase, base_xy_w, base_yaw, terrain_z_w, a
             reference) or the solution was not finite and the previous solution (or the first warm
             start if there was none) was returned unchanged. False always means a finite action.
@@ -72,6 +75,7 @@ class MPCResult:
     best_index: torch.Tensor
     warm_start_index: torch.Tensor
     best_encoded: torch.Tensor
+    contact_horizon: torch.Tensor
     fallback: torch.Tensor
     reason: str = ""
 
@@ -104,7 +108,8 @@ class SamplingMPC:
     # ------------------------------------------------------------------ warm starts
 
     def naive_warm_start(self, default: torch.Tensor | None = None) -> torch.Tensor:
-        """Previous best sample shifted by one MPC period (mpc_period / dt horizon steps).
+        """Previous best sample, its swing-step force offsets zeroed, shifted by one MPC period (mpc_period / dt
+        horizon steps): :func:`warm_start.naive`.
 
         Args:
             default: (B, D) or (D,) used when there is no previous solution yet (e.g. a trot
@@ -117,7 +122,7 @@ class SamplingMPC:
             if default is None:
                 raise ValueError("naive_warm_start: there is no previous solution yet; pass default=(B, D) encoded action")
             return default.to(self.device, torch.float32)
-        return shift_encoded(self.last_result.best_encoded, self.cfg.encoding, self.cfg.mpc_period / self.cfg.dt)
+        return warm_start.naive(self.last_result.best_encoded, self.cfg, self.last_result.contact_horizon)
 
     def reset(self) -> None:
         """Forget the previous solution (next naive warm start uses its default)."""
@@ -263,7 +268,7 @@ class SamplingMPC:
             f=first["f"], d=first["d"], contact=first["contact"][:, 0], foot_target_w=first["foot_target_w"][:, 0],
             force_w=first["force_w"][:, 0], p_h=first["p_h"][:, 0], F_h=first["F_h"][:, 0],
             best_cost=best_cost, initial_cost=init_cost, best_index=best_index,
-            warm_start_index=inp.group[best_index], best_encoded=best[:, 0],
+            warm_start_index=inp.group[best_index], best_encoded=best[:, 0], contact_horizon=first["contact"],
             fallback=torch.zeros(b, dtype=torch.bool, device=best_index.device),
         )
 
@@ -276,7 +281,7 @@ class SamplingMPC:
             source = "the first warm start (no previous solution)"
             prev = self._extract(inp, torch.zeros_like(result.best_index), result.best_cost, result.initial_cost)
         out = {}
-        for name in ("f", "d", "contact", "foot_target_w", "force_w", "p_h", "F_h", "best_encoded"):
+        for name in ("f", "d", "contact", "foot_target_w", "force_w", "p_h", "F_h", "best_encoded", "contact_horizon"):
             new, old = getattr(result, name), getattr(prev, name)
             out[name] = torch.where(bad.view(-1, *([1] * (new.dim() - 1))), old, new)
         inf = torch.full_like(result.best_cost, float("inf"))

@@ -7,6 +7,15 @@ the two agree; the controller uses them to re-draw and decode the winning sample
 Sample m of robot b, encoded entry j, is ``ws[b, group[m], j] + perturb[m] sigma_j z_j`` with z the
 counter-based normals of :mod:`dls_quadruped.mpc.rng` (pair counter ``(b M + m) D / 2 + j // 2``); ``perturb`` is 0 for the first
 sample of every warm-start group (the warm start itself) and 1 otherwise.
+
+Forces are encoded as **offsets from gravity compensation** (the shift of Table 5 in newtons): the F
+block decodes to per-step offsets ``dF_i(k)`` (frame H) and the force of leg i at step k is
+
+    F_i(k) = c_i(k) (dF_i(k) + (0, 0, m g / max(sum_j c_j(k), 1)))
+
+with c the sample's own contact sequence, then clipped (Table 1, friction cone). A leg in swing gets
+exactly zero force whatever its parameters, and an all-zero F block is the feed-forward posture
+(weight shared by the stance legs of each step, also when two or four legs are down).
 """
 
 from __future__ import annotations
@@ -104,6 +113,32 @@ def sample_encoded(
     return torch.minimum(torch.maximum(samples, lo), hi)
 
 
+def forces_from_offsets(offset_h: torch.Tensor, contact: torch.Tensor, act: LatentActionConfig) -> torch.Tensor:
+    """F = c (dF + (0, 0, m g / max(sum_j c_j, 1))) per step (see the module doc), not yet clipped.
+
+    Args:
+        offset_h: (..., 4, 3) [N] decoded force offsets, frame H.
+        contact: (..., 4) bool stance flags of the same step(s).
+
+    Returns:
+        (..., 4, 3) [N] forces, frame H; zero for legs in swing.
+    """
+    c = contact.to(offset_h.dtype)
+    shift_z = act.weight / c.sum(dim=-1, keepdim=True).clamp_min(1.0)  # (..., 1) m g / number of stance legs
+    return torch.stack([c * offset_h[..., 0], c * offset_h[..., 1], c * (offset_h[..., 2] + shift_z)], dim=-1)
+
+
+def offsets_from_forces(F_h: torch.Tensor, contact: torch.Tensor, act: LatentActionConfig) -> torch.Tensor:
+    """Inverse of :func:`forces_from_offsets` on stance legs; legs in swing get a zero offset.
+
+    Args:
+        F_h: (..., 4, 3) [N] forces in physical units, frame H; contact: (..., 4) bool.
+    """
+    c = contact.to(F_h.dtype)
+    shift_z = act.weight / c.sum(dim=-1, keepdim=True).clamp_min(1.0)
+    return torch.stack([c * F_h[..., 0], c * F_h[..., 1], c * (F_h[..., 2] - shift_z)], dim=-1)
+
+
 def clip_horizon(p_h: torch.Tensor, F_h: torch.Tensor, act: LatentActionConfig) -> tuple[torch.Tensor, torch.Tensor]:
     """Table 1 limits on decoded values: p box, F_z in range, ||F_xy|| <= mu F_z (radial scaling).
 
@@ -154,14 +189,15 @@ def decode_samples(
         samples: (B, K, D); phase: (B, 4) current gait phase.
 
     Returns:
-        dict with f, d (B, K, 4); p_h (B, K, N, 4, 2); F_h (B, K, N, 4, 3); foot_target_w, force_w
-        (B, K, N, 4, 3); contact (B, K, N, 4) bool.
+        dict with f, d (B, K, 4); p_h (B, K, N, 4, 2); F_h (B, K, N, 4, 3) physical forces (offsets plus
+        gravity compensation, zero in swing, clipped); foot_target_w, force_w (B, K, N, 4, 3); contact
+        (B, K, N, 4) bool.
     """
     assert samples.shape[-1] == encoded_dim(cfg.encoding)
-    f, d, p_h, F_h = decode_parts(samples, cfg.encoding)
-    p_h, F_h = clip_horizon(p_h, F_h, cfg.action)
-    foot_target_w, force_w = horizontal_to_world(p_h, F_h, base_xy_w, base_yaw, terrain_z_w, cfg.action)
+    f, d, p_h, offset_h = decode_parts(samples, cfg.encoding)
     _, contact = gait.contact_sequence(phase[:, None, :], f, d, cfg.dt, cfg.horizon)
+    p_h, F_h = clip_horizon(p_h, forces_from_offsets(offset_h, contact, cfg.action), cfg.action)
+    foot_target_w, force_w = horizontal_to_world(p_h, F_h, base_xy_w, base_yaw, terrain_z_w, cfg.action)
     return {"f": f, "d": d, "p_h": p_h, "F_h": F_h, "foot_target_w": foot_target_w, "force_w": force_w,
             "contact": contact}
 
@@ -170,8 +206,10 @@ __all__ = [
     "clip_horizon",
     "decode_samples",
     "encoded_bounds",
+    "forces_from_offsets",
     "group_layout",
     "horizontal_to_world",
+    "offsets_from_forces",
     "sample_encoded",
     "sigma_vector",
 ]

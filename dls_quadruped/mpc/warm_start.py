@@ -1,45 +1,115 @@
 """Warm starts for the sampling MPC (thesis 3.2, 7.3): naive (shifted previous solution) and external.
 
-Any encoded action (B, D) is a valid warm start; these helpers build the common ones:
+Any encoded action (B, D) is a valid warm start. Its F block holds force **offsets from gravity
+compensation** (``samples.forces_from_offsets``: F = c (dF + m g / sum c e_z), zero in swing), so an
+all-zero F block is the feed-forward posture. These helpers build the common ones:
 
-* :func:`naive` - previous best sample shifted by one MPC period (see ``encodings.shift_encoded``);
+* :func:`naive` - previous best sample with its swing-step force offsets zeroed, shifted by one MPC
+  period (:func:`shifted_force_offsets`, ``encodings.shift_encoded``);
 * :func:`from_latent_action` - a single latent action (e.g. the RL policy's, in physical units)
   held over the horizon and encoded, i.e. what a non-horizon policy can offer;
-* :func:`from_horizon` - a horizon of latent actions (e.g. a student policy's decoded output);
+* :func:`from_horizon` - a horizon of latent actions in physical units (e.g. a student policy's
+  decoded output), forces turned into offsets with the contact sequence its own (f_0, d_0) imply;
 * :func:`nominal_trot` - the feed-forward default: trot at 1.5 Hz, duty 0.6, feet under the
-  hips, weight shared by the stance legs (F_z = m g / 2 for a trot).
+  hips, zero force offsets (weight shared by the stance legs of every step).
 """
 
 from __future__ import annotations
 
 import torch
 
+from dls_quadruped.control import gait
 from dls_quadruped.mpc.config import SamplerConfig
-from dls_quadruped.mpc.encodings import ACTION_DIM, encode, shift_encoded
+from dls_quadruped.mpc.encodings import (
+    ACTION_DIM,
+    F_SLICE,
+    block_slices,
+    decode_parts,
+    encode,
+    shift_encoded,
+)
+from dls_quadruped.mpc.samples import offsets_from_forces
 
 
-def naive(previous_best: torch.Tensor, cfg: SamplerConfig) -> torch.Tensor:
-    """Previous solution shifted by mpc_period / dt horizon steps. previous_best: (B, D) -> (B, D)."""
-    return shift_encoded(previous_best, cfg.encoding, cfg.mpc_period / cfg.dt)
+def _shift_matrix(horizon: int, steps: float, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """(N, N) S with (S v)_k = v at step k + steps: linear interpolation, the last value held (no extrapolation)."""
+    t = (torch.arange(horizon, dtype=torch.float64) + steps).clamp(0.0, horizon - 1)
+    lo = t.floor().long()
+    hi = (lo + 1).clamp(max=horizon - 1)
+    w = t - lo
+    mat = torch.zeros(horizon, horizon, dtype=torch.float64)
+    mat[torch.arange(horizon), lo] += 1 - w
+    mat[torch.arange(horizon), hi] += w
+    return mat.to(dtype=dtype, device=device)
 
 
-def from_horizon(actions: torch.Tensor, cfg: SamplerConfig) -> torch.Tensor:
-    """Encode a horizon of latent actions (B, N, 28) (physical units, frame H) -> (B, D)."""
-    return encode(actions, cfg.encoding)
+def shifted_force_offsets(encoded: torch.Tensor, contact: torch.Tensor, cfg: SamplerConfig, steps: float) -> torch.Tensor:
+    """The F block of the naive warm start: offsets per step, zeroed where the leg swings, shifted, re-encoded.
+
+    Per step k the decoded offsets ``dF(k)`` are multiplied by the stance flags ``c(k)`` of the solution
+    (a leg's force costs nothing while it swings: left alone, those parameters would random-walk from
+    solve to solve), moved ``steps`` steps forward in time (linear interpolation, the last value held:
+    a cubic is not extrapolated beyond the horizon, where nothing ever costed it) and encoded again:
+    exact for ``discrete``, the step-0 value for ``first``, a least-squares spline (exact at step 0 with
+    ``constrained_fit``) for ``spline``.
+
+    Args:
+        encoded: (B, D); contact: (B, N, 4) bool, the contact sequence the solution was costed with.
+
+    Returns:
+        (B, D_F) the new F block.
+    """
+    enc = cfg.encoding
+    offset_h = decode_parts(encoded, enc)[3]  # (B, N, 4, 3)
+    masked = (offset_h * contact.to(offset_h.dtype).unsqueeze(-1)).flatten(-2)  # (B, N, 12)
+    shifted = _shift_matrix(enc.horizon, steps, masked.dtype, masked.device) @ masked
+    horizon = torch.zeros(*encoded.shape[:-1], enc.horizon, ACTION_DIM, dtype=encoded.dtype, device=encoded.device)
+    horizon[..., F_SLICE] = shifted
+    return encode(horizon, enc)[..., block_slices(enc)["F"]]
 
 
-def from_latent_action(action: torch.Tensor, cfg: SamplerConfig) -> torch.Tensor:
-    """Hold one latent action (B, 28) over the horizon and encode it -> (B, D)."""
+def naive(previous_best: torch.Tensor, cfg: SamplerConfig, contact: torch.Tensor | None = None) -> torch.Tensor:
+    """The naive warm start: the previous solution (B, D) shifted by mpc_period / dt horizon steps -> (B, D).
+
+    With its contact sequence ``contact`` (B, N, 4) (``MPCResult.contact_horizon``), the force offsets
+    are zeroed in swing steps and shifted with the tail held (:func:`shifted_force_offsets`); without it,
+    the plain time shift of ``encodings.shift_encoded``. f, d and p: ``shift_encoded``.
+    """
+    steps = cfg.mpc_period / cfg.dt
+    out = shift_encoded(previous_best, cfg.encoding, steps)
+    if contact is not None:
+        out[..., block_slices(cfg.encoding)["F"]] = shifted_force_offsets(previous_best, contact, cfg, steps)
+    return out
+
+
+def from_horizon(actions: torch.Tensor, cfg: SamplerConfig, phase: torch.Tensor) -> torch.Tensor:
+    """Encode a horizon of latent actions in physical units (frame H) -> (B, D).
+
+    Forces become offsets from gravity compensation with the contact sequence that the horizon's own
+    (f_0, d_0) imply from ``phase``; legs in swing get a zero offset.
+
+    Args:
+        actions: (B, N, 28) physical units; phase: (B, 4) gait phase at step 0.
+    """
+    if actions.dim() != 3 or tuple(actions.shape[1:]) != (cfg.horizon, ACTION_DIM):
+        raise ValueError(f"actions must have shape (B, {cfg.horizon}, {ACTION_DIM}), got {tuple(actions.shape)}")
+    if tuple(phase.shape) != (actions.shape[0], 4):
+        raise ValueError(f"phase must have shape ({actions.shape[0]}, 4), got {tuple(phase.shape)}")
+    _, contact = gait.contact_sequence(phase.to(actions), actions[:, 0, 0:4], actions[:, 0, 4:8], cfg.dt, cfg.horizon)
+    offsets = offsets_from_forces(actions[..., F_SLICE].unflatten(-1, (4, 3)), contact, cfg.action)
+    return encode(torch.cat([actions[..., :F_SLICE.start], offsets.flatten(-2)], dim=-1), cfg.encoding)
+
+
+def from_latent_action(action: torch.Tensor, cfg: SamplerConfig, phase: torch.Tensor) -> torch.Tensor:
+    """Hold one latent action (B, 28) (physical units) over the horizon and encode it -> (B, D)."""
     if action.dim() != 2 or action.shape[-1] != ACTION_DIM:
         raise ValueError(f"action must have shape (B, {ACTION_DIM}), got {tuple(action.shape)}")
-    return encode(action[:, None, :].expand(-1, cfg.horizon, ACTION_DIM), cfg.encoding)
+    return from_horizon(action[:, None, :].expand(-1, cfg.horizon, ACTION_DIM), cfg, phase)
 
 
-def nominal_trot(batch: int, cfg: SamplerConfig, freq: float = 1.5, duty: float = 0.6,
-                 stance_legs: float = 2.0) -> torch.Tensor:
-    """Feed-forward trot warm start (B, D): f, d constant, p = 0, F = (0, 0, m g / stance_legs)."""
-    action = torch.zeros(batch, ACTION_DIM)
-    action[:, 0:4] = freq
-    action[:, 4:8] = duty
-    action[:, 16 + 2:28:3] = cfg.action.weight / stance_legs
-    return from_latent_action(action, cfg)
+def nominal_trot(batch: int, cfg: SamplerConfig, freq: float = 1.5, duty: float = 0.6) -> torch.Tensor:
+    """Feed-forward trot warm start (B, D): f, d constant, p = 0, force offsets 0 (F = m g / stance legs)."""
+    action = torch.zeros(batch, cfg.horizon, ACTION_DIM)
+    action[..., 0:4] = freq
+    action[..., 4:8] = duty
+    return encode(action, cfg.encoding)

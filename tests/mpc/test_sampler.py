@@ -8,7 +8,7 @@ import torch
 from dls_quadruped.mpc import warm_start
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import rollout_cost_reference
-from dls_quadruped.mpc.encodings import encoded_dim
+from dls_quadruped.mpc.encodings import encode, encoded_dim
 from dls_quadruped.mpc.sampler import SamplingMPC
 from dls_quadruped.mpc.samples import decode_samples, group_layout, sample_encoded
 from dls_quadruped.mpc.srbd import SRBDState, robot_srbd_model, srbd_step
@@ -72,8 +72,10 @@ def test_solve_returns_best_and_is_deterministic(standing_pair):
     state, refs = standing_pair
     cfg = _cfg()
     trot = warm_start.nominal_trot(2, cfg)
-    bad = trot.clone()
-    bad[:, 16:] = 0.0  # no force at all: falls
+    no_force = torch.zeros(2, cfg.horizon, 28)
+    no_force[..., 0:4], no_force[..., 4:8] = 1.5, 0.6
+    no_force[..., 18:28:3] = -cfg.action.weight  # F_z offsets -m g: F_z clipped to 0 on every leg
+    bad = encode(no_force, cfg.encoding)  # no force at all: falls
     results = []
     for _ in range(2):
         mpc = SamplingMPC(cfg, seed=42)
