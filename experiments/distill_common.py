@@ -91,6 +91,17 @@ def _git_commit() -> str:
         return "unknown"
 
 
+def _uncommitted() -> list[str]:
+    """Files of the working tree that differ from the commit (another developer's edits in progress
+    change what the env runs, so they are recorded with the results)."""
+    try:
+        out = subprocess.run(["git", "status", "--short", "--untracked-files=no"], cwd=REPO, capture_output=True,
+                             text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return ["unknown"]
+    return [line.strip() for line in out.splitlines() if line.strip()]
+
+
 def train_runs(runs: list[Run], args: argparse.Namespace) -> dict[str, dict]:
     """Train every run (skipping finished ones); returns {name: {"history", "students": [state dicts]}}."""
     from dls_quadruped.envs.env import LocomotionEnv
@@ -231,6 +242,7 @@ def summary_row(trained: dict, sp: dict, name: str) -> dict:
 
 def write_config(args: argparse.Namespace, runs: list[Run], trained: dict, extra: dict | None = None) -> None:
     write_json({"scale": args.scale, "scale_settings": SCALES[args.scale], "git_commit": _git_commit(),
+                "uncommitted_at_end": _uncommitted(),
                 "expert": args.expert, "expert_sha256": hashlib.sha256(Path(args.expert).read_bytes()).hexdigest(),
                 "runs": {r.name: {"overrides": r.overrides, "resolved": trained[r.name]["config"],
                                   "train_seconds": trained[r.name]["seconds"]} for r in runs if r.name in trained},
