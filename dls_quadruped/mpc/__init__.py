@@ -3,12 +3,12 @@
 Usage (B robots, 100 Hz, the thesis's model-based baseline optimising the forces only)::
 
     import torch
-    from dls_quadruped.mpc import Refs, SamplerConfig, SamplingMPC, srbd_state_from_robot_state, warm_start
+    from dls_quadruped.mpc import Refs, SamplerConfig, SamplingMPC, com_height_reference, srbd_state_from_robot_state, warm_start
 
     cfg = SamplerConfig(num_samples=10000, horizon=10, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0)
     mpc = SamplingMPC(cfg, device="cpu", seed=0)
     state = srbd_state_from_robot_state(rs)                         # rs: core.state.RobotState (B robots)
-    refs = Refs(com_height_w=torch.full((B,), 0.33), lin_vel_w=cmd[:, :2], yaw_rate=cmd[:, 2],
+    refs = Refs(com_height_w=torch.full((B,), com_height_reference()), lin_vel_w=cmd[:, :2], yaw_rate=cmd[:, 2],
                 foothold_w=heuristic_footholds_w)                    # (B, 4, 3)
     default = warm_start.nominal_trot(B, cfg)                        # (B, D) encoded
     result = mpc.solve(state, refs, warm_starts=[mpc.naive_warm_start(default)], phase=rs.phase)
@@ -34,9 +34,11 @@ from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
 from dls_quadruped.mpc.srbd import (
     SRBDModel,
     SRBDState,
+    com_height_reference,
     robot_srbd_model,
     rollout_reference,
     srbd_state_from_base,
+    srbd_state_from_robot_state,
 )
 
 __all__ = [
@@ -48,6 +50,7 @@ __all__ = [
     "SRBDState",
     "SamplerConfig",
     "SamplingMPC",
+    "com_height_reference",
     "decode",
     "decode_parts",
     "encode",
@@ -59,5 +62,6 @@ __all__ = [
     "rollout_reference",
     "shift_encoded",
     "srbd_state_from_base",
+    "srbd_state_from_robot_state",
     "warm_start",
 ]

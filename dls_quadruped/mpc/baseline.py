@@ -34,7 +34,7 @@ from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import Refs
 from dls_quadruped.mpc.encodings import block_slices, fit_spline
 from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
-from dls_quadruped.mpc.srbd import srbd_state_from_base
+from dls_quadruped.mpc.srbd import com_height_reference, srbd_state_from_base
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.backend import SimConfig, VecSim
 
@@ -45,7 +45,8 @@ class BaselineConfig:
 
     Attributes:
         freq, duty: periodic trot [Hz], stance fraction.
-        com_height: desired CoM height above the ground [m].
+        com_height: desired CoM height above the ground [m]; default :func:`srbd.com_height_reference` (the
+            base at ``constants.BASE_HEIGHT_TARGET``, the RL task's height target, ~0.324 m for the CoM).
         anchor_share: share of the samples drawn around the nominal trot (zero force offsets) besides
             the naive warm start; 0 (default, the thesis's naive controller) = naive warm start alone.
             Before forces were sampled as offsets from gravity compensation, the naive warm start
@@ -55,7 +56,7 @@ class BaselineConfig:
 
     freq: float = 1.5
     duty: float = 0.6
-    com_height: float = 0.33
+    com_height: float = field(default_factory=com_height_reference)
     anchor_share: float = 0.0
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
 

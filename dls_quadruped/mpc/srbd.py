@@ -89,6 +89,17 @@ def robot_srbd_model() -> SRBDModel:
     )
 
 
+def com_height_reference(model: SRBDModel | None = None) -> float:
+    """The MPC's CoM height reference above flat ground [m] (~0.324 m).
+
+    The base at ``constants.BASE_HEIGHT_TARGET`` (the RL task's height target too: the reward's
+    proprioceptive target is that minus the foot radius), level, so the CoM sits ``com_offset_b[2]``
+    (~ -13.5 mm) below it: z_c = z_b + (R c_b)_z with R = 1.
+    """
+    model = model if model is not None else robot_srbd_model()
+    return float(C.BASE_HEIGHT_TARGET + model.com_offset_b[2])
+
+
 # ----------------------------------------------------------------------------------------------
 # Euler angles
 # ----------------------------------------------------------------------------------------------

@@ -50,11 +50,11 @@ def proprioceptive_height(env) -> torch.Tensor:
     return env.state.base_pos_w[:, 2] - (c * z_feet).sum(dim=-1) / n  # 0/0 = NaN when airborne
 
 
-def base_height(env, target: float = C.STANDING_BASE_HEIGHT - C.FOOT_RADIUS, sigma: float = 0.1,
+def base_height(env, target: float = C.BASE_HEIGHT_TARGET - C.FOOT_RADIUS, sigma: float = 0.1,
                 alpha: float = 0.0) -> torch.Tensor:
     """SEK (alpha = 0) or SSEK (alpha > 0, tolerance +-alpha [m]) on the proprioceptive height; 0 with no
-    foot in contact (the height is undefined then). ``target`` defaults to the standing base height
-    above the foot-sphere centres."""
+    foot in contact (the height is undefined then). ``target`` defaults to the base height target
+    (``constants.BASE_HEIGHT_TARGET``, shared with the MPC) above the foot-sphere centres."""
     h = proprioceptive_height(env)
     r = kernels.ssek_scalar(h - target, sigma, alpha)
     return torch.where(torch.isnan(h), torch.zeros_like(r), r)

@@ -82,5 +82,10 @@ STANDING_BASE_HEIGHT = (
     + FOOT_RADIUS
 )
 """Base height when standing on flat ground in the nominal joint pose (~0.338 m)."""
+BASE_HEIGHT_TARGET = STANDING_BASE_HEIGHT
+"""Desired base height above flat ground [m] (~0.337 m), the one height target of every controller: the RL
+reward's proprioceptive target is ``BASE_HEIGHT_TARGET - FOOT_RADIUS`` (base above the stance feet's sphere
+centres, ~0.311 m; ``envs/mdp/rewards.base_height``) and the MPC's CoM reference is ``BASE_HEIGHT_TARGET``
+plus the CoM's z offset in the base frame (~0.324 m; ``mpc.srbd.com_height_reference``)."""
 MU = 0.5
 """Friction coefficient assumed by the controllers (the simulator uses its own)."""
