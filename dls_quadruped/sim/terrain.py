@@ -237,7 +237,9 @@ def _add_tile(b: _Builder, name: str, p: float, cx: float, cy: float, tiles: Til
         b.box(cx + x0, cx + x1, cy + y0, cy + y1, top)
 
     if name == "flat":
-        box(-half, half, -half, half, 0.0)
+        return  # flat columns are one box each, with the border at their ends (build_scene): no seams
+    if name in ("slope_up", "slope_down") and p == 0.0:
+        box(-half, half, -half, half, 0.0)  # a zero slope is flat: one box, not five coplanar pieces
     elif name == "rugged":
         b.hfields[r, k] = b.hfield(cx, cy, half, tiles.rugged[r, k])
     elif name == "slope_down":  # one frustum: platform on top, faces down to z = 0 at the edge
@@ -260,9 +262,15 @@ def _add_tile(b: _Builder, name: str, p: float, cx: float, cy: float, tiles: Til
     elif name == "boxes":
         nb = tiles.boxes.shape[-1]
         edges = np.arange(nb + 1) * cfg.box_size - half
+        centre = np.abs(0.5 * (edges[:-1] + edges[1:]))
+        on_platform = np.maximum(centre[:, None], centre[None, :]) < hp  # the zero cells, as in generate_tiles
+        rows, cols = np.nonzero(on_platform)
+        if rows.size:  # one box for the spawn platform: coplanar cells would meet at seams under the robot
+            box(edges[cols.min()], edges[cols.max() + 1], edges[rows.min()], edges[rows.max() + 1], 0.0)
         for iy in range(nb):
             for ix in range(nb):
-                box(edges[ix], edges[ix + 1], edges[iy], edges[iy + 1], float(tiles.boxes[r, k, iy, ix]))
+                if not on_platform[iy, ix]:
+                    box(edges[ix], edges[ix + 1], edges[iy], edges[iy + 1], float(tiles.boxes[r, k, iy, ix]))
     elif name == "stairs_down":  # nested boxes, one per tread, the highest (smallest) on top
         n = cfg.num_steps
         box(-half, half, -half, half, 0.0)
@@ -407,9 +415,25 @@ def build_scene(cfg: TerrainConfig, scene_path=C.SCENE_PATH) -> tuple[mujoco.MjM
             cx, cy = tiles.centres[r, k]
             _add_tile(builder, name, float(tiles.param[r, k]), float(cx), float(cy), tiles, r, k, cfg)
     gx, gy, bw = 0.5 * R * L, 0.5 * K * L, cfg.border
-    for x0, x1, y0, y1 in ((-gx - bw, gx + bw, gy, gy + bw), (-gx - bw, gx + bw, -gy - bw, -gy),
-                           (gx, gx + bw, -gy, gy), (-gx - bw, -gx, -gy, gy)):  # the flat frame
-        builder.box(x0, x1, y0, y1, 0.0)
+    # the flat frame and the flat columns at z = 0, merged into as few boxes as possible: two coplanar
+    # boxes meet at a seam where a foot within ~1 cm of it also touches the other box's edge (a
+    # second, tilted contact; docs/env.md "Contacts"). A flat column runs through the border at its
+    # ends; the border's x-end strips cover the runs of other columns between.
+    builder.box(-gx - bw, gx + bw, gy, gy + bw, 0.0)
+    builder.box(-gx - bw, gx + bw, -gy - bw, -gy, 0.0)
+    flat = [name == "flat" for name in cfg.types]
+    k = 0
+    while k < K:
+        k_end = k
+        while k_end + 1 < K and flat[k_end + 1] == flat[k]:
+            k_end += 1
+        y0, y1 = k * L - gy, (k_end + 1) * L - gy
+        if flat[k]:
+            builder.box(-gx - bw, gx + bw, y0, y1, 0.0)
+        else:
+            builder.box(gx, gx + bw, y0, y1, 0.0)
+            builder.box(-gx - bw, -gx, y0, y1, 0.0)
+        k = k_end + 1
     model = spec.compile()
     # MuJoCo stores height-field elevations as float32 fractions of the range: read back what it collides with
     for (r, k), name in builder.hfields.items():

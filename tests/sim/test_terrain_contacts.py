@@ -53,8 +53,8 @@ def _surface_points(terrain, kind: str, row: int) -> list[tuple[np.ndarray, np.n
     half, hp, w, s = 0.5 * CFG.tile_size, 0.5 * CFG.platform, CFG.step_width, terrain.tiles.param[row, col]
     up = np.array([0.0, 0.0, 1.0])
     local: list[tuple[float, float, np.ndarray]] = []
-    if kind == "flat":
-        local = [(x, y, up) for x, y in ((0.0, 0.0), (1.3, -0.7), (-1.6, 1.2))]
+    if kind == "flat":  # incl. the boundary to the next row: a flat column is one box, no seam there
+        local = [(x, y, up) for x, y in ((0.0, 0.0), (1.3, -0.7), (-1.6, 1.2), (half, 0.3), (half + 0.004, -0.9))]
     elif kind in ("slope_up", "slope_down"):
         sign = 1.0 if kind == "slope_down" else -1.0
         for ang in (0.0, 0.5 * math.pi, math.pi, 1.5 * math.pi):  # mid-face of each of the four faces
@@ -65,6 +65,7 @@ def _surface_points(terrain, kind: str, row: int) -> list[tuple[np.ndarray, np.n
     elif kind == "boxes":
         for iy, ix in ((1, 1), (3, 6), (6, 2)):
             local.append(((ix + 0.5) * CFG.box_size - half, (iy + 0.5) * CFG.box_size - half, up))
+        local += [(0.0, 0.0, up), (0.005, -0.004, up)]  # the spawn point: one platform box, not 4 cell corners
     elif kind in ("stairs_up", "stairs_down"):
         for j in range(CFG.num_steps):  # middle of tread j along +x, -y
             mid = hp + (j + 0.5) * w
