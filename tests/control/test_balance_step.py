@@ -34,21 +34,21 @@ def test_balance_controller_walks_up_a_10cm_step():
     assert np.all(np.abs(run.base_height[-1] - top - 0.34) < 0.03)  # standing height above the step
 
 
-def test_flat_tiles_and_their_seams_behave_exactly_as_the_plane():
+def test_flat_tiles_behave_exactly_as_the_plane():
     """Same deterministic controller, same start relative to the ground: the state on the terrain's
-    flat tiles (crossing the seam between two tiles) equals the plane's to float32 round-off."""
+    flat tiles (walking from one row into the next) equals the plane's to float32 round-off."""
     model, terrain = build_scene(TerrainConfig(types=("flat", "rugged"), num_rows=3))
     ox, oy = terrain.tile_origins_w[0, 0, :2]
     kw = {"num_envs": 2, "stand_seconds": 1.0, "trot_seconds": 6.0, "cmd_vel_h": (0.4, 0.0, 0.0),
           "joint_noise": 0.0, "seed": 0}
     plane = run_balance(**kw)
-    start = (float(ox) + 3.0, float(oy))  # the seam to row 1 is 1 m ahead, crossed after ~3 s of trot
+    start = (float(ox) + 3.0, float(oy))  # row 1 begins 1 m ahead, reached after ~3 s of trot
 
     def height(x, y):
         return terrain.height_at(x.float(), y.float()).to(x.dtype)
 
     tile = run_balance(model=model, origin_w=start, height_fn=height, **kw)
-    assert tile.qpos[-1, :, 0].min() - start[0] > 1.5  # every robot is past the seam
+    assert tile.qpos[-1, :, 0].min() - start[0] > 1.5  # every robot is on row 1
     dx = np.abs(tile.qpos[..., 0] - start[0] - plane.qpos[..., 0]).max()
     d_rest = np.abs(tile.qpos[..., 2:] - plane.qpos[..., 2:]).max()  # height, orientation, joints
     assert dx < 1e-5 and d_rest < 1e-5, (dx, d_rest)
