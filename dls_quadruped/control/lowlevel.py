@@ -6,7 +6,8 @@ ground-reaction force ``F_w``. Per physics step and per leg:
 
 * gait generator: contact ``c = theta < d``; ``theta`` then advances by ``f dt``;
 * swing legs track the two-segment Bezier reference from the lift-off position to
-  ``p_td_w`` with feedback linearisation (SPEC 4; the sign of eq. 2.2.8 is a typo)::
+  ``p_td_w``, which follows a moving target (below), with feedback linearisation (SPEC 4; the
+  sign of eq. 2.2.8 is a typo)::
 
       tau = M J^-1 (a_ref + K_D (v_ref - v) + K_P (p_ref - p) - Jdot qdot) + h
 
@@ -15,6 +16,16 @@ ground-reaction force ``F_w``. Per physics step and per leg:
 * stance legs apply the ground-reaction force: ``tau = -J^T F`` (eq. 2.2.9 with the
   leg-on-ground sign);
 * torques are clipped to the motor limits.
+
+Moving touch-down target (issue 12 item 9a): the target is re-planned by the MPC (100 Hz) or the
+policy (50 Hz) relative to the moving base, so it moves with the body in steps. An alpha-beta tracker
+per leg (a critically damped second-order observer of bandwidth ``target_bandwidth``, zero lag on a
+target moving at constant velocity) turns the horizontal target into a smooth position and velocity;
+the Bezier reference runs to the tracked position and carries the target's velocity
+(``swing.swing_reference(target_vel_w=...)``). Without it the foot trailed a target moving at
+0.5 m/s by 3.4 cm RMS at touch-down (docs/mpc.md "Swing foot and moving targets"). The vertical target
+(terrain height under it) is used as given. ``target_bandwidth = 0`` restores the reference to the raw
+target at rest.
 
 Everything is batched over B robots in float64 torch (the simulator state is float64).
 """
@@ -45,6 +56,8 @@ class LowLevelConfig:
         step_height: swing apex above the higher of lift-off and touch-down [m].
         min_swing_duration: lower bound on T_s = (1 - d) / f [s], guards f -> inf, d -> 1.
         jacobian_damping: Tikhonov damping of the swing-leg Jacobian inverse (near-singular legs).
+        target_bandwidth: [rad/s] bandwidth omega of the touch-down target tracker (module doc);
+            0 = no tracker, the swing reference aims at the raw target as if it were at rest.
     """
 
     kp_swing: tuple[float, float, float] = (1200.0, 1200.0, 1200.0)
@@ -52,6 +65,7 @@ class LowLevelConfig:
     step_height: float = 0.06
     min_swing_duration: float = 0.05
     jacobian_damping: float = 1e-3
+    target_bandwidth: float = 40.0
 
 
 @dataclass
@@ -95,6 +109,17 @@ class LowLevelController:
         self._kd = torch.tensor(cfg.kd_swing, dtype=dtype)
         self._tau_limit = torch.as_tensor(C.TORQUE_LIMITS, dtype=dtype).view(4, 3)
         self._eye = torch.eye(3, dtype=dtype) * cfg.jacobian_damping**2
+        # alpha-beta tracker of the horizontal touch-down targets: observer x' = v + 2 w r, v' = w^2 r
+        # (r = target - x, critically damped) discretised per step as alpha = 2 w dt, beta = (w dt)^2
+        self.target_xy_w = torch.zeros(num_robots, 4, 2, dtype=dtype)
+        self.target_vel_xy_w = torch.zeros(num_robots, 4, 2, dtype=dtype)
+        self._fresh = torch.ones(num_robots, dtype=torch.bool)  # tracker starts at the first target
+        self._alpha = 2.0 * cfg.target_bandwidth * dt
+        self._beta = (cfg.target_bandwidth * dt) ** 2
+        if cfg.target_bandwidth < 0 or self._alpha >= 1.0:
+            raise ValueError(f"LowLevelConfig.target_bandwidth must be in [0, 1 / (2 dt)) = [0, {0.5 / dt:g}) rad/s, "
+                             f"got {cfg.target_bandwidth!r}")
+        self.p_ref_w = torch.zeros(num_robots, 4, 3, dtype=dtype)  # last swing reference (for logging)
 
     def reset(self, ids: torch.Tensor, foot_pos_w: torch.Tensor, phase: torch.Tensor | None = None) -> None:
         """Reset the gait phase (default: trot offsets) and lift-off positions of robots ``ids``.
@@ -107,6 +132,27 @@ class LowLevelController:
         self.phase[ids] = trot_phases(len(ids), dtype=self.phase.dtype) if phase is None else phase.to(self.phase)
         self.p_lo_w[ids] = foot_pos_w.to(self.p_lo_w)
         self.contact[ids] = True
+        self._fresh[ids] = True
+        self.target_vel_xy_w[ids] = 0.0
+
+    def track_target(self, p_td_w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """One alpha-beta step on the horizontal targets: (tracked target (B, 4, 3), its velocity (B, 4, 3))."""
+        if self.cfg.target_bandwidth == 0.0:
+            return p_td_w, None
+        meas = p_td_w[..., :2].to(self.target_xy_w)
+        fresh = self._fresh.view(-1, 1, 1)
+        self.target_xy_w = torch.where(fresh, meas, self.target_xy_w)
+        self.target_vel_xy_w = torch.where(fresh, torch.zeros_like(meas), self.target_vel_xy_w)
+        self._fresh[:] = False
+        pred = self.target_xy_w + self.dt * self.target_vel_xy_w  # constant-velocity prediction
+        resid = meas - pred
+        self.target_xy_w = pred + self._alpha * resid
+        self.target_vel_xy_w = self.target_vel_xy_w + (self._beta / self.dt) * resid
+        # a non-finite target must not stay in the tracker: that robot restarts from its next target
+        self._fresh |= ~torch.isfinite(self.target_xy_w).flatten(1).all(dim=1)
+        zero = torch.zeros_like(self.target_vel_xy_w[..., :1])
+        return (torch.cat([self.target_xy_w, p_td_w[..., 2:3].to(self.target_xy_w)], dim=-1),
+                torch.cat([self.target_vel_xy_w, zero], dim=-1))
 
     def compute(
         self,
@@ -136,7 +182,10 @@ class LowLevelController:
         # --- swing: feedback linearisation in task space ---
         progress = swing_progress(self.phase, duty)
         swing_duration = ((1.0 - duty) / freq.clamp_min(1e-6)).clamp_min(cfg.min_swing_duration)
-        p_ref, v_ref, a_ref = swing_reference(self.p_lo_w, p_td_w, cfg.step_height, progress, swing_duration)
+        target_w, target_vel_w = self.track_target(p_td_w)
+        p_ref, v_ref, a_ref = swing_reference(self.p_lo_w, target_w, cfg.step_height, progress, swing_duration,
+                                              target_vel_w)
+        self.p_ref_w = p_ref
         # a = a_ref + K_D (v_ref - v) + K_P (p_ref - p) - Jdot qdot  (foot acceleration to realise)
         acc = a_ref + self._kd * (v_ref - terms.foot_vel_w) + self._kp * (p_ref - terms.foot_pos_w) - terms.Jdot_qdot
         J = terms.J_leg

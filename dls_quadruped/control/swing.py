@@ -25,6 +25,18 @@ position, velocity and acceleration). Vertically each segment is a smooth step b
 its end heights with zero slope at both ends; the vertical acceleration jumps at the apex
 unless z_lo = z_td, which a cubic per segment with these boundary conditions cannot avoid.
 
+Moving target. The touch-down target is re-planned while the foot swings (it is expressed relative to
+the moving base), so ``p_td`` is a function of time. With ``target_vel_w`` = dp_td/dt the returned
+velocity and acceleration are the total time derivatives of the same curve,
+
+    vel = dpos/ds s' + (dpos/dp_td) v_td,   acc = d2pos/ds2 s'^2 + 2 (d2pos/ds dp_td) v_td s'
+
+(the target's own acceleration neglected), with dpos_xy/dp_td_xy = 3 s^2 - 2 s^3 over the whole swing and
+dz/dz_td = 3 tau^2 - 2 tau^3 inside a segment whose end height z_td sets (1 on the descent when the apex
+follows z_td). Without it the reference is fed forward as if the target stood still, and a foot tracking it
+trails a target that moves with the body (issue 12 item 9a). At lift-off the extra terms vanish; at
+touch-down the reference velocity is the target's velocity.
+
 All functions are pure torch, batched over any leading dimensions, and keep the dtype and
 device of their inputs.
 """
@@ -66,6 +78,7 @@ def swing_reference(
     step_height: torch.Tensor | float,
     progress: torch.Tensor,
     swing_duration: torch.Tensor | float,
+    target_vel_w: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Foot position, velocity and acceleration along the swing (control points: module doc).
 
@@ -76,6 +89,8 @@ def swing_reference(
         progress: (...) swing progress s (see :func:`gait.swing_progress`); clamped to [0, 1].
         swing_duration: (...) or scalar [s] whole swing duration T_s = (1 - d) / f; clamped
             below at :data:`MIN_SWING_DURATION`.
+        target_vel_w: (..., 3) [m/s] velocity of the touch-down target, world frame, or None for a
+            target at rest (module doc: moving target).
 
     Returns:
         pos (..., 3) [m], vel (..., 3) [m/s], acc (..., 3) [m/s^2], world frame, time units.
@@ -103,4 +118,19 @@ def swing_reference(
     pos, dpos_dtau, ddpos_dtau2 = cubic_bezier(cp0, cp1, cp2, cp3, tau)
     vel = dpos_dtau / t_seg  # d/dt = (1 / T_seg) d/dtau
     acc = ddpos_dtau2 / t_seg**2  # d2/dt2 = (1 / T_seg^2) d2/dtau2
-    return pos, vel, acc
+    if target_vel_w is None:
+        return pos, vel, acc
+
+    # sensitivity w = dpos/dp_td (diagonal) and its rate dw/dt along the swing
+    w_xy = s**2 * (3.0 - 2.0 * s)  # 3 s^2 - 2 s^3
+    dw_xy = 6.0 * s * (1.0 - s) / (2.0 * t_seg)  # d/dt with ds/dt = 1 / T_s = 1 / (2 T_seg)
+    z_td_sets_apex = (p_td_w[..., 2:3] >= p_lo_w[..., 2:3]).to(ref.dtype)  # apex = z_td + h
+    beta = tau**2 * (3.0 - 2.0 * tau)  # segment smooth step in tau
+    dbeta = 6.0 * tau * (1.0 - tau) / t_seg
+    # ascent: z = z_lo + (z_apex - z_lo) beta; descent: z = z_apex + (z_td - z_apex) beta
+    w_z = torch.where(ascent, beta * z_td_sets_apex, beta + (1.0 - beta) * z_td_sets_apex)
+    dw_z = torch.where(ascent, dbeta * z_td_sets_apex, dbeta * (1.0 - z_td_sets_apex))
+    w = torch.cat([w_xy.expand_as(pos[..., :2]), w_z], dim=-1)
+    dw = torch.cat([dw_xy.expand_as(pos[..., :2]), dw_z], dim=-1)
+    v_td = target_vel_w.to(ref.dtype)
+    return pos, vel + w * v_td, acc + 2.0 * dw * v_td
