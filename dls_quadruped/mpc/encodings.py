@@ -163,7 +163,7 @@ def decode(encoded: torch.Tensor, cfg: EncodingConfig) -> torch.Tensor:
     return torch.cat([gait, p.flatten(-2), F.flatten(-2)], dim=-1)
 
 
-def _shift_matrix_discrete(horizon: int, steps: float, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+def held_shift_matrix(horizon: int, steps: float, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """(H, H) S with new_k = sum_j S[k, j] old_j = old at time k + steps (linear interp., held at the end)."""
     t = (torch.arange(horizon, dtype=torch.float64) + steps).clamp(0.0, horizon - 1)
     lo = t.floor().long().clamp(max=horizon - 1)
@@ -206,7 +206,7 @@ def shift_encoded(encoded: torch.Tensor, cfg: EncodingConfig, steps: float) -> t
     for name, kind, scalars in (("p", cfg.p, P_SCALARS), ("F", cfg.F, F_SCALARS)):
         block = encoded[..., sl[name]]
         if kind == "discrete":
-            mat = _shift_matrix_discrete(cfg.horizon, steps, encoded.dtype, encoded.device)
+            mat = held_shift_matrix(cfg.horizon, steps, encoded.dtype, encoded.device)
             new = (mat @ block.unflatten(-1, (cfg.horizon, scalars))).flatten(-2)
         elif kind == "spline":
             mat = _shift_matrix_spline(cfg.horizon, steps, encoded.dtype, encoded.device)

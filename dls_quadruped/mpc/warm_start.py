@@ -26,21 +26,10 @@ from dls_quadruped.mpc.encodings import (
     block_slices,
     decode_parts,
     encode,
+    held_shift_matrix,
     shift_encoded,
 )
 from dls_quadruped.mpc.samples import offsets_from_forces
-
-
-def _shift_matrix(horizon: int, steps: float, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
-    """(N, N) S with (S v)_k = v at step k + steps: linear interpolation, the last value held (no extrapolation)."""
-    t = (torch.arange(horizon, dtype=torch.float64) + steps).clamp(0.0, horizon - 1)
-    lo = t.floor().long()
-    hi = (lo + 1).clamp(max=horizon - 1)
-    w = t - lo
-    mat = torch.zeros(horizon, horizon, dtype=torch.float64)
-    mat[torch.arange(horizon), lo] += 1 - w
-    mat[torch.arange(horizon), hi] += w
-    return mat.to(dtype=dtype, device=device)
 
 
 def shifted_force_offsets(encoded: torch.Tensor, contact: torch.Tensor, cfg: SamplerConfig, steps: float) -> torch.Tensor:
@@ -62,7 +51,7 @@ def shifted_force_offsets(encoded: torch.Tensor, contact: torch.Tensor, cfg: Sam
     enc = cfg.encoding
     offset_h = decode_parts(encoded, enc)[3]  # (B, N, 4, 3)
     masked = (offset_h * contact.to(offset_h.dtype).unsqueeze(-1)).flatten(-2)  # (B, N, 12)
-    shifted = _shift_matrix(enc.horizon, steps, masked.dtype, masked.device) @ masked
+    shifted = held_shift_matrix(enc.horizon, steps, masked.dtype, masked.device) @ masked
     horizon = torch.zeros(*encoded.shape[:-1], enc.horizon, ACTION_DIM, dtype=encoded.dtype, device=encoded.device)
     horizon[..., F_SLICE] = shifted
     return encode(horizon, enc)[..., block_slices(enc)["F"]]
