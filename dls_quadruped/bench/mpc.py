@@ -30,6 +30,7 @@ from unittest import mock
 
 import torch
 
+from dls_quadruped.bench.machine import cpu_model
 from dls_quadruped.mpc import (
     Refs,
     SamplerConfig,
@@ -50,19 +51,9 @@ AVX-512 on the same two 256-bit pipes), Intel cores since Haswell. Peak per core
 SIMD_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512vl", "avx512bw", "avx512dq", "asimd", "sve")
 
 
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def machine_info() -> dict:
     """CPU model, threads, torch version, CUDA device, load average."""
-    info = {"cpu": _cpu_model(), "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+    info = {"cpu": cpu_model(), "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
             "torch": torch.__version__, "python": platform.python_version(),
             "load_avg_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
     if torch.cuda.is_available():

@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
+from dls_quadruped.bench.machine import cpu_model
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.envs.config import dataclass_from_dict, load_task
 from dls_quadruped.robots.aliengo import constants as C
@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--out", type=Path, default=Path("results/bench"))
     args = parser.parse_args(argv)
     result = run(args.task, args.rows, args.steps)
-    result["machine"] = {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+    result["machine"] = {"cpu": cpu_model(), "cores": os.cpu_count(),
                          "load_avg": os.getloadavg(), "mujoco": mujoco.__version__}
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(result, args.out / "terrain_step.json")

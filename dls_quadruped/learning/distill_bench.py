@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
 
 import torch
 
+from dls_quadruped.bench.machine import cpu_model
 from dls_quadruped.cli import ArgumentParser, positive_int, run_cli
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.learning.collect import collect
@@ -26,16 +26,6 @@ from dls_quadruped.learning.dataset import DiskDataset
 from dls_quadruped.learning.distill import distill_task, load_expert
 from dls_quadruped.learning.student import Student, encode_labels
 from dls_quadruped.mpc.config import EncodingConfig
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def table7_steps(epochs: int = 30, per_epoch: int = 80_000, cap: int = 800_000, batch: int = 64) -> int:
