@@ -10,6 +10,11 @@ terrain levels, command ranges, reward weights, RNG) and ``obs_dims``/``num_acti
 onto another task is refused before anything is written. Besides rsl-rl's every-``save_interval``
 saves, the runner saves when ``save_every_s`` seconds of wall time passed since the last save and,
 after SIGINT/SIGTERM, at the end of the current iteration (then raises ``TrainingInterrupted``).
+
+Under torchrun the runner joins the process group with gloo on the CPU and NCCL on GPUs
+(``learning/distributed.py``; rsl-rl-lib itself only knows NCCL); rsl-rl all-reduces the gradients,
+the KL and the normaliser statistics and only rank 0 logs and saves. A stop signal on any rank
+stops every rank at the end of the same iteration.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ import torch
 import yaml
 from rsl_rl.runners import OnPolicyRunner
 
+from dls_quadruped.learning.distributed import any_rank, init_distributed
 from dls_quadruped.learning.symmetry import check_symmetry_cfg
 
 _CKPT = re.compile(r"model_(\d+)\.pt$")
@@ -65,6 +71,17 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
 
         self.logger.log = log_then_checkpoint
 
+    def _configure_multi_gpu(self) -> None:
+        """rsl-rl's hook, called first in ``__init__``: join torchrun's process group with the backend
+        that fits ``self.device`` (gloo on cpu, NCCL on ``cuda:<LOCAL_RANK>``) and fill the fields and
+        ``cfg["multi_gpu"]`` that rsl-rl's PPO and logger read."""
+        ranks = init_distributed(self.device)  # a no-op for a single process, reused if train.py joined
+        self.ranks = ranks
+        self.gpu_world_size, self.gpu_global_rank, self.gpu_local_rank = ranks.world_size, ranks.rank, ranks.local_rank
+        self.is_distributed = ranks.is_distributed
+        self.cfg["multi_gpu"] = ({"global_rank": ranks.rank, "local_rank": ranks.local_rank,
+                                  "world_size": ranks.world_size} if ranks.is_distributed else None)
+
     # ------------------------------------------------------------------ signals
     def install_signal_handlers(self) -> dict:
         """First SIGINT/SIGTERM: finish the iteration, save, raise ``TrainingInterrupted``; second: stop now.
@@ -89,6 +106,8 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         return previous
 
     def _end_of_iteration(self) -> None:
+        stop = any_rank(self.stop_signal or 0, self.ranks, self.device)
+        self.stop_signal = stop or None
         path = None
         if self.logger.writer is not None:  # rank 0 with a log dir
             due = self.save_every_s is not None and time.monotonic() - self._last_save_time >= self.save_every_s

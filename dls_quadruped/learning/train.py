@@ -11,9 +11,11 @@ end, and on SIGINT/SIGTERM (at the end of the current iteration; a second signal
 restores the env state and continues for ``--iterations`` more; a checkpoint that does not fit
 the task is refused before anything in the run directory is written. At the end the actor is
 exported to TorchScript and ONNX.
-Multi-GPU: launch with ``torchrun --nproc_per_node=G -m dls_quadruped.learning.train --device cuda``
-(each process takes ``cuda:$LOCAL_RANK``);
-rsl-rl-lib reads WORLD_SIZE/RANK itself (see docs/train.md; untested here, no GPUs).
+Distributed: ``torchrun --standalone --nproc_per_node=N -m dls_quadruped.learning.train ...`` runs N
+processes, each with its own ``--num-envs`` robots and seed ``--seed + rank``, all-reducing the
+gradients (gloo with ``--device cpu``; NCCL with ``--device cuda``, which becomes ``cuda:$LOCAL_RANK``).
+Rank 0 chooses (or checks) the run directory and tells the others; only rank 0 writes to it.
+See docs/train.md.
 """
 
 from __future__ import annotations
@@ -35,6 +37,12 @@ from dls_quadruped.cli import (
 )
 from dls_quadruped.envs.config import load_task, save_resolved
 from dls_quadruped.envs.env import LocomotionEnv
+from dls_quadruped.learning.distributed import (
+    Ranks,
+    broadcast_from_main,
+    close_distributed,
+    init_distributed,
+)
 from dls_quadruped.learning.runner import (
     AtomicOnPolicyRunner,
     CheckpointMismatch,
@@ -43,6 +51,7 @@ from dls_quadruped.learning.runner import (
     latest_run,
     new_run_dir,
     newest_readable_checkpoint,
+    read_checkpoint,
     remove_stale_tmp,
     runner_config,
     write_yaml,
@@ -93,27 +102,69 @@ def _fresh_dir(args: argparse.Namespace, task_dir: Path) -> Path:
     return args.run_dir
 
 
+def _choose_run(args: argparse.Namespace, task_dir: Path) -> tuple[Path, tuple[Path, dict] | None]:
+    """The run directory (created if fresh) and, with ``--resume``, its newest readable checkpoint."""
+    if not args.resume:
+        return _fresh_dir(args, task_dir), None
+    run_dir = _resume_dir(args, task_dir)
+    found = newest_readable_checkpoint(run_dir)
+    if found is None:
+        raise UserError(f"--resume: no readable checkpoint in {run_dir}")
+    return run_dir, found
+
+
+def _agree_on_run(args: argparse.Namespace, task_dir: Path, ranks: Ranks) -> tuple[Path, tuple[Path, dict] | None]:
+    """``_choose_run`` on rank 0, its answer (or its user error) on every rank.
+
+    Only rank 0 looks at and creates directories, so N processes started in the same second
+    share one new run directory instead of making N; the others read the checkpoint rank 0 chose.
+    """
+    if not ranks.is_distributed:
+        return _choose_run(args, task_dir)
+    choice: tuple[str, str | None] | str
+    if ranks.is_main:
+        try:
+            run_dir, found = _choose_run(args, task_dir)
+            choice = (str(run_dir), str(found[0]) if found else None)
+        except UserError as err:
+            choice = str(err)
+            broadcast_from_main(choice, ranks)  # the others must not wait for an answer that never comes
+            raise
+    else:
+        choice = None
+    choice = broadcast_from_main(choice, ranks)
+    if isinstance(choice, str):
+        raise UserError(choice)
+    run_dir, ckpt_path = Path(choice[0]), choice[1]
+    if ranks.is_main:
+        return run_dir, found
+    return run_dir, ((Path(ckpt_path), read_checkpoint(Path(ckpt_path))) if ckpt_path else None)
+
+
 def main(argv: list[str] | None = None) -> Path:
     """Train; returns the run directory."""
     args = parse_args(argv)
     if args.device == "cuda" and "LOCAL_RANK" in os.environ:  # torchrun: one GPU per process
         args.device = f"cuda:{os.environ['LOCAL_RANK']}"
+    ranks = init_distributed(args.device)  # torchrun: join the group before any rank touches the run dir
+    try:
+        return _train(args, ranks)
+    finally:
+        if ranks.is_distributed:
+            close_distributed()
+
+
+def _train(args: argparse.Namespace, ranks: Ranks) -> Path:
     overrides = {"scene": {"num_workers": args.num_workers}} if args.num_workers is not None else None
     task = load_task(args.task, overrides=overrides)
     task_dir = args.log_root / task.name
     cfg = runner_config(task.data["agent"], args.iterations, args.seed)
     cfg["save_interval"] = args.save_interval or default_save_interval(int(cfg["max_iterations"]),
                                                                        cfg.get("save_interval", 50))
-    found = None
-    if args.resume:
-        run_dir = _resume_dir(args, task_dir)
-        found = newest_readable_checkpoint(run_dir)
-        if found is None:
-            raise UserError(f"--resume: no readable checkpoint in {run_dir}")
-    else:
-        run_dir = _fresh_dir(args, task_dir)
-    torch.manual_seed(args.seed)
-    env = LocomotionEnv(task, num_envs=args.num_envs, device=args.device, seed=args.seed)
+    run_dir, found = _agree_on_run(args, task_dir, ranks)
+    seed = args.seed + ranks.rank  # other robots' rollouts on every rank; rank 0's weights win (broadcast)
+    torch.manual_seed(seed)
+    env = LocomotionEnv(task, num_envs=args.num_envs, device=args.device, seed=seed)
     try:
         runner = AtomicOnPolicyRunner(env, cfg, log_dir=str(run_dir), device=args.device,
                                       save_every_s=60.0 * args.save_every_min)
@@ -125,13 +176,16 @@ def main(argv: list[str] | None = None) -> Path:
                 raise UserError(f"--resume: {err}") from None
             # model_<it>.pt holds the state after iteration <it>: continue with the next one
             runner.current_learning_iteration += 1
+            if ranks.rank > 0:  # the checkpoint holds rank 0's RNG: give this rank its own stream again
+                torch.manual_seed(int(torch.randint(2**62, (1,))) + ranks.rank)
             restored = "env state restored" if "env_state" in ckpt else "no env state in it: curricula start afresh"
             print(f"[train] resumed from {path} at iteration {runner.current_learning_iteration} ({restored}; "
                   f"curriculum {dict(env.curriculum_manager.values)})", flush=True)
-        for stale in remove_stale_tmp(run_dir):
-            print(f"[train] note: removed {stale} (left by a save that was killed)")
-        save_resolved(task, run_dir / "task.yaml")
-        write_yaml(cfg, run_dir / "agent.yaml")
+        if ranks.is_main:
+            for stale in remove_stale_tmp(run_dir):
+                print(f"[train] note: removed {stale} (left by a save that was killed)")
+            save_resolved(task, run_dir / "task.yaml")
+            write_yaml(cfg, run_dir / "agent.yaml")
         previous = runner.install_signal_handlers()
         try:
             runner.learn(int(cfg["max_iterations"]), init_at_random_ep_len=found is None)
@@ -143,8 +197,9 @@ def main(argv: list[str] | None = None) -> Path:
         finally:
             for signum, handler in previous.items():
                 signal.signal(signum, handler)
-        exported = export_policy(runner, run_dir / "exported")
-        print(f"[train] run dir {run_dir}; exported {exported}")
+        if ranks.is_main:
+            exported = export_policy(runner, run_dir / "exported")
+            print(f"[train] run dir {run_dir}; exported {exported}")
     finally:
         env.close()
     return run_dir
