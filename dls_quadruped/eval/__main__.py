@@ -6,7 +6,8 @@
 ``--policy``: an exported actor (TorchScript, e.g. ``runs/base/<run>/exported/policy.pt``) or an
 rsl-rl checkpoint (``runs/base/<run>/model_<it>.pt``). Writes ``<out>/<scenario>.json`` and
 ``<out>/<scenario>.png`` (default ``results/eval/<policy stem>``) and prints the headline figures
-and the targets. Scenarios: see ``dls_quadruped/eval/scenarios.py`` and docs/eval.md.
+and the targets. ``--episodes`` is per condition (speed, step height, grid cell); each scenario has a
+small default. Scenarios: see ``dls_quadruped/eval/scenarios.py`` and docs/eval.md.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.eval.policy import check_policy_file
 from dls_quadruped.eval.scenario import EvalOptions
 from dls_quadruped.eval.scenarios import SCENARIOS
 
@@ -26,13 +28,18 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--policy", type=Path, required=True, help="exported actor .pt or model_<it>.pt checkpoint")
     p.add_argument("--scenario", default="simple", choices=sorted(SCENARIOS),
                    help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()))
-    p.add_argument("--episodes", type=int, default=256, help="episodes, all in parallel")
+    p.add_argument("--episodes", type=int, default=None,
+                   help="episodes per condition (per speed, step height, grid cell; the whole set for simple, "
+                        "forward, survival), all in parallel; default: the scenario's small size")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--num-workers", type=int, default=-1, help="simulator worker processes (-1: one per core)")
     p.add_argument("--episode-length-s", type=float, default=None, help="override the task's episode length [s]")
     p.add_argument("--device", default="cpu")
     p.add_argument("--out", type=Path, default=None, help="output folder (default results/eval/<policy stem>)")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if args.episodes is not None and args.episodes < 1:
+        p.error(f"argument --episodes: must be >= 1, got {args.episodes}")
+    return args
 
 
 def headline(res: dict) -> str:
@@ -62,7 +69,8 @@ def headline(res: dict) -> str:
 def main(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     scenario = SCENARIOS[args.scenario]
-    opts = EvalOptions(episodes=args.episodes, seed=args.seed, num_workers=args.num_workers,
+    check_policy_file(args.policy)  # before the env is built
+    opts = EvalOptions(episodes=args.episodes or scenario.default_episodes, seed=args.seed, num_workers=args.num_workers,
                        episode_length_s=args.episode_length_s, device=args.device)
     t0 = time.perf_counter()
     res = scenario.evaluate(args.policy, opts)
@@ -71,7 +79,7 @@ def main(argv: list[str] | None = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     write_json(res, out / f"{scenario.name}.json", indent=1)  # strict JSON: a NaN metric becomes null, listed
     scenario.plot(res, out / f"{scenario.name}.png")
-    print(headline(res))
+    print((scenario.summary or headline)(res))
     print(f"[eval] wrote {out / (scenario.name + '.json')} and .png ({res['wall_s']} s)")
     return res
 

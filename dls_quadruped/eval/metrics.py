@@ -72,3 +72,53 @@ def masked_mean(x: np.ndarray, valid: np.ndarray) -> np.ndarray:
     count = w.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(count > 0, (x * w).sum(axis=0) / np.maximum(count, 1), np.nan)
+
+
+def binomial(successes: int, n: int) -> dict:
+    """A proportion with its 95 % Wilson interval and counts: {rate, ci95, k, n}."""
+    lo, hi = wilson_interval(int(successes), int(n))
+    return {"rate": successes / n if n else math.nan, "ci95": [lo, hi], "k": int(successes), "n": int(n)}
+
+
+def grouped_rate(success: np.ndarray, group: np.ndarray, num_groups: int) -> list[dict]:
+    """``binomial`` of the boolean ``success`` (E,) within each group 0..num_groups-1 of ``group`` (E,)."""
+    success, group = np.asarray(success, dtype=bool), np.asarray(group)
+    return [binomial(int(success[group == g].sum()), int((group == g).sum())) for g in range(num_groups)]
+
+
+def grouped_mean(values: np.ndarray, group: np.ndarray, num_groups: int) -> list[dict]:
+    """``mean_ci`` of the finite ``values`` (E,) within each group."""
+    values, group = np.asarray(values, dtype=float), np.asarray(group)
+    return [mean_ci(values[group == g]) for g in range(num_groups)]
+
+
+def threshold_crossing(levels: np.ndarray, rates: np.ndarray, threshold: float) -> float:
+    """Where a rate that should fall with the level first drops below ``threshold``.
+
+    ``levels`` ascending (M,), ``rates`` (M,). Returns the level interpolated linearly between the
+    last level before the first one below ``threshold`` and that one; ``levels[-1]`` if none is
+    below (the crossing is beyond the grid) and ``levels[0]`` if the first already is (before it).
+    """
+    levels, rates = np.asarray(levels, dtype=float), np.asarray(rates, dtype=float)
+    below = np.nonzero(~(rates >= threshold))[0]  # NaN counts as below
+    if below.size == 0:
+        return float(levels[-1])
+    j = int(below[0])
+    if j == 0:
+        return float(levels[0])
+    l0, l1, r0, r1 = levels[j - 1], levels[j], rates[j - 1], rates[j]
+    r1 = 0.0 if not np.isfinite(r1) else r1
+    return float(l0 + (r0 - threshold) / (r0 - r1) * (l1 - l0))  # r0 >= thr > r1: on the segment
+
+
+def crossing_interval(levels: np.ndarray, successes: np.ndarray, n: np.ndarray, threshold: float,
+                      draws: int = 2000, seed: int = 0) -> list[float]:
+    """95 % parametric-bootstrap interval of ``threshold_crossing``: every level's successes
+    redrawn from Binomial(n, k / n), the crossing recomputed, its 2.5 and 97.5 percentiles."""
+    rng = np.random.default_rng(seed)
+    n = np.asarray(n, dtype=int)
+    p = np.asarray(successes, dtype=float) / np.maximum(n, 1)
+    sims = rng.binomial(n[None, :], p[None, :], size=(draws, len(n))) / np.maximum(n, 1)  # (draws, M)
+    values = np.array([threshold_crossing(levels, s, threshold) for s in sims])
+    lo, hi = np.percentile(values, [2.5, 97.5])
+    return [float(lo), float(hi)]

@@ -88,3 +88,60 @@ def run_episodes(env, policy: Policy, num_steps: int | None = None, velocity: Ve
             alive &= ~done
     return Traces(command=command, velocity=vel, valid=valid, reward=reward, fell=fell.numpy(),
                   length=length.numpy(), step_dt=float(env.step_dt))
+
+
+Probe = Callable[[object], torch.Tensor]
+"""env -> (B, ...) a quantity read after every policy step."""
+
+
+@dataclass
+class Recording:
+    """One episode per env, with named per-step probes.
+
+    Attributes:
+        command: (E, 3) command of each episode (v_x, v_y [m/s], omega_z [rad/s]).
+        probes: name -> (T, E, ...) value read after each step (float32; garbage where not ``valid``).
+        valid: (T, E) the step's probes belong to the first episode (before its end).
+        fell: (E,) ended by a non-time-out termination.
+        length: (E,) policy steps the episode lasted.
+        step_dt: [s] policy step.
+    """
+
+    command: np.ndarray
+    probes: dict[str, np.ndarray]
+    valid: np.ndarray
+    fell: np.ndarray
+    length: np.ndarray
+    step_dt: float
+
+
+def record_episodes(env, policy: Policy, probes: dict[str, Probe], num_steps: int | None = None) -> Recording:
+    """Like ``run_episodes``, but reads any set of ``probes`` after every step instead of the
+    velocity alone. A probe read after the step that ends an env's episode already sees its next
+    episode (the env resets inside ``step``), so that step is not ``valid``."""
+    n = env.num_envs
+    steps = int(num_steps or env.max_episode_length)
+    command = env.command_manager.command.detach().cpu().numpy().copy()
+    rec: dict[str, np.ndarray] = {}
+    valid = np.zeros((steps, n), dtype=bool)
+    alive = torch.ones(n, dtype=torch.bool)
+    fell = torch.zeros(n, dtype=torch.bool)
+    length = torch.full((n,), steps, dtype=torch.long)
+    obs = env.get_observations()
+    with torch.inference_mode():
+        for k in range(steps):
+            obs, _, dones, extras = env.step(policy(obs))
+            done = dones.bool().cpu()
+            time_out = extras["time_outs"].bool().cpu()
+            valid[k] = (alive & ~done).numpy()
+            for name, probe in probes.items():
+                value = probe(env).detach().cpu().float().numpy()
+                if name not in rec:
+                    rec[name] = np.zeros((steps, *value.shape), dtype=np.float32)
+                rec[name][k] = value
+            ended = alive & done
+            fell |= ended & ~time_out
+            length[ended] = k + 1
+            alive &= ~done
+    return Recording(command=command, probes=rec, valid=valid, fell=fell.numpy(), length=length.numpy(),
+                     step_dt=float(env.step_dt))

@@ -22,7 +22,9 @@ class EvalOptions:
     """Size and placement of an evaluation.
 
     Attributes:
-        episodes: episodes, all run in parallel (one env each).
+        episodes: episodes per condition of the scenario (the whole set for ``simple``, ``forward``
+            and ``survival``; per speed, step height or grid cell for the sweeps), all run in
+            parallel (one env each).
         seed: seed of the commands and of the env.
         num_workers: simulator worker processes (-1 one per core, 0 in-process).
         episode_length_s: [s] episode length; None keeps the task's (15 s).
@@ -45,12 +47,17 @@ class Scenario:
         description: one line for ``--help`` and the results.
         evaluate: (policy path, options) -> JSON-able results.
         plot: (results, png path) -> None.
+        default_episodes: ``EvalOptions.episodes`` when the command line does not say (the small
+            size: one policy in about two minutes on two cores).
+        summary: results -> a few lines for the terminal; None: the tracking headline.
     """
 
     name: str
     description: str
     evaluate: Callable[[Path, EvalOptions], dict]
     plot: Callable[[dict, Path], None]
+    default_episodes: int = 256
+    summary: Callable[[dict], str] | None = None
 
 
 def eval_rewards() -> dict:

@@ -1,0 +1,148 @@
+"""``survival``: the survival task of thesis 7.1.3 (Fig. 18).
+
+The simple-task command (``velocity_tracking.simple_commands``: v_x in [0.3, 0.6] m/s, v_y in
+[-0.2, 0.2] m/s, omega_z in [-0.5, 0.5] rad/s, mirrored pairs) on very uneven terrain with
+disturbances beyond the rough task's "high" ones:
+
+* terrain: the rough task's non-flat types (``tasks/rough.yaml``: rugged, slopes up/down, boxes,
+  stairs up/down), ``ROWS`` rows spanning difficulty ``HARD`` to 1 of the rough task's ranges
+  (its hardest 30 %: rugged +-5.9-8 cm, slopes 0.28-0.4, boxes +-11-15 cm, steps 19-25 cm);
+  env i starts on column i mod 6 (the scene's spread) and row (i // 6) mod ``ROWS``; a flat
+  border of ``BORDER`` m so no robot walks off the world in 15 s;
+* events: the rough task's, with ``STRENGTH`` x the half-range of the foot friction (0.2-1.0
+  instead of 0.4-0.8), of the constant wrench (+-20 N, +-2 N m) and of the pushes (+-1 m/s),
+  pushes twice as often (every 4-6 s); base mass and joint randomisation as rough;
+* observation noise: the rough task's ("high", Table 2).
+
+Reported: survival (the episode reaches its 15 s time-out) over all episodes, per terrain type
+and per row, each with its 95 % Wilson interval and count. No reward: terrain and pushes make it
+incomparable with ``simple``'s.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+
+from dls_quadruped.envs.config import load_task
+from dls_quadruped.eval import sweep as S
+from dls_quadruped.eval.scenario import EvalOptions, Scenario, replace_sections
+from dls_quadruped.eval.velocity_tracking import flat_task, simple_commands
+from dls_quadruped.sim.terrain import TerrainConfig
+
+ROWS = 4
+"""Terrain rows (difficulty levels) of the survival terrain."""
+HARD = 0.7
+"""Easiest row's difficulty, as a fraction of the rough task's range (the hardest row is 1)."""
+BORDER = 10.0
+"""[m] flat border around the tiles."""
+STRENGTH = 2.0
+"""Factor on the rough task's half-ranges of friction, wrench and push, and on the push rate."""
+DIFFICULTY_FIELDS = ("rugged_amplitude", "slope", "box_height", "step_height")
+
+
+def _lerp(rng, t: float) -> float:
+    return float(rng[0] + t * (rng[1] - rng[0]))
+
+
+def _widen(rng, k: float) -> list[float]:
+    """[c - k h, c + k h] of a range [c - h, c + h]."""
+    c, h = 0.5 * (rng[0] + rng[1]), 0.5 * (rng[1] - rng[0])
+    return [c - k * h, c + k * h]
+
+
+def survival_terrain(rows: int = ROWS, hard: float = HARD) -> dict:
+    """The ``terrain`` section: the rough task's non-flat types over its difficulty ``[hard, 1]``."""
+    rough = load_task("rough").data["terrain"]
+    default = TerrainConfig()
+    out = {"types": [t for t in rough["types"] if t != "flat"], "num_rows": rows, "border": BORDER}
+    for name in DIFFICULTY_FIELDS:
+        rng = rough.get(name, getattr(default, name))
+        out[name] = [_lerp(rng, hard), _lerp(rng, 1.0)]
+    return out
+
+
+def survival_events(strength: float = STRENGTH) -> dict:
+    """The ``events`` section: the rough task's, friction/wrench/push ranges widened ``strength``
+    times, push interval divided by it."""
+    ev = copy.deepcopy(load_task("rough").data["events"])
+    ev["friction"]["params"]["friction_range"] = _widen(ev["friction"]["params"]["friction_range"], strength)
+    for key in ("force_range", "torque_range"):
+        ev["wrench"]["params"][key] = _widen(ev["wrench"]["params"][key], strength)
+    ev["push"]["params"]["velocity_range"] = _widen(ev["push"]["params"]["velocity_range"], strength)
+    ev["push"]["interval_s"] = [t / strength for t in ev["push"]["interval_s"]]
+    return ev
+
+
+def survival_task(commands: np.ndarray, opts: EvalOptions):
+    """The evaluation env of ``simple`` (fixed commands, Table-4 reward, no curriculum) on the
+    survival terrain, with the survival events and the rough task's observation noise."""
+    rough = load_task("rough")
+    return replace_sections(flat_task(commands, opts), {
+        "terrain": survival_terrain(), "events": survival_events(),
+        "observations": copy.deepcopy(rough.data["observations"]),
+    }, source="<eval: survival terrain and disturbances>")
+
+
+def start_rows(num_envs: int, num_cols: int, rows: int = ROWS) -> np.ndarray:
+    """(num_envs,) row of each env: (i // num_cols) mod rows, so every (row, column) tile is used."""
+    return (np.arange(num_envs) // num_cols) % rows
+
+
+def evaluate(policy_path: Path, opts: EvalOptions) -> dict:
+    cmd = simple_commands(opts.episodes, opts.seed)
+    task = survival_task(cmd, opts)
+    types = task.data["terrain"]["types"]
+    rec, facts = S.run(task, policy_path, opts, len(cmd), [], rows=start_rows(len(cmd), len(types)))
+    col, row = facts["terrain_types"], facts["terrain_levels"]
+    terrain = {k: v for k, v in task.data["terrain"].items()}
+    difficulty = [HARD + (1 - HARD) * r / max(ROWS - 1, 1) for r in range(ROWS)]
+    return {**S.header(NAME, DESCRIPTION, policy_path, opts, rec, opts.episodes, 1),
+            "terrain": terrain, "events": task.data["events"],
+            "observation_noise_scale": task.data["observations"]["policy"]["noise_scale"],
+            "survival": S.survival_of(rec)[0],
+            "per_type": {t: s for t, s in zip(types, S.survival_of(rec, col, len(types)))},
+            "per_row": [{"row": r, "rough_difficulty": d, **{f: _lerp(terrain[f], r / max(ROWS - 1, 1))
+                                                             for f in DIFFICULTY_FIELDS}, "survival": s}
+                        for r, (d, s) in enumerate(zip(difficulty, S.survival_of(rec, row, ROWS)))],
+            "per_episode": {"command": rec.command.round(4).tolist(), "terrain_type": [types[c] for c in col],
+                            "row": row.tolist(), "fell": rec.fell.astype(bool).tolist(),
+                            "length_s": (rec.length * rec.step_dt).round(3).tolist()}}
+
+
+def _bars(ax, labels, cells, title):
+    r = np.array([100 * c["rate"] for c in cells])
+    lo = np.array([100 * c["ci95"][0] for c in cells])
+    hi = np.array([100 * c["ci95"][1] for c in cells])
+    ax.bar(range(len(cells)), r, yerr=[r - lo, hi - r], capsize=3)
+    ax.set_xticks(range(len(cells)), labels, fontsize=7, rotation=20)
+    ax.set_ylim(0, 105)
+    ax.set_ylabel("survival [%] (95 % Wilson)")
+    ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3, axis="y")
+
+
+def plot(res: dict, path: Path) -> None:
+    plt = S.pyplot()
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(11, 4))
+    _bars(ax0, [f"{t}\nn={c['n']}" for t, c in res["per_type"].items()], list(res["per_type"].values()), "per terrain type")
+    _bars(ax1, [f"row {r['row']}\nd={r['rough_difficulty']:.1f}, n={r['survival']['n']}" for r in res["per_row"]],
+          [r["survival"] for r in res["per_row"]], "per row (fraction of the rough task's difficulty)")
+    fig.suptitle(f"survival: {Path(res['policy']).name}: {S.pct(res['survival'])}", fontsize=10)
+    S.savefig(fig, path)
+
+
+def summary(res: dict) -> str:
+    lines = [f"[eval] survival: {res['policy']}, {res['episodes']} episodes of {res['episode_length_s']:g} s",
+             f"  survival {S.pct(res['survival'])}"]
+    lines += [f"  {t:12s} {S.pct(c)}" for t, c in res["per_type"].items()]
+    lines += [f"  row {r['row']} (d = {r['rough_difficulty']:.1f}) {S.pct(r['survival'])}" for r in res["per_row"]]
+    return "\n".join(lines)
+
+
+NAME = "survival"
+DESCRIPTION = ("thesis 7.1.3 survival task: simple-task commands on the rough terrains' hardest rows, stronger "
+               "pushes and friction spread than rough (Fig. 18)")
+SCENARIO = Scenario(NAME, DESCRIPTION, evaluate, plot, default_episodes=128, summary=summary)
