@@ -19,5 +19,6 @@ setup(
         "matplotlib>=3.8",
         "pyyaml>=6.0",
     ],
-    extras_require={"dev": ["pytest>=8", "ruff>=0.5"]},
+    # onnxruntime: the tests run the exported ONNX policies and compare them with the TorchScript ones
+    extras_require={"dev": ["pytest>=8", "ruff>=0.5", "onnx>=1.16", "onnxscript>=0.1", "onnxruntime>=1.18"]},
 )

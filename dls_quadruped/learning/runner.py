@@ -3,7 +3,7 @@
 Runs live in ``<log_root>/<task>/<run_name>/``: ``task.yaml`` (resolved config), ``agent.yaml``,
 TensorBoard events, ``model_<it>.pt`` checkpoints (written to a temporary file then renamed, so
 a kill never leaves a truncated checkpoint) and ``exported/policy.pt`` (TorchScript) and
-``exported/policy.onnx``.
+``exported/policy.onnx`` (any batch size, weights embedded).
 
 A checkpoint holds rsl-rl's own state plus ``env_state`` (``LocomotionEnv.state_dict()``: curricula,
 terrain levels, command ranges, reward weights, RNG) and ``obs_dims``/``num_actions`` so a resume
@@ -117,6 +117,15 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         if self.stop_signal is not None:
             self.logger.stop_logging_writer()
             raise TrainingInterrupted(self.stop_signal, path)
+
+    # ------------------------------------------------------------------ export
+    def export_policy_to_onnx(self, path: str, filename: str = "policy.onnx", verbose: bool = False) -> None:
+        """The deterministic actor (with its normaliser) as one self-contained ONNX file whose batch size
+        is free: input ``obs`` (batch, obs_dim), output ``actions`` (batch, num_actions).
+
+        rsl-rl's own export fixes the batch to 1 and writes the weights to a ``.data`` file beside it.
+        """
+        export_actor_onnx(self.alg.get_policy(), Path(path) / filename, verbose=verbose)
 
     # ------------------------------------------------------------------ checkpoints
     def save(self, path: str, infos: dict | None = None) -> None:
@@ -256,6 +265,22 @@ def export_policy(runner: OnPolicyRunner, out_dir: Path) -> dict[str, Path | str
     except (ImportError, RuntimeError) as err:  # onnx/onnxscript missing or an exporter failure: report it
         result["onnx"] = f"skipped: {type(err).__name__}: {err}"
     return result
+
+
+def export_actor_onnx(actor, path: Path, verbose: bool = False) -> Path:
+    """Export an rsl-rl ``MLPModel`` actor (normaliser + MLP + mean action) to ONNX with a dynamic batch axis.
+
+    Weights are embedded (no ``.data`` file); opset 18, torch's ``torch.export``-based exporter.
+    """
+    model = actor.as_onnx(verbose=verbose).to("cpu").eval()
+    # batch 2, not 1: torch.export turns a size-1 example dimension into a constant
+    example = torch.zeros(2, model.input_size)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.onnx.export(model, (example,), str(path), dynamo=True, external_data=False, opset_version=18,
+                      input_names=model.input_names, output_names=model.output_names, verbose=verbose,
+                      dynamic_shapes=({0: torch.export.Dim("batch")},))
+    return path
 
 
 def write_yaml(data: dict, path: Path) -> None:

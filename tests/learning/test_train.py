@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
-import pytest
+from pathlib import Path
+
+import onnx
+import onnxruntime as ort  # dev extra: the numeric ONNX check is not optional
 import torch
+from tensordict import TensorDict
 
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.learning import train
+from dls_quadruped.learning.export import ONNX_ATOL, onnx_error, typical_observations
 from dls_quadruped.learning.runner import (
     AtomicOnPolicyRunner,
     latest_checkpoint,
@@ -33,7 +38,7 @@ def test_train_resume_export(tmp_path):
     key = next(k for k in first["actor_state_dict"] if "weight" in k)
     assert not torch.equal(first["actor_state_dict"][key], last["actor_state_dict"][key])
 
-    # exported TorchScript policy == the checkpoint's deterministic actor
+    # exported TorchScript and ONNX policies == the checkpoint's deterministic actor, at any batch size
     task = load_task("base", overrides={"scene": {"num_workers": 0}})
     env = LocomotionEnv(task, num_envs=8, verbose=False)
     try:
@@ -43,23 +48,32 @@ def test_train_resume_export(tmp_path):
         obs = env.get_observations()
         for _ in range(3):
             obs, *_ = env.step(torch.randn(8, 28))
-        with torch.no_grad():
-            expected = policy(obs)
-            jit = torch.jit.load(str(run_dir / "exported" / "policy.pt"))
-            got = jit(obs["policy"])
-        assert expected.shape == (8, 28)
-        assert torch.allclose(got, expected, atol=1e-5)
-        # ONNX: the graph must be valid; numeric equality needs onnxruntime (not a dependency here)
-        onnx = pytest.importorskip("onnx")
-        model = onnx.load(str(run_dir / "exported" / "policy.onnx"))
+        jit = torch.jit.load(str(run_dir / "exported" / "policy.pt"))
+        onnx_path = run_dir / "exported" / "policy.onnx"
+        assert not list(onnx_path.parent.glob("*.data"))  # weights embedded: the .onnx alone is the policy
+        for batch, x in (("env", obs["policy"]), ("1", typical_observations(jit, 1)),
+                         ("64", typical_observations(jit, 64))):
+            with torch.no_grad():
+                expected = policy(TensorDict({"policy": x}, batch_size=[x.shape[0]]))
+                got_jit = jit(x)
+            sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+            got_onnx = torch.from_numpy(sess.run(None, {"obs": x.numpy()})[0])
+            assert expected.shape == (x.shape[0], 28), batch
+            assert (got_jit - expected).abs().max() <= 1e-5, batch
+            assert (got_onnx - expected).abs().max() <= 1e-5, batch
+        model = onnx.load(str(onnx_path))
         onnx.checker.check_model(model)
-        assert model.graph.input[0].type.tensor_type.shape.dim[1].dim_value == obs["policy"].shape[1]
-        try:
-            import onnxruntime as ort
-        except ImportError:
-            return
-        sess = ort.InferenceSession(str(run_dir / "exported" / "policy.onnx"))
-        out = sess.run(None, {sess.get_inputs()[0].name: obs["policy"].numpy()})[0]
-        assert torch.allclose(torch.from_numpy(out), expected, atol=1e-4)
+        dims = model.graph.input[0].type.tensor_type.shape.dim
+        assert dims[0].dim_param and dims[1].dim_value == obs["policy"].shape[1]  # batch axis is free
     finally:
         env.close()
+
+
+def test_committed_base_actor_onnx_matches_its_torchscript():
+    """docs/policies/base_actor.onnx was exported from base_actor.pt (``python -m
+    dls_quadruped.learning.export``); both give the same actions for 1 and for 64 observations."""
+    root = Path(__file__).resolve().parents[2] / "docs" / "policies"
+    jit = torch.jit.load(str(root / "base_actor.pt")).eval()
+    for batch in (1, 64):
+        assert onnx_error(root / "base_actor.onnx", jit, batch) <= ONNX_ATOL, batch
+    assert ONNX_ATOL == 1e-5
