@@ -82,7 +82,7 @@ def evaluate(policy_path: Path, opts: EvalOptions) -> dict:
     from dls_quadruped.sim.terrain import TerrainConfig
 
     cmd, group = stairs_commands(HEIGHTS, opts.episodes, opts.seed)
-    task = stairs_task(cmd, opts)
+    task = stairs_task(cmd, opts, HEIGHTS)
     rec, facts = S.run(task, policy_path, opts, len(cmd), ["ground_z"], rows=group)
     steps = TerrainConfig(tile_size=TILE).num_steps
     h = np.asarray(HEIGHTS)[group]

@@ -76,12 +76,12 @@ def survival_events(strength: float = STRENGTH) -> dict:
     return ev
 
 
-def survival_task(commands: np.ndarray, opts: EvalOptions):
+def survival_task(commands: np.ndarray, opts: EvalOptions, rows: int = ROWS):
     """The evaluation env of ``simple`` (fixed commands, Table-4 reward, no curriculum) on the
     survival terrain, with the survival events and the rough task's observation noise."""
     rough = load_task("rough")
     return replace_sections(flat_task(commands, opts), {
-        "terrain": survival_terrain(), "events": survival_events(),
+        "terrain": survival_terrain(rows), "events": survival_events(),
         "observations": copy.deepcopy(rough.data["observations"]),
     }, source="<eval: survival terrain and disturbances>")
 
@@ -93,9 +93,9 @@ def start_rows(num_envs: int, num_cols: int, rows: int = ROWS) -> np.ndarray:
 
 def evaluate(policy_path: Path, opts: EvalOptions) -> dict:
     cmd = simple_commands(opts.episodes, opts.seed)
-    task = survival_task(cmd, opts)
+    task = survival_task(cmd, opts, ROWS)
     types = task.data["terrain"]["types"]
-    rec, facts = S.run(task, policy_path, opts, len(cmd), [], rows=start_rows(len(cmd), len(types)))
+    rec, facts = S.run(task, policy_path, opts, len(cmd), [], rows=start_rows(len(cmd), len(types), ROWS))
     col, row = facts["terrain_types"], facts["terrain_levels"]
     terrain = {k: v for k, v in task.data["terrain"].items()}
     difficulty = [HARD + (1 - HARD) * r / max(ROWS - 1, 1) for r in range(ROWS)]

@@ -1,0 +1,180 @@
+"""The 7.1 scenarios: how their envs are built (terrain heights, rows, events, command grids),
+each one end to end through the command line on a tiny run, and the command line's user errors."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from dls_quadruped.cli import run_cli
+from dls_quadruped.envs.config import load_task
+from dls_quadruped.eval import cot, gait, omni, speed, stairs, survival
+from dls_quadruped.eval import sweep as S
+from dls_quadruped.eval.__main__ import main
+from dls_quadruped.eval.scenario import EvalOptions
+from dls_quadruped.eval.scenarios import SCENARIOS
+from dls_quadruped.sim.terrain import TerrainConfig, build_scene
+
+NEW = ("survival", "stairs", "speed", "omni", "cot", "gait")
+
+
+def test_every_scenario_is_registered_with_a_small_default():
+    assert set(NEW) <= set(SCENARIOS)
+    for name in NEW:
+        assert SCENARIOS[name].summary is not None and 1 <= SCENARIOS[name].default_episodes <= 128
+
+
+def test_speed_grid_and_commands():
+    assert speed.SPEEDS[0] == 0.25 and speed.SPEEDS[-1] == 2.5 and len(speed.SPEEDS) == 10
+    cmd, group = speed.forward_commands((0.5, 1.5), 3)
+    np.testing.assert_array_equal(cmd, [[0.5, 0, 0]] * 3 + [[1.5, 0, 0]] * 3)
+    assert group.tolist() == [0, 0, 0, 1, 1, 1]
+
+
+def test_stairs_terrain_puts_each_height_on_its_row():
+    terrain = stairs.stairs_terrain((0.1, 0.2, 0.3))
+    cfg = TerrainConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in terrain.items()})
+    model, t = build_scene(cfg)
+    n = cfg.num_steps
+    assert n == 6 and cfg.num_rows == 3 and cfg.types == ("stairs_up",)
+    x = torch.tensor(t.tile_origins_w[:, 0, 0], dtype=torch.float32)
+    for y, expect in ((0.0, [-0.6, -1.2, -1.8]),          # the platform: 6 steps below the top
+                      (1.1, [-0.5, -1.0, -1.5]),          # first tread (1.0-1.3 m from the centre)
+                      (2.6, [0.0, 0.0, 0.0]),             # the top ring, at the border's level
+                      (5.0, [0.0, 0.0, 0.0])):            # the flat border, 8 m wide
+        z = t.height_at(x, torch.full_like(x, y))
+        np.testing.assert_allclose(z.numpy(), expect, atol=1e-6)
+    with pytest.raises(ValueError, match="evenly spaced"):
+        stairs.stairs_terrain((0.05, 0.1, 0.3))
+
+
+def test_stairs_commands_stay_in_the_climb_range():
+    cmd, group = stairs.stairs_commands(stairs.HEIGHTS, 4, seed=1)
+    assert cmd.shape == (40, 3) and group.tolist() == list(np.repeat(np.arange(10), 4))
+    assert (cmd[:, 0] >= 0.3).all() and (cmd[:, 0] <= 0.5).all() and (cmd[:, 1:] == 0).all()
+
+
+def test_stairs_env_places_every_robot_on_its_row_facing_the_border():
+    from dls_quadruped.core.rotations import yaw_from_quat
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    heights = (0.1, 0.2)
+    cmd, group = stairs.stairs_commands(heights, 2, seed=0)
+    env = LocomotionEnv(stairs.stairs_task(cmd, EvalOptions(num_workers=0), heights), num_envs=4, verbose=False)
+    try:
+        S.place_on_rows(env, group)
+        assert env.scene.terrain_levels.tolist() == [0, 0, 1, 1]
+        np.testing.assert_allclose(env.scene.env_origins[:, 2].numpy(), [-0.6, -0.6, -1.2, -1.2], atol=1e-6)
+        np.testing.assert_allclose(yaw_from_quat(env.state.base_quat_w).numpy(), [math.pi / 2] * 4, atol=1e-5)
+        np.testing.assert_allclose(env.command_manager.command.numpy(), cmd, atol=1e-6)
+        assert env.cfg["observations"]["policy"]["noise_scale"] == 0.0 and list(env.cfg["events"]) == ["reset_robot"]
+    finally:
+        env.close()
+
+
+def test_survival_terrain_and_events_are_harder_than_rough():
+    rough = load_task("rough").data
+    terrain = survival.survival_terrain()
+    assert "flat" not in terrain["types"] and set(terrain["types"]) == set(rough["terrain"]["types"]) - {"flat"}
+    # rough's ranges at difficulty 0.7 and 1: steps 5-25 cm (rough.yaml), rugged 1-8 cm, slope 0-0.4, boxes 2-15 cm
+    assert terrain["step_height"] == pytest.approx([0.19, 0.25])
+    assert terrain["rugged_amplitude"] == pytest.approx([0.059, 0.08])
+    assert terrain["slope"] == pytest.approx([0.28, 0.4]) and terrain["box_height"] == pytest.approx([0.111, 0.15])
+    ev = survival.survival_events()
+    assert ev["friction"]["params"]["friction_range"] == pytest.approx([0.2, 1.0])  # rough 0.4-0.8
+    assert ev["push"]["params"]["velocity_range"] == pytest.approx([-1.0, 1.0])     # rough +-0.5
+    assert ev["push"]["interval_s"] == pytest.approx([4.0, 6.0])                    # rough 8-12 s
+    assert ev["wrench"]["params"]["force_range"] == pytest.approx([-20.0, 20.0])
+    assert ev["base_mass"] == rough["events"]["base_mass"]
+    rows = survival.start_rows(50, 6)
+    assert rows[:13].tolist() == [0] * 6 + [1] * 6 + [2] and rows.max() == survival.ROWS - 1
+    task = survival.survival_task(np.zeros((4, 3)), EvalOptions(num_workers=0))
+    assert task.data["observations"]["policy"]["noise_scale"] == 1.0
+    assert task.data["commands"]["base_velocity"]["func"] == "fixed_velocity"
+
+
+class _Zero(torch.nn.Module):
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.zeros(x.shape[0], 28)
+
+
+@pytest.fixture
+def zero_policy(tmp_path):
+    path = tmp_path / "zero.pt"
+    torch.jit.script(_Zero()).save(str(path))
+    return path
+
+
+@pytest.fixture
+def tiny_grids(monkeypatch):
+    """Two conditions per sweep."""
+    for module in (speed, cot, gait):
+        monkeypatch.setattr(module, "SPEEDS", (0.5, 1.0))
+    monkeypatch.setattr(stairs, "HEIGHTS", (0.05, 0.1))
+    monkeypatch.setattr(omni, "DIRECTIONS_DEG", (0, 180))
+    monkeypatch.setattr(omni, "MAGNITUDES", (0.5, 1.0))
+    monkeypatch.setattr(survival, "ROWS", 2)
+
+
+@pytest.mark.parametrize("name", NEW)
+def test_command_line_end_to_end(name, zero_policy, tiny_grids, tmp_path):
+    """Real env, zero-action policy, 2 episodes per condition of 0.4 s: JSON + PNG with counts and intervals."""
+    out = tmp_path / "out"
+    res = main(["--policy", str(zero_policy), "--scenario", name, "--episodes", "2", "--episode-length-s", "0.4",
+                "--num-workers", "0", "--out", str(out)])
+    saved = json.loads((out / f"{name}.json").read_text())
+    assert (out / f"{name}.png").stat().st_size > 0 and saved["scenario"] == name == res["scenario"]
+    assert saved["episode_steps"] == 20
+    per = {"survival": None, "stairs": "per_height", "speed": "per_speed", "omni": "cells", "cot": "per_speed",
+           "gait": "per_speed"}[name]
+    if per is None:
+        assert saved["survival"]["n"] == 2 and len(saved["per_row"]) == 2
+    else:
+        cells = saved[per]
+        assert len(cells) == saved["conditions"] == (4 if name == "omni" else 2)
+        assert saved["episodes"] == 2 * saved["conditions"]
+        assert all(c["survival"]["n"] == 2 and len(c["survival"]["ci95"]) == 2 for c in cells)
+
+
+def _one_line_error(capsys, argv) -> str:
+    with pytest.raises(SystemExit) as exit_:
+        run_cli(main, argv)
+    assert exit_.value.code == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in captured.err + captured.out, captured.err
+    return lines[0]
+
+
+class _Other(torch.nn.Module):
+    """An actor of another observation layout (100 inputs) or action size."""
+
+    def __init__(self, inputs: int, outputs: int):
+        super().__init__()
+        self.layer = torch.nn.Linear(inputs, outputs)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.layer(x)
+
+
+def test_command_line_user_errors(tmp_path, capsys):
+    line = _one_line_error(capsys, ["--policy", "p.pt", "--scenario", "nope"])
+    assert "invalid choice: 'nope'" in line and all(n in line for n in ("simple", *NEW))
+    line = _one_line_error(capsys, ["--policy", str(tmp_path / "none.pt"), "--scenario", "speed"])
+    assert "none.pt not found" in line
+    assert "must be >= 1" in _one_line_error(capsys, ["--policy", "p.pt", "--episodes", "0"])
+    common = ["--scenario", "simple", "--episodes", "2", "--episode-length-s", "0.1", "--num-workers", "0",
+              "--out", str(tmp_path / "out")]
+    torch.jit.script(_Other(100, 28)).save(str(tmp_path / "obs100.pt"))
+    line = _one_line_error(capsys, ["--policy", str(tmp_path / "obs100.pt"), *common])
+    assert "takes 100 observation inputs" in line and "gives 259" in line
+    torch.jit.script(_Other(259, 12)).save(str(tmp_path / "act12.pt"))
+    line = _one_line_error(capsys, ["--policy", str(tmp_path / "act12.pt"), *common])
+    assert "outputs (12,) actions" in line and "takes 28" in line
+    (tmp_path / "junk.pt").write_bytes(b"junk")
+    assert "unreadable" in _one_line_error(capsys, ["--policy", str(tmp_path / "junk.pt"), *common])
+    assert not (tmp_path / "out").exists()  # nothing written for a refused policy
