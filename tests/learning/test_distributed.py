@@ -52,7 +52,7 @@ def _tensors(state: dict) -> dict[str, torch.Tensor]:
     return out
 
 
-@pytest.mark.slow  # two processes, each builds the env: ~20 s on 2 free cores
+@pytest.mark.slow  # two torchrun launches of two processes each: 20-45 s on 2 shared cores
 def test_torchrun_two_cpu_ranks_end_with_identical_weights(tmp_path):
     dump, run_dir = tmp_path / "dump", tmp_path / "runs" / "dist"
     dump.mkdir()
@@ -86,3 +86,12 @@ def test_torchrun_two_cpu_ranks_end_with_identical_weights(tmp_path):
     ckpt = _tensors(torch.load(run_dir / "model_1.pt", weights_only=False)["actor_state_dict"])
     assert all(torch.equal(v, a1[f".actor_state_dict{k}"]) for k, v in ckpt.items())
     assert (run_dir / "exported" / "policy.pt").is_file() and (run_dir / "task.yaml").is_file()
+
+    # a second launch onto the same, now non-empty, --run-dir: both ranks refuse with one line each,
+    # nothing in the directory changes, and no rank is left waiting for the others
+    before = sorted((p.name, p.stat().st_mtime_ns) for p in run_dir.rglob("*"))
+    proc = subprocess.run(cmd, check=False, env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    refusals = [line for line in (proc.stdout + proc.stderr).splitlines() if "is not empty; add --resume" in line]
+    assert len(refusals) == 2 and all(line.startswith("dist_worker.py: error: --run-dir") for line in refusals), refusals
+    assert sorted((p.name, p.stat().st_mtime_ns) for p in run_dir.rglob("*")) == before
