@@ -164,7 +164,7 @@ class LatentAction:
         return cls(vec[..., 0:4], vec[..., 4:8], vec[..., 8:16].reshape(*lead, 4, 2), vec[..., 16:28].reshape(*lead, 4, 3))
 
 
-def _scale(cfg: LatentActionConfig, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+def scale_vector(cfg: LatentActionConfig, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """Table 5 scales as a (28,) vector in the action layout."""
     w = cfg.weight
     p_s = cfg.foothold_scale_frac * cfg.hip_height  # [m]
@@ -198,13 +198,13 @@ def denormalise(raw: torch.Tensor, num_stance: torch.Tensor | float, cfg: Latent
         LatentAction with leading dims (...), not clipped.
     """
     shift = _shift(cfg, num_stance, raw.dtype, raw.device)
-    return LatentAction.from_vector(shift + _scale(cfg, raw.dtype, raw.device) * raw)
+    return LatentAction.from_vector(shift + scale_vector(cfg, raw.dtype, raw.device) * raw)
 
 
 def normalise(action: LatentAction, num_stance: torch.Tensor | float, cfg: LatentActionConfig) -> torch.Tensor:
     """Exact inverse of :func:`denormalise`: raw = (value - shift) / scale, (..., 28)."""
     vec = action.to_vector()
-    return (vec - _shift(cfg, num_stance, vec.dtype, vec.device)) / _scale(cfg, vec.dtype, vec.device)
+    return (vec - _shift(cfg, num_stance, vec.dtype, vec.device)) / scale_vector(cfg, vec.dtype, vec.device)
 
 
 def clip(action: LatentAction, cfg: LatentActionConfig) -> tuple[LatentAction, torch.Tensor]:
@@ -231,7 +231,7 @@ def clip(action: LatentAction, cfg: LatentActionConfig) -> tuple[LatentAction, t
     factor = torch.where(norm_xy > limit, limit / norm_xy.clamp_min(torch.finfo(norm_xy.dtype).tiny), 1.0)
     f_xy = f_xy * factor.unsqueeze(-1)
     clipped = LatentAction(f, d, torch.stack([p_x, p_y], dim=-1), torch.cat([f_xy, f_z.unsqueeze(-1)], dim=-1))
-    violation = (action.to_vector() - clipped.to_vector()) / _scale(cfg, f.dtype, f.device)
+    violation = (action.to_vector() - clipped.to_vector()) / scale_vector(cfg, f.dtype, f.device)
     return clipped, violation
 
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -130,7 +131,8 @@ class LocomotionEnv(VecEnv):
         """Latest robot state on ``self.device`` (refreshed after each simulator call)."""
         return self._state
 
-    def _refresh(self) -> None:
+    def refresh_state(self) -> None:
+        """Re-read the robot state from the simulator (after stepping it outside :meth:`step`)."""
         self._state = self._to_device(self.scene.sim.state)
 
     @property
@@ -179,7 +181,27 @@ class LocomotionEnv(VecEnv):
         actions, nonfinite = self.check_actions(actions)
         self.action_manager.process(actions)
         self.scene.sim.step(self.decimation)
-        self._refresh()
+        return self._finish_step(nonfinite)
+
+    def step_controlled(self, physics: Callable[[], torch.Tensor | None]) -> tuple[TensorDict, torch.Tensor,
+                                                                                   torch.Tensor, dict]:
+        """One policy step whose physics a closed-loop controller runs itself.
+
+        ``physics()`` must advance the simulator by exactly ``decimation`` physics steps, sending its
+        references through ``action_manager.process`` (so the observation's last action, the action
+        rewards and the touch-down heights see what was applied) -- e.g. a sampling MPC that re-plans
+        at 100 Hz, twice per 50 Hz policy step (``dls_quadruped.closed_loop``). It may return a (B,)
+        bool mask of robots that had no finite action (terminated as ``nonfinite_action``, as in
+        :meth:`step`). Steps 3-7 of the module docstring follow unchanged.
+        """
+        nonfinite = physics()
+        if nonfinite is None:
+            nonfinite = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        return self._finish_step(nonfinite.to(self.device))
+
+    def _finish_step(self, nonfinite: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        """Steps 3-7 of the module docstring, after the physics of a policy step."""
+        self.refresh_state()
         self.episode_length_buf += 1
         self.common_step_counter += 1
         self._vel_err_sum += torch.linalg.vector_norm(
@@ -193,7 +215,7 @@ class LocomotionEnv(VecEnv):
             self._reset_idx(reset_ids)
         self.command_manager.compute(self.step_dt)
         self.event_manager.apply("interval", dt=self.step_dt)
-        self._refresh()
+        self.refresh_state()
         self.obs_buf = self.observation_manager.compute()
         self.extras["time_outs"] = time_outs
         return self.obs_buf, reward, dones.long(), self.extras
@@ -209,7 +231,7 @@ class LocomotionEnv(VecEnv):
         if curriculum:
             log.update(self.curriculum_manager.compute(env_ids))
         self.event_manager.apply("reset", env_ids)
-        self._refresh()
+        self.refresh_state()
         for manager in (self.reward_manager, self.termination_manager, self.action_manager, self.command_manager):
             log.update(manager.reset(env_ids))
         steps = self.episode_length_buf[env_ids].clamp(min=1)

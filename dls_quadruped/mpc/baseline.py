@@ -58,15 +58,38 @@ class BaselineConfig:
     duty: float = 0.6
     com_height: float = field(default_factory=com_height_reference)
     anchor_share: float = 0.0
+    optimise: tuple[str, ...] = ("F",)
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.anchor_share < 1.0:
             raise ValueError(f"BaselineConfig.anchor_share must be in [0, 1), got {self.anchor_share!r}")
+        check_optimise(self.optimise)
 
     def forces_only(self) -> SamplerConfig:
         """The sampler config with gait and foothold optimisation switched off."""
         return replace(self.sampler, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0)
+
+    def optimised_sampler(self) -> SamplerConfig:
+        """The sampler config with sigma = 0 on every variable not in ``optimise`` (thesis 7.3: F only)."""
+        return optimised(self.sampler, self.optimise)
+
+
+OPTIMISABLE = ("f", "d", "p", "F")
+"""Variables the sampling MPC can optimise (thesis 7.3.1: F by default; 7.3.5: f and d; 7.3.6: p)."""
+
+
+def check_optimise(optimise: tuple[str, ...]) -> None:
+    """Raise ``ValueError`` unless ``optimise`` is a non-empty tuple of distinct names from ``OPTIMISABLE``."""
+    if (not isinstance(optimise, tuple) or not optimise or len(set(optimise)) != len(optimise)
+            or any(v not in OPTIMISABLE for v in optimise)):
+        raise ValueError(f"optimise must be a non-empty tuple of distinct variables from {OPTIMISABLE}, got {optimise!r}")
+
+
+def optimised(sampler: SamplerConfig, optimise: tuple[str, ...]) -> SamplerConfig:
+    """``sampler`` with sigma = 0 on every variable not in ``optimise``."""
+    check_optimise(optimise)
+    return replace(sampler, **{f"sigma_{v}": 0.0 for v in OPTIMISABLE if v not in optimise})
 
 
 def heuristic_footholds_h(state: RobotState, cmd_vel_h: torch.Tensor, cfg: BaselineConfig) -> torch.Tensor:
@@ -92,7 +115,7 @@ class ModelBasedBaseline:
 
     def __init__(self, num_robots: int, cfg: BaselineConfig = BaselineConfig(), device: str = "cpu", seed: int = 0):
         self.cfg = cfg
-        self.sampler_cfg = cfg.forces_only()
+        self.sampler_cfg = cfg.optimised_sampler()
         self.mpc = SamplingMPC(self.sampler_cfg, device=device, seed=seed)
         self.num_robots = num_robots
         self.slices = block_slices(self.sampler_cfg.encoding)
@@ -109,38 +132,63 @@ class ModelBasedBaseline:
         return fit_spline(flat[:, None, :].expand(-1, horizon, 8), constrained=True).reshape(self.num_robots, -1)
 
     def step(self, state: RobotState, cmd_vel_h: torch.Tensor) -> tuple[MPCResult, Refs]:
-        """One MPC solve: returns the result (first action in the world frame) and the references used."""
+        """One MPC solve: returns the result (first action in the world frame) and the references used.
+
+        The warm start is the naive one (previous solution shifted); the blocks that are not optimised
+        are overwritten with the periodic trot (f, d) and the heuristic footholds (p). An optimised
+        block keeps the previous solution's values (the trot and the heuristic footholds at the first solve).
+        """
         cfg = self.cfg
         p_h = heuristic_footholds_h(state, cmd_vel_h, cfg)
         p_block = self._encode_p(p_h)
+        first = self.mpc.last_result is None
         warm_starts = [self.mpc.naive_warm_start(self.default).clone()]
         proportions: tuple[float, ...] = (1.0,)
         if cfg.anchor_share > 0.0:
             warm_starts.append(self.default.clone())
             proportions = (1.0 - cfg.anchor_share, cfg.anchor_share)
         for w in warm_starts:
-            w[:, self.slices["f"]] = cfg.freq
-            w[:, self.slices["d"]] = cfg.duty
-            w[:, self.slices["p"]] = p_block
-
-        srbd = srbd_state_from_base(state.base_pos_w, state.base_quat_w, state.base_lin_vel_w,
-                                    state.base_ang_vel_b, state.foot_pos_w, self.mpc.model)
-        yaw = srbd.euler[:, 2]
-        c, s = torch.cos(yaw), torch.sin(yaw)
-        cmd = cmd_vel_h.float()
-        v_ref_w = torch.stack([c * cmd[:, 0] - s * cmd[:, 1], s * cmd[:, 0] + c * cmd[:, 1]], dim=-1)
-        nominal = torch.tensor(self.sampler_cfg.action.nominal_foothold_b, dtype=torch.float32) + p_h  # (B, 4, 2)
-        base_xy = state.base_pos_w[:, :2]
-        foothold_w = torch.stack([
-            base_xy[:, None, 0] + c[:, None] * nominal[..., 0] - s[:, None] * nominal[..., 1],
-            base_xy[:, None, 1] + s[:, None] * nominal[..., 0] + c[:, None] * nominal[..., 1],
-            torch.full_like(nominal[..., 0], C.FOOT_RADIUS),
-        ], dim=-1)
-        refs = Refs(com_height_w=torch.full((self.num_robots,), cfg.com_height), lin_vel_w=v_ref_w,
-                    yaw_rate=cmd[:, 2].clone(), foothold_w=foothold_w)
+            if "f" not in cfg.optimise:
+                w[:, self.slices["f"]] = cfg.freq
+            if "d" not in cfg.optimise:
+                w[:, self.slices["d"]] = cfg.duty
+            if "p" not in cfg.optimise or first:
+                w[:, self.slices["p"]] = p_block
+        srbd, refs, frame = mpc_inputs(state, cmd_vel_h, p_h, cfg.com_height, self.sampler_cfg, self.mpc.model)
         result = self.mpc.solve(srbd, refs, warm_starts=warm_starts, proportions=proportions,
-                                phase=state.phase, base_xy_w=base_xy, base_yaw=yaw)
+                                phase=state.phase, **frame)
         return result, refs
+
+
+def mpc_inputs(state: RobotState, cmd_vel_h: torch.Tensor, p_h: torch.Tensor, com_height: float,
+               sampler: SamplerConfig, model) -> tuple:
+    """The SRBD state, the cost references and the horizontal frame of one solve.
+
+    Args:
+        state: robot state (B robots); cmd_vel_h: (B, 3) command (v_x, v_y [m/s] in frame H, yaw rate [rad/s]);
+        p_h: (B, 4, 2) [m] reference footholds relative to the nominal ones (eq. 2.2.4);
+        com_height: [m] CoM height reference above flat ground at z = 0.
+
+    Returns:
+        (SRBDState, Refs, {"base_xy_w": (B, 2), "base_yaw": (B,)}).
+    """
+    b = state.base_pos_w.shape[0]
+    srbd = srbd_state_from_base(state.base_pos_w, state.base_quat_w, state.base_lin_vel_w,
+                                state.base_ang_vel_b, state.foot_pos_w, model)
+    yaw = srbd.euler[:, 2]
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    cmd = cmd_vel_h.float()
+    v_ref_w = torch.stack([c * cmd[:, 0] - s * cmd[:, 1], s * cmd[:, 0] + c * cmd[:, 1]], dim=-1)
+    nominal = torch.tensor(sampler.action.nominal_foothold_b, dtype=torch.float32) + p_h  # (B, 4, 2)
+    base_xy = state.base_pos_w[:, :2].float()
+    foothold_w = torch.stack([
+        base_xy[:, None, 0] + c[:, None] * nominal[..., 0] - s[:, None] * nominal[..., 1],
+        base_xy[:, None, 1] + s[:, None] * nominal[..., 0] + c[:, None] * nominal[..., 1],
+        torch.full_like(nominal[..., 0], C.FOOT_RADIUS),
+    ], dim=-1)
+    refs = Refs(com_height_w=torch.full((b,), float(com_height)), lin_vel_w=v_ref_w,
+                yaw_rate=cmd[:, 2].clone(), foothold_w=foothold_w)
+    return srbd, refs, {"base_xy_w": base_xy, "base_yaw": yaw}
 
 
 @dataclass

@@ -95,9 +95,17 @@ def rollout_cost_reference(
     Returns:
         (B, M) total cost, NaN replaced by +inf.
     """
+    return nan_to_inf(rollout_step_costs(x0, contact, foot_target_w, force_w, refs, model, weights, dt).sum(-1))
+
+
+def rollout_step_costs(
+    x0: torch.Tensor, contact: torch.Tensor, foot_target_w: torch.Tensor, force_w: torch.Tensor,
+    refs: Refs, model: SRBDModel, weights: CostWeights, dt: float,
+) -> torch.Tensor:
+    """(B, M, N) cost of each horizon step k: state cost of x_{k+1} plus input cost of u_k (thesis Fig. 28).
+    NaN where the rollout diverged. Arguments as :func:`rollout_cost_reference`."""
     traj = rollout_reference(x0, contact, foot_target_w, force_w, model, dt)  # (B, M, N+1, 24)
     x_ref = refs.state_vector()[:, None, None, :]
     u = torch.cat([foot_target_w.flatten(-2), force_w.flatten(-2)], dim=-1)  # (B, M, N, 24)
     u_ref = refs.input_vector()[:, None, None, :]
-    cost = state_cost(traj[:, :, 1:], x_ref, weights) + input_cost(u, u_ref, weights)
-    return nan_to_inf(cost.sum(-1))
+    return state_cost(traj[:, :, 1:], x_ref, weights) + input_cost(u, u_ref, weights)

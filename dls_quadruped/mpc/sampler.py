@@ -16,6 +16,7 @@ finite action.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -23,7 +24,7 @@ import torch
 
 from dls_quadruped.mpc import warm_start
 from dls_quadruped.mpc.config import SamplerConfig
-from dls_quadruped.mpc.cost import Refs, initial_cost
+from dls_quadruped.mpc.cost import Refs, initial_cost, rollout_step_costs
 from dls_quadruped.mpc.encodings import encoded_dim
 from dls_quadruped.mpc.kernel import (
     KernelInputs,
@@ -57,6 +58,10 @@ class MPCResult:
         best_encoded: (B, D) winning encoded action (box-clipped; F block = force offsets from gravity
             compensation, ``samples.forces_from_offsets``), for the naive warm start.
         contact_horizon: (B, N, 4) bool, the winner's contact sequence over the horizon (step 0 = ``contact``).
+        step_costs: (B, N) the winner's cost per horizon step (state cost after step k + input cost of step k,
+            re-computed with the reference rollout in float32: sums to ``best_cost`` up to the kernel's
+            round-off, NaN where it diverged; thesis Fig. 28) when ``SamplingMPC.record_step_costs`` is on,
+            else NaN; +inf for a fallback robot.
         fallback: (B,) bool, True where an input (state, phase, base_xy_w, base_yaw, terrain_z_w, a
             reference) or the solution was not finite and the previous solution (or the first warm
             start if there was none) was returned unchanged. False always means a finite action.
@@ -76,6 +81,7 @@ class MPCResult:
     warm_start_index: torch.Tensor
     best_encoded: torch.Tensor
     contact_horizon: torch.Tensor
+    step_costs: torch.Tensor
     fallback: torch.Tensor
     reason: str = ""
 
@@ -103,6 +109,11 @@ class SamplingMPC:
         self.dim = encoded_dim(self.cfg.encoding)
         self.generator = torch.Generator().manual_seed(seed)
         self.last_result: MPCResult | None = None
+        self._forgotten: torch.Tensor | None = None  # (B,) robots whose previous solution was reset
+        self.kernel_seconds = 0.0
+        """Wall time [s] spent in the cost kernel (all solves so far): the closed loop's profile."""
+        self.record_step_costs = False
+        """Fill ``MPCResult.step_costs`` (a reference rollout of the winner, ~1.5 ms per solve); else NaN."""
         self._layouts: dict[tuple[float, ...], tuple[torch.Tensor, torch.Tensor]] = {}
 
     # ------------------------------------------------------------------ warm starts
@@ -118,15 +129,26 @@ class SamplingMPC:
         Raises:
             ValueError: no previous solution and no default.
         """
-        if self.last_result is None:
+        if self.last_result is None or self._forgotten is not None:
             if default is None:
                 raise ValueError("naive_warm_start: there is no previous solution yet; pass default=(B, D) encoded action")
-            return default.to(self.device, torch.float32)
-        return warm_start.naive(self.last_result.best_encoded, self.cfg, self.last_result.contact_horizon)
+            default = default.to(self.device, torch.float32)
+            if self.last_result is None:
+                return default
+        shifted = warm_start.naive(self.last_result.best_encoded, self.cfg, self.last_result.contact_horizon)
+        if self._forgotten is None:
+            return shifted
+        return torch.where(self._forgotten[:, None], default.expand_as(shifted), shifted)
 
-    def reset(self) -> None:
-        """Forget the previous solution (next naive warm start uses its default)."""
-        self.last_result = None
+    def reset(self, robots: torch.Tensor | None = None) -> None:
+        """Forget the previous solution of ``robots`` ((K,) indices; all if None): their next naive
+        warm start is the default (e.g. after the env restarted their episode)."""
+        if robots is None or self.last_result is None:
+            self.last_result, self._forgotten = None, None
+            return
+        if self._forgotten is None:
+            self._forgotten = torch.zeros(self.last_result.best_encoded.shape[0], dtype=torch.bool, device=self.device)
+        self._forgotten[robots.to(self.device)] = True
 
     # ------------------------------------------------------------------ solve
 
@@ -241,12 +263,16 @@ class SamplingMPC:
         seed = torch.randint(0, 2**31 - 1, (), generator=self.generator).to(dev)
         inp = KernelInputs(seed, ws, group, perturb, x0, clean["phase"], clean["base_xy_w"], clean["base_yaw"],
                            clean["terrain_z_w"], refs)
+        tic = time.perf_counter()
         if self.cfg.kernel == "cpp":
             costs = cpp_costs(inp, self.cfg, self.model)
         elif self.cfg.kernel == "fast":
             costs = fast_costs(inp, self.cfg, self.model)
         else:
             costs = reference_costs(inp, self.cfg, self.model)
+        if costs.is_cuda:
+            torch.cuda.synchronize(costs.device)
+        self.kernel_seconds += time.perf_counter() - tic
         best_cost, best_index = costs.min(dim=1)
         result = self._extract(inp, best_index, best_cost, initial_cost(x0, refs, self.cfg.weights))
         # last guard: whatever the cause, a non-finite action never leaves with fallback = False
@@ -254,7 +280,7 @@ class SamplingMPC:
         bad = torch.stack(list(bad_inputs.values())).any(dim=0)
         if bool(bad.any()):
             result = self._fallback(result, bad, inp, _describe_bad(bad_inputs))
-        self.last_result = result
+        self.last_result, self._forgotten = result, None
         return result
 
     def _extract(self, inp: KernelInputs, best_index: torch.Tensor, best_cost: torch.Tensor,
@@ -264,12 +290,17 @@ class SamplingMPC:
         dec = decode_samples(best, inp.phase, inp.base_xy_w, inp.base_yaw, inp.terrain_z_w, self.cfg)
         first = {k: v[:, 0] for k, v in dec.items()}  # drop the K = 1 sample dim
         b = best_index.shape[0]
+        if self.record_step_costs:
+            step_costs = rollout_step_costs(inp.x0, dec["contact"], dec["foot_target_w"], dec["force_w"], inp.refs,
+                                            self.model, self.cfg.weights, self.cfg.dt)[:, 0]
+        else:  # an eager reference rollout costs ~1.5 ms per solve: off unless asked for
+            step_costs = torch.full((b, self.cfg.horizon), float("nan"), device=best_index.device)
         return MPCResult(
             f=first["f"], d=first["d"], contact=first["contact"][:, 0], foot_target_w=first["foot_target_w"][:, 0],
             force_w=first["force_w"][:, 0], p_h=first["p_h"][:, 0], F_h=first["F_h"][:, 0],
             best_cost=best_cost, initial_cost=init_cost, best_index=best_index,
             warm_start_index=inp.group[best_index], best_encoded=best[:, 0], contact_horizon=first["contact"],
-            fallback=torch.zeros(b, dtype=torch.bool, device=best_index.device),
+            step_costs=step_costs, fallback=torch.zeros(b, dtype=torch.bool, device=best_index.device),
         )
 
     def _fallback(self, result: MPCResult, bad: torch.Tensor, inp: KernelInputs, why: str) -> MPCResult:
@@ -290,6 +321,7 @@ class SamplingMPC:
             **out, best_cost=torch.where(bad, inf, result.best_cost),
             initial_cost=torch.where(bad, inf, result.initial_cost),
             best_index=torch.where(bad, minus, result.best_index),
+            step_costs=torch.where(bad[:, None], float("inf"), result.step_costs),
             warm_start_index=torch.where(bad, minus, result.warm_start_index),
             fallback=bad.clone(),
             reason=f"{why}: returned {source} for them",

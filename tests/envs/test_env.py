@@ -77,7 +77,7 @@ def test_events_touch_only_targeted_envs():
         # push: only envs 0 and 2 change velocity, by at most 0.5 m/s per axis
         before = env.state.base_lin_vel_w.clone()
         ev_mdp.push_robot(env, torch.tensor([0, 2]), velocity_range=(-0.5, 0.5))
-        env._refresh()
+        env.refresh_state()
         after = env.state.base_lin_vel_w
         assert torch.equal(after[[1, 3]], before[[1, 3]])
         d = (after[[0, 2], :2] - before[[0, 2], :2]).abs()

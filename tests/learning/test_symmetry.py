@@ -149,7 +149,7 @@ def _commutation_error(env, steps=6, seed=0):
     both = [torch.cat([a, b]) for a, b in zip(state, _mirror_state(*state))]
     env.scene.sim.reset(torch.tensor([0, 1]), both[0], both[1], both[2], joint_vel=both[3], base_lin_vel_w=both[4],
                         base_ang_vel_b=both[5], phase=both[6])
-    env._refresh()
+    env.refresh_state()
     mirror = S.mirror_for(env)
     cmd = torch.tensor([[0.5, 0.15, -0.3]])
     env.command_manager.command[:] = torch.cat([cmd, cmd * torch.tensor([1.0, -1.0, -1.0])])

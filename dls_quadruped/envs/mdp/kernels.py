@@ -80,5 +80,9 @@ def cost_of_transport(torque: torch.Tensor, joint_vel: torch.Tensor, speed: torc
     Returns:
         (B,) dimensionless CoT >= 0.
     """
-    power = torch.clamp(torque * joint_vel + alpha * torque.square(), min=0.0).sum(dim=-1)  # [W]
-    return power / (weight * speed.clamp_min(min_speed))
+    return motor_power(torque, joint_vel, alpha) / (weight * speed.clamp_min(min_speed))
+
+
+def motor_power(torque: torch.Tensor, joint_vel: torch.Tensor, alpha: float = 0.3) -> torch.Tensor:
+    """(B,) [W] the numerator of eq. 4.3.7: sum_j max(tau_j qdot_j + alpha tau_j^2, 0)."""
+    return torch.clamp(torque * joint_vel + alpha * torque.square(), min=0.0).sum(dim=-1)

@@ -1,0 +1,232 @@
+"""Closed-loop comparison of controllers on the simple task (thesis 7.3): summary.json + plot (+ video).
+
+    python -m dls_quadruped.closed_loop --controllers rl_warm_start,naive_warm_start,rl_baseline \\
+        --episodes 8 --seconds 15 [--samples 10000] [--vx 0.5] [--optimise F,f] [--out DIR]
+
+Every controller gets a fresh env with the same seed: the same commands and starting states.
+``--vx`` replaces the simple task's random commands by a fixed forward speed (Table 17).
+Writes ``<out>/summary.json`` (per controller: medians and quartiles of the RL reward, initial
+cost, rollout cost, cost per horizon step, velocity error, CoT; survival with a Wilson interval;
+which warm start won; the timing profile), ``<out>/closed_loop.png`` and, with ``--video``,
+``<out>/closed_loop.gif`` (robot 0 of each controller side by side).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported (offscreen video)
+
+import argparse
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dls_quadruped.cli import ArgumentParser, UserError, non_negative_int, positive_float, positive_int, run_cli
+from dls_quadruped.closed_loop.controllers import CONTROLLERS, NEEDS_POLICY, NEEDS_STUDENT, ControllerConfig, make_controller
+from dls_quadruped.closed_loop.metrics import summarize
+from dls_quadruped.closed_loop.runner import ClosedLoopTraces, run_closed_loop
+from dls_quadruped.core.json_io import write_json
+from dls_quadruped.mpc.baseline import OPTIMISABLE
+from dls_quadruped.mpc.config import ENCODING_KINDS, SamplerConfig
+
+DEFAULT_POLICY = Path("docs/policies/base_actor.pt")
+DEFAULT_STUDENT = Path("docs/policies/base_student_first_spline_h10.pt")
+THESIS_TABLE14_FIRST_SPLINE = {
+    "rl_warm_start": {"rl_reward": 2.347, "initial_cost": 30.72, "rollout_cost": 291.8},
+    "naive_warm_start": {"rl_reward": 2.259, "initial_cost": 31.43, "rollout_cost": 211.7},
+    "rl_baseline": {"rl_reward": 2.365, "initial_cost": 86.45},
+}
+"""Thesis Table 14, first-spline rows (medians over 100 episodes), printed beside ours."""
+
+
+def _names(text: str, allowed: tuple[str, ...], what: str) -> tuple[str, ...]:
+    names = tuple(t.strip() for t in text.split(",") if t.strip())
+    bad = [n for n in names if n not in allowed]
+    if bad or not names or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"{what} must be distinct names from {list(allowed)} separated by commas, got {text!r}")
+    return names
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--controllers", type=lambda t: _names(t, CONTROLLERS, "--controllers"),
+                   default=("rl_warm_start", "naive_warm_start", "rl_baseline"), help=f"comma-separated from {list(CONTROLLERS)}")
+    p.add_argument("--policy", type=Path, default=DEFAULT_POLICY, help="RL expert (rl_baseline)")
+    p.add_argument("--student", type=Path, default=DEFAULT_STUDENT, help="distilled student (rl_warm_start, student)")
+    p.add_argument("--episodes", type=positive_int, default=8, help="episodes (robots in parallel); even for the simple task")
+    p.add_argument("--seconds", type=positive_float, default=15.0, help="episode length [s]")
+    p.add_argument("--vx", type=float, default=None, help="fixed forward command [m/s] instead of the simple task")
+    p.add_argument("--samples", type=positive_int, default=10000, help="M, samples per robot")
+    p.add_argument("--horizon", type=positive_int, default=10, help="N")
+    p.add_argument("--dt", type=positive_float, default=0.02, help="MPC step [s]")
+    p.add_argument("--encoding", default="first-spline", help=f"p-F, each from {list(ENCODING_KINDS)}")
+    p.add_argument("--optimise", type=lambda t: _names(t, OPTIMISABLE, "--optimise"), default=("F",),
+                   help=f"variables the MPC samples, from {list(OPTIMISABLE)}")
+    p.add_argument("--naive-share", type=float, default=0.0, help="rl_warm_start: share of samples around the naive warm start")
+    p.add_argument("--kernel", default="cpp", choices=("cpp", "fast", "reference"))
+    p.add_argument("--threads", type=positive_int, default=1, help="torch / MPC kernel threads")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--num-workers", type=int, default=-1, help="simulator worker processes (-1: one per core, 0: in-process)")
+    p.add_argument("--video", action="store_true", help="render robot 0 of each controller side by side (GIF)")
+    p.add_argument("--video-seconds", type=positive_float, default=4.0)
+    p.add_argument("--record-robots", type=non_negative_int, default=1)
+    p.add_argument("--out", type=Path, default=Path("results/closed_loop"))
+    args = p.parse_args(argv)
+    parts = args.encoding.split("-")
+    if len(parts) != 2 or any(k not in ENCODING_KINDS for k in parts):
+        p.error(f"argument --encoding: must be p-F with each of {list(ENCODING_KINDS)}, e.g. first-spline; got {args.encoding!r}")
+    if args.vx is None and args.episodes % 2:
+        p.error(f"argument --episodes: the simple task pairs every command with its mirror image, so it must be even; "
+                f"got {args.episodes}")
+    if not 0.0 <= args.naive_share < 1.0:
+        p.error(f"argument --naive-share: must be in [0, 1), got {args.naive_share}")
+    return args
+
+
+def commands(episodes: int, seed: int, vx: float | None) -> np.ndarray:
+    """(E, 3) commands: the simple task's (mirrored pairs) or a fixed forward speed."""
+    from dls_quadruped.eval.velocity_tracking import simple_commands
+
+    if vx is None:
+        return simple_commands(episodes, seed)
+    return np.tile([vx, 0.0, 0.0], (episodes, 1))
+
+
+def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int):
+    """The base task on flat ground, no noise or perturbation, fixed commands, Table-4 reward."""
+    from dls_quadruped.envs.env import LocomotionEnv
+    from dls_quadruped.eval.scenario import EvalOptions
+    from dls_quadruped.eval.velocity_tracking import flat_task
+
+    opts = EvalOptions(episodes=len(cmds), seed=seed, num_workers=num_workers, episode_length_s=seconds)
+    return LocomotionEnv(flat_task(cmds, opts), num_envs=len(cmds), seed=seed, verbose=False)
+
+
+def run_controllers(configs: list[ControllerConfig], cmds: np.ndarray, seconds: float, seed: int,
+                    num_workers: int, record_robots: int = 1) -> dict[str, ClosedLoopTraces]:
+    """Each controller in a fresh env (same seed, commands and starts); traces by name."""
+    out = {}
+    for cfg in configs:
+        env = make_env(cmds, seconds, seed, num_workers)
+        try:
+            controller = make_controller(cfg, env)
+            out[cfg.name] = run_closed_loop(env, controller, record_robots=record_robots)
+        finally:
+            env.close()
+    return out
+
+
+def plot(traces: dict[str, ClosedLoopTraces], path: Path, robot: int = 0) -> None:
+    """Velocity tracking of robot ``robot`` and the per-step costs, controllers side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(traces)
+    fig, axes = plt.subplots(3, len(names), figsize=(4.2 * len(names), 8.5), squeeze=False, sharey="row")
+    for c, name in enumerate(names):
+        tr = traces[name]
+        t = tr.time
+        ax = axes[0, c]
+        for i, (label, color) in enumerate((("v_x", "C0"), ("v_y", "C1"), ("omega_z", "C2"))):
+            ax.plot(t, tr.base_vel[:, robot, i], color=color, lw=0.8, label=label)
+            ax.axhline(tr.command[robot, i], color=color, ls="--", lw=0.8)
+        ax.set_title(f"{name}\nrobot {robot}: measured (solid) vs command (dashed)", fontsize=9)
+        ax.legend(fontsize=7, loc="lower right")
+        ax = axes[1, c]
+        ax.semilogy(t, tr.initial_cost[:, robot], lw=0.7, label="initial cost (state)")
+        if np.isfinite(tr.rollout_cost).any():
+            ax.semilogy(t, tr.rollout_cost[:, 0, robot], lw=0.7, label="rollout cost (chosen sample)")
+        ax.set_title("cost per policy step, robot 0", fontsize=9)
+        ax.legend(fontsize=7)
+        ax = axes[2, c]
+        ax.plot(t, np.nanmedian(tr.reward, axis=1), lw=0.8, label="RL reward, median over episodes")
+        ax.set_xlabel("time [s]")
+        ax.set_title(f"{tr.reward.shape[1]} episodes, survival {100 * (~tr.fell).mean():.0f} %", fontsize=9)
+        ax.legend(fontsize=7)
+    axes[0, 0].set_ylabel("velocity [m/s], [rad/s]")
+    axes[1, 0].set_ylabel("cost")
+    axes[2, 0].set_ylabel("reward per step")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def headline(summary: dict) -> str:
+    lines = []
+    for name, s in summary["controllers"].items():
+        thesis = THESIS_TABLE14_FIRST_SPLINE.get(name, {})
+        def fmt(key):  # noqa: E306
+            if key not in s:
+                return "-"
+            m = s[key]
+            text = f"{m['median']:.3f} [{m['q1']:.3f}, {m['q3']:.3f}]" if key == "rl_reward" else \
+                f"{m['median']:.1f} [{m['q1']:.1f}, {m['q3']:.1f}]"
+            return text + (f" (thesis {thesis[key]})" if key in thesis else "")
+        sv = s["survival"]
+        tm = s["timing"]
+        lines.append(f"[closed_loop] {name}: {s['episodes']} episodes, survival {100 * sv['rate']:.0f} % "
+                     f"(95 % CI {100 * sv['ci95'][0]:.0f}-{100 * sv['ci95'][1]:.0f})")
+        lines.append(f"  RL reward {fmt('rl_reward')}; initial cost {fmt('initial_cost')}; rollout cost {fmt('rollout_cost')}")
+        lines.append(f"  |v_xy - cmd| median {s['vel_error']['median']:.3f} m/s; CoT median {s['cost_of_transport']['median']:.2f}; "
+                     f"{tm['robot_seconds_per_second']:.2f} robot-s/s, kernel {100 * tm['kernel_share']:.0f} % of "
+                     f"{tm['wall']:.1f} s wall")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = parse_args(argv)
+    torch.set_num_threads(args.threads)
+    for name in args.controllers:
+        path = args.student if name in NEEDS_STUDENT else args.policy if name in NEEDS_POLICY else None
+        if path is not None and not path.is_file():
+            flag = "--student" if name in NEEDS_STUDENT else "--policy"
+            raise UserError(f"{flag} {path} not found (controller {name} needs it)")
+    p_kind, f_kind = args.encoding.split("-")
+    try:
+        sampler = SamplerConfig(num_samples=args.samples, horizon=args.horizon, dt=args.dt, encoding_p=p_kind,
+                                encoding_F=f_kind, kernel=args.kernel)
+        configs = [ControllerConfig(name, policy=args.policy, student=args.student, sampler=sampler,
+                                    optimise=args.optimise, naive_share=args.naive_share if name == "rl_warm_start" else 0.0,
+                                    seed=args.seed) for name in args.controllers]
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    cmds = commands(args.episodes, args.seed, args.vx)
+    t0 = time.perf_counter()
+    try:
+        traces = run_controllers(configs, cmds, args.seconds, args.seed, args.num_workers, args.record_robots)
+    except (ValueError, FileNotFoundError) as err:  # student/MPC mismatch, wrong observation size, bad file
+        raise UserError(str(err)) from None
+    from dls_quadruped.bench.machine import cpu_model
+
+    summary = {
+        "settings": {"controllers": list(args.controllers), "episodes": args.episodes, "seconds": args.seconds,
+                     "command": "simple task" if args.vx is None else f"forward {args.vx} m/s",
+                     "samples": args.samples, "horizon": args.horizon, "dt": args.dt, "encoding": args.encoding,
+                     "optimise": list(args.optimise), "naive_share": args.naive_share, "kernel": args.kernel,
+                     "threads": args.threads, "seed": args.seed, "policy": str(args.policy), "student": str(args.student),
+                     "cpu": cpu_model()},
+        "controllers": {name: summarize(tr) for name, tr in traces.items()},
+        "thesis_table14_first_spline": THESIS_TABLE14_FIRST_SPLINE,
+        "wall_s": round(time.perf_counter() - t0, 1),
+    }
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_json(summary, args.out / "summary.json", indent=1)
+    plot(traces, args.out / "closed_loop.png")
+    if args.video:
+        from dls_quadruped.viz.video import render_gif_row
+
+        print(render_gif_row(list(traces.values()), args.out / "closed_loop.gif", seconds=args.video_seconds,
+                             labels=list(traces), size=(240, 320)))
+    print(headline(summary))
+    print(f"[closed_loop] wrote {args.out / 'summary.json'} and {args.out / 'closed_loop.png'}")
+    return summary
+
+
+if __name__ == "__main__":
+    run_cli(main)

@@ -1,0 +1,72 @@
+"""Closed-loop metrics against hand-computed values (issue 12 item 7): the initial cost of known
+states from Table 9's weights, the cost of transport and the medians of a recorded trace."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from dls_quadruped.closed_loop.metrics import cost_of_transport, summarize
+from dls_quadruped.closed_loop.runner import ClosedLoopTraces, InitialCostProbe
+from dls_quadruped.core.state import RobotState
+from dls_quadruped.mpc.config import SamplerConfig
+from dls_quadruped.robots.aliengo import constants as C
+
+
+def _state(base_z: float, vel_w=(0.0, 0.0, 0.0), yaw: float = 0.0, ang_b=(0.0, 0.0, 0.0)) -> RobotState:
+    b = 1
+    quat = torch.tensor([[np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]], dtype=torch.float32)
+    z = lambda *s: torch.zeros(b, *s)  # noqa: E731
+    feet = torch.tensor([[[0.24, 0.13, 0.02], [0.24, -0.13, 0.02], [-0.24, 0.13, 0.02], [-0.24, -0.13, 0.02]]])
+    return RobotState(base_pos_w=torch.tensor([[0.3, -0.2, float(base_z)]], dtype=torch.float32), base_quat_w=quat,
+                      base_lin_vel_w=torch.tensor([vel_w]), base_ang_vel_b=torch.tensor([ang_b]),
+                      joint_pos=z(12), joint_vel=z(12), joint_torque=z(12), foot_pos_w=feet, foot_vel_w=z(4, 3),
+                      foot_force_w=z(4, 3), phase=z(4), contact_cmd=torch.ones(b, 4), base_contact=torch.zeros(b, dtype=torch.bool),
+                      time=z(), diverged=torch.zeros(b, dtype=torch.bool))
+
+
+def test_initial_cost_of_known_states() -> None:
+    probe = InitialCostProbe(SamplerConfig())
+    stand = torch.zeros(1, 3)
+    # level base at the height target, at rest, commanded to stand: nothing to pay
+    assert float(probe(_state(C.BASE_HEIGHT_TARGET), stand)) == pytest.approx(0.0, abs=1e-6)
+    # 1 cm too high: Q_z (0.01)^2 = 111 500 x 1e-4 = 11.15 (the CoM moves with the base)
+    assert float(probe(_state(C.BASE_HEIGHT_TARGET + 0.01), stand)) == pytest.approx(11.15, rel=1e-4)
+    # commanded 0.5 m/s forward while standing still: Q_vx 0.5^2 = 5 000 x 0.25 = 1 250
+    assert float(probe(_state(C.BASE_HEIGHT_TARGET), torch.tensor([[0.5, 0.0, 0.0]]))) == pytest.approx(1250.0, rel=1e-5)
+    # the command is in the heading frame: facing +y (yaw 90 deg) and moving at 0.5 m/s along +y is on target
+    moving = _state(C.BASE_HEIGHT_TARGET, vel_w=(0.0, 0.5, 0.0), yaw=np.pi / 2)
+    assert float(probe(moving, torch.tensor([[0.5, 0.0, 0.0]]))) == pytest.approx(0.0, abs=1e-3)
+    # yaw rate 0.2 rad/s short of the command: Q_wz 0.2^2 = 200 x 0.04 = 8 (the CoM offset adds a
+    # velocity omega x c_b that costs 5 000 (|omega x c_b|^2) ~ 5e-3 more)
+    spin = _state(C.BASE_HEIGHT_TARGET, ang_b=(0.0, 0.0, 0.3))
+    assert float(probe(spin, torch.tensor([[0.0, 0.0, 0.5]]))) == pytest.approx(8.0, abs=0.02)
+
+
+def _traces(reward: np.ndarray, power: np.ndarray, speed: np.ndarray, fell: np.ndarray) -> ClosedLoopTraces:
+    t, e = reward.shape
+    nan = np.full((t, e), np.nan, np.float32)
+    solves = np.full((t, 1, e), np.nan, np.float32)
+    return ClosedLoopTraces(
+        controller="x", command=np.zeros((e, 3)), reward=reward, initial_cost=nan, vel_error=nan, power=power,
+        speed=speed, base_vel=np.zeros((t, e, 3)), rollout_cost=solves, mpc_initial_cost=solves,
+        step_costs=np.full((t, 1, e, 10), np.nan), winner=np.full((t, 1, e), -1), fell=fell,
+        length=np.full(e, t), qpos=np.zeros((t, 1, 19)), mpc_fallbacks=0, student_fallbacks=0, step_dt=0.5)
+
+
+def test_cost_of_transport_and_medians_by_hand() -> None:
+    # 6 steps of 0.5 s, 2 episodes; the settle (1 s) drops the first two steps
+    power = np.array([[999, 999], [999, 999], [100, 300], [200, 300], [300, np.nan], [400, np.nan]], float)
+    speed = np.array([[9, 9], [9, 9], [0.5, 1.0], [0.5, 1.0], [0.5, np.nan], [0.5, np.nan]], float)
+    reward = np.array([[1.0, 2.0], [2.0, 3.0], [3.0, 4.0], [4.0, np.nan], [5.0, np.nan], [6.0, np.nan]], float)
+    tr = _traces(reward, power, speed, fell=np.array([False, True]))
+    mg = C.TOTAL_MASS * C.GRAVITY
+    cot = cost_of_transport(tr, settle_s=1.0)
+    np.testing.assert_allclose(cot, [250.0 / (mg * 0.5), 300.0 / (mg * 1.0)], rtol=1e-12)
+    s = summarize(tr, settle_s=1.0)
+    # pooled reward values 1, 2, 3, 4, 5, 6, 2, 3, 4: median 3, quartiles 2 and 4
+    assert s["rl_reward"]["median"] == 3.0 and s["rl_reward"]["q1"] == 2.0 and s["rl_reward"]["q3"] == 4.0
+    assert s["rl_reward"]["n"] == 9
+    assert s["survival"]["survived"] == 1 and s["survival"]["n"] == 2 and s["episodes"] == 2
+    assert "rollout_cost" not in s  # no MPC in these traces
