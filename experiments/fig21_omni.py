@@ -1,0 +1,75 @@
+"""Fig. 21: omnidirectional capability, the 90 %-success isoline of the four RL experts.
+
+    python experiments/fig21_omni.py --scale small     # about 2 min per policy on 2 cores
+    python experiments/fig21_omni.py --scale thesis
+
+Scenario ``omni`` (docs/eval.md): 8 directions x magnitudes 0.25-2 m/s, flat, no disturbance;
+success = survived and |mean v_xy - cmd| <= max(25 % |cmd|, 0.1 m/s). Per policy and direction:
+the magnitude where success first drops below 90 % (bootstrap 95 % interval). Thesis: rough,
+speed and climb match their training commands; base goes "50 % faster in all directions" than
+its 1 m/s training range.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from experiments.rl_common import evaluate_policies, finish, mean_cell, num, parse_args, pyplot
+
+NAME, SCENARIO = "fig21_omni", "omni"
+THESIS = {"base": "~1.5 m/s in every direction", "rough": "its +-0.8 m/s disc", "speed": "forward to ~2 m/s",
+          "climb": "forward 0.3-0.5 m/s"}
+
+
+def rows_of(results: dict) -> list[dict]:
+    rows = []
+    for task, res in results.items():
+        row = {"policy": task, "mean isoline [m/s]": mean_cell(res["isoline_success_mean"], ".2f")}
+        for iso in res["isolines"]:
+            s = iso["success"]
+            mark = ">" if s["beyond_grid"] else ("<" if s["below_grid"] else "")
+            row[f"{iso['direction_deg']:g} deg"] = f"{mark}{num(s['magnitude'], '.2f')} [{num(s['ci95'][0], '.2f')}, " \
+                                                   f"{num(s['ci95'][1], '.2f')}]"
+        row["thesis"] = THESIS[task]
+        rows.append(row)
+    return rows
+
+
+def figure(results: dict, path: Path) -> None:
+    plt = pyplot()
+    fig = plt.figure(figsize=(5.5, 5))
+    ax = fig.add_subplot(projection="polar")
+    for task, res in results.items():
+        d = list(res["directions_deg"])
+        th = np.deg2rad(np.array(d + d[:1], dtype=float))
+        m = np.array([i["success"]["magnitude"] for i in res["isolines"]], dtype=float)
+        lo = np.array([i["success"]["ci95"][0] for i in res["isolines"]], dtype=float)
+        hi = np.array([i["success"]["ci95"][1] for i in res["isolines"]], dtype=float)
+        line, = ax.plot(th, np.r_[m, m[:1]], "o-", label=task)
+        ax.fill_between(th, np.r_[lo, lo[:1]], np.r_[hi, hi[:1]], color=line.get_color(), alpha=0.15)
+    ax.plot(np.linspace(0, 2 * np.pi, 100), np.ones(100), color="0.6", lw=1, label="1 m/s (base training)")
+    ax.set_rmax(max(max(r["magnitudes"]) for r in results.values()))
+    ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0.85, -0.05))
+    n = next(iter(results.values()))["episodes_per_condition"]
+    ax.set_title(f"Fig. 21: 90 %-success isoline [m/s], {n} episodes per cell\n(0 deg forward, 90 deg left)",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(__doc__, NAME, argv=argv)
+    results, info = evaluate_policies(SCENARIO, args)
+    rows = rows_of(results)
+    finish(NAME, SCENARIO, args, results, info, rows, list(rows[0]) if rows else ["policy"],
+           f"Fig. 21, scale {args.scale}: 90 %-success isoline per direction", figure, "fig21.png")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,152 @@
+"""Shared machinery of the RL-policy experiments (thesis 7.1: Figs. 17-23).
+
+Every figure runs one evaluation scenario (``dls_quadruped.eval.scenarios``) for each of the four
+experts, found by task name as ``docs/policies/<task>_actor.pt`` (``--policy-dir``); a missing
+policy is skipped with a printed note. Per policy, the scenario's own JSON + PNG go to
+``<out>/<task>/<scenario>.{json,png}`` (a result whose policy file has not changed, same sha256,
+scale and seed, is not evaluated again); the script then writes ``results.json`` (every policy's
+result without its per-episode lists), ``table.csv`` / ``table.md`` (our numbers beside the
+thesis's words), the comparison figure and ``config.json`` (scale, episodes, git commit,
+uncommitted files, policy paths and sha256, what was skipped). Default ``--out``:
+``results/experiments/<script>``; the small-scale files are copied to ``docs/experiments/<script>/``.
+
+Scales (``--scale``): ``small`` is each scenario's default size (``Scenario.default_episodes``:
+one policy in one to two minutes on two cores); ``thesis`` approaches the thesis's 50 000
+trajectories per evaluation within one batched env (4096 episodes for simple and survival,
+512 per condition for the sweeps, 128 per cell for omni); it was not run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from dls_quadruped.core.json_io import write_json
+from dls_quadruped.eval.scenario import EvalOptions
+from dls_quadruped.eval.scenarios import SCENARIOS
+from experiments.distill_common import _git_commit, _uncommitted, write_table
+
+REPO = Path(__file__).resolve().parents[1]
+TASKS = ("base", "rough", "speed", "climb")
+"""The four RL experts of thesis 7.1, in the thesis's order."""
+POLICY_DIR = REPO / "docs" / "policies"
+THESIS_EPISODES = {"simple": 4096, "survival": 4096, "stairs": 512, "speed": 512, "omni": 128, "cot": 512, "gait": 512}
+SCALES: dict[str, dict] = {
+    "small": {"episodes": {}, "episode_length_s": None},   # {}: each scenario's default_episodes
+    "thesis": {"episodes": THESIS_EPISODES, "episode_length_s": None},
+}
+
+
+def parse_args(description: str, name: str, tasks: tuple[str, ...] = TASKS, argv: list[str] | None = None):
+    p = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scale", choices=sorted(SCALES), default="small")
+    p.add_argument("--out", type=Path, default=REPO / "results" / "experiments" / name)
+    p.add_argument("--policy-dir", type=Path, default=POLICY_DIR, help="folder of <task>_actor.pt")
+    p.add_argument("--tasks", nargs="*", default=list(tasks), choices=TASKS, help="policies to compare")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--num-workers", type=int, default=-1)
+    return p.parse_args(argv)
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def episodes_of(scenario: str, scale: str) -> int:
+    return SCALES[scale]["episodes"].get(scenario, SCENARIOS[scenario].default_episodes)
+
+
+def evaluate_policies(scenario: str, args: argparse.Namespace) -> tuple[dict[str, dict], dict]:
+    """Run ``scenario`` for every available policy of ``args.tasks``.
+
+    Returns:
+        ({task: the scenario's result}, {"policies": {task: {path, sha256}}, "skipped": {task: why}}).
+    """
+    sc = SCENARIOS[scenario]
+    episodes = episodes_of(scenario, args.scale)
+    length = SCALES[args.scale]["episode_length_s"]
+    results, info = {}, {"policies": {}, "skipped": {}}
+    for task in args.tasks:
+        path = args.policy_dir / f"{task}_actor.pt"
+        if not path.is_file():
+            note = f"{path} not found (not trained yet?): skipped"
+            print(f"[{scenario}] {task}: {note}", flush=True)
+            info["skipped"][task] = note
+            continue
+        digest = sha256(path)
+        info["policies"][task] = {"path": str(path), "sha256": digest}
+        out = args.out / task
+        done = out / f"{scenario}.json"
+        key = {"sha256": digest, "scale": args.scale, "episodes": episodes, "seed": args.seed,
+               "episode_length_s": length}
+        if done.is_file():
+            old = json.loads(done.read_text())
+            if old.get("experiment_key") == key:
+                print(f"[{scenario}] {task}: {done} is up to date, not evaluated again", flush=True)
+                results[task] = old
+                continue
+        t0 = time.perf_counter()
+        res = sc.evaluate(path, EvalOptions(episodes=episodes, seed=args.seed, num_workers=args.num_workers,
+                                            episode_length_s=length))
+        res["wall_s"] = round(time.perf_counter() - t0, 1)
+        res["experiment_key"] = key
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(res, done, indent=1)
+        sc.plot(res, out / f"{scenario}.png")
+        print((sc.summary or (lambda r: f"[{scenario}] {task} done"))(res), flush=True)
+        results[task] = json.loads(done.read_text())  # what was written (strict JSON: NaN -> null)
+    return results, info
+
+
+def without_episodes(res: dict) -> dict:
+    """A result without its per-episode lists (for the small results.json)."""
+    return {k: v for k, v in res.items() if k not in ("per_episode", "diagrams", "events")}
+
+
+def finish(name: str, scenario: str, args: argparse.Namespace, results: dict, info: dict, rows: list[dict],
+           columns: list[str], title: str, figure: Callable[[dict, Path], None], figure_name: str) -> None:
+    """Write table, results, figure and config of one experiment."""
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_table(rows, columns, args.out / "table", title)
+    write_json({"scenario": scenario, "rows": rows, "results": {t: without_episodes(r) for t, r in results.items()}},
+               args.out / "results.json")
+    if results:
+        figure(results, args.out / figure_name)
+    write_json({"experiment": name, "scenario": scenario, "scale": args.scale, "scale_settings": SCALES[args.scale],
+                "episodes_per_condition": episodes_of(scenario, args.scale), "seed": args.seed,
+                "git_commit": _git_commit(), "uncommitted": _uncommitted(), **info}, args.out / "config.json")
+    print(f"[{name}] wrote {args.out}/table.md, results.json, {figure_name}, config.json", flush=True)
+
+
+def num(x, fmt: str = ".3f") -> str:
+    """A number or '-' for a missing one (null in strict JSON)."""
+    return "-" if x is None else format(x, fmt)
+
+
+def rate_cell(b: dict) -> str:
+    """'97.5 % [93.1, 99.2] (n = 128)' of a binomial result; '-' without episodes."""
+    if not b or not b.get("n") or b.get("rate") is None:
+        return "-"
+    lo, hi = b["ci95"]
+    return f"{100 * b['rate']:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}] (n = {b['n']})"
+
+
+def mean_cell(m: dict, fmt: str = ".3f") -> str:
+    """'0.512 [0.498, 0.526] (n = 16)' of a mean_ci result."""
+    if not m or not m.get("n") or m.get("mean") is None:
+        return "-"
+    lo, hi = m["ci95"]
+    return f"{num(m['mean'], fmt)} [{num(lo, fmt)}, {num(hi, fmt)}] (n = {m['n']})"
+
+
+def pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt

@@ -1,0 +1,100 @@
+"""The 7.1 experiment scripts (Figs. 17-23) end to end on a tiny scale: policies found by task
+name, missing ones skipped with a note, tables and figures written, finished results reused."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+import torch
+
+from dls_quadruped.eval import cot, gait, omni, speed, stairs, survival
+from experiments import (
+    fig17_simple_task,
+    fig18_survival,
+    fig19_stairs,
+    fig20_speed,
+    fig21_omni,
+    fig22_cot,
+    fig23_gait,
+    rl_common,
+)
+
+SCRIPTS = {fig17_simple_task: "simple", fig18_survival: "survival", fig19_stairs: "stairs", fig20_speed: "speed",
+           fig21_omni: "omni", fig22_cot: "cot", fig23_gait: "gait"}
+
+
+class _Zero(torch.nn.Module):
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.zeros(x.shape[0], 28)
+
+
+@pytest.fixture
+def tiny(tmp_path, monkeypatch):
+    """Only a (zero-action) base policy; 2 episodes of 0.4 s per condition, two conditions per sweep."""
+    policies = tmp_path / "policies"
+    policies.mkdir()
+    torch.jit.script(_Zero()).save(str(policies / "base_actor.pt"))
+    monkeypatch.setitem(rl_common.SCALES, "small", {"episodes": {s: 2 for s in SCRIPTS.values()},
+                                                     "episode_length_s": 0.4})
+    for module in (speed, cot, gait):
+        monkeypatch.setattr(module, "SPEEDS", (0.5, 1.0))
+    monkeypatch.setattr(stairs, "HEIGHTS", (0.05, 0.1))
+    monkeypatch.setattr(omni, "DIRECTIONS_DEG", (0, 180))
+    monkeypatch.setattr(omni, "MAGNITUDES", (0.5, 1.0))
+    monkeypatch.setattr(survival, "ROWS", 2)
+    return tmp_path
+
+
+def run(module, tmp_path, name):
+    out = tmp_path / name
+    module.main(["--scale", "small", "--out", str(out), "--policy-dir", str(tmp_path / "policies"),
+                 "--num-workers", "0"])
+    return out
+
+
+def read_csv(path) -> list[dict]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.mark.parametrize("module", list(SCRIPTS), ids=lambda m: m.__name__.split(".")[-1])
+def test_script_writes_base_and_skips_missing_policies(module, tiny, capsys):
+    scenario = SCRIPTS[module]
+    out = run(module, tiny, scenario)
+    printed = capsys.readouterr().out
+    for task in ("rough", "speed", "climb"):
+        assert f"{task}_actor.pt not found" in printed
+    cfg = json.loads((out / "config.json").read_text())
+    assert set(cfg["skipped"]) == {"rough", "speed", "climb"} and list(cfg["policies"]) == ["base"]
+    assert cfg["scenario"] == scenario and cfg["episodes_per_condition"] == 2
+    rows = read_csv(out / "table.csv")
+    assert rows and {r["policy"] for r in rows} == {"base"}
+    per_policy = json.loads((out / "base" / f"{scenario}.json").read_text())
+    assert per_policy["scenario"] == scenario and per_policy["episode_steps"] == 20
+    assert (out / "base" / f"{scenario}.png").stat().st_size > 0
+    figures = [p for p in out.glob("fig*.png")]
+    assert len(figures) == 1 and figures[0].stat().st_size > 0
+    results = json.loads((out / "results.json").read_text())
+    assert "per_episode" not in results["results"]["base"]
+
+
+def test_finished_results_are_reused_until_the_policy_changes(tiny, capsys):
+    out = run(fig20_speed, tiny, "speed")
+    first = (out / "base" / "speed.json").read_text()
+    run(fig20_speed, tiny, "speed")
+    assert "up to date, not evaluated again" in capsys.readouterr().out
+    assert (out / "base" / "speed.json").read_text() == first
+    torch.jit.script(torch.nn.Sequential(torch.nn.Linear(259, 28))).save(str(tiny / "policies" / "base_actor.pt"))
+    run(fig20_speed, tiny, "speed")
+    assert "not evaluated again" not in capsys.readouterr().out
+    assert json.loads((out / "base" / "speed.json").read_text())["experiment_key"]["sha256"] != \
+        json.loads(first)["experiment_key"]["sha256"]
+
+
+def test_no_policy_at_all_still_writes_the_notes(tmp_path, capsys):
+    (tmp_path / "policies").mkdir()
+    out = run(fig17_simple_task, tmp_path, "empty")
+    assert json.loads((out / "config.json").read_text())["policies"] == {}
+    assert not list(out.glob("fig*.png")) and "base_actor.pt not found" in capsys.readouterr().out
