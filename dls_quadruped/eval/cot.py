@@ -74,7 +74,7 @@ def plot(res: dict, path: Path) -> None:
     lo = np.array([r["cot"]["ci95"][0] for r in rows], dtype=float)
     hi = np.array([r["cot"]["ci95"][1] for r in rows], dtype=float)
     fig, ax = plt.subplots(figsize=(6, 4))
-    ax.errorbar(v, c, yerr=[np.nan_to_num(c - lo), np.nan_to_num(hi - c)], marker="o", capsize=3,
+    ax.errorbar(v, c, yerr=S.yerr(c, lo, hi), marker="o", capsize=3,
                 label="ours: mean over episodes (95 % CI)")
     for cmd, r in zip(res["speeds"], rows):
         if np.isfinite(r["achieved_speed_h"]["mean"] or np.nan):

@@ -117,7 +117,7 @@ def _band(ax, rows, key, sub=None, **kw):
     m = np.array([get(r)["mean"] for r in rows], dtype=float)
     lo = np.array([get(r)["ci95"][0] for r in rows], dtype=float)
     hi = np.array([get(r)["ci95"][1] for r in rows], dtype=float)
-    ax.errorbar(x, m, yerr=[np.nan_to_num(m - lo), np.nan_to_num(hi - m)], marker="o", capsize=2, **kw)
+    ax.errorbar(x, m, yerr=S.yerr(m, lo, hi), marker="o", capsize=2, **kw)
 
 
 def plot(res: dict, path: Path) -> None:

@@ -23,7 +23,8 @@ def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, floa
     denom = 1.0 + z * z / n                                              # 1 + z^2/n
     centre = (p + z * z / (2 * n)) / denom                               # (p + z^2/2n) / (1 + z^2/n)
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom  # z sqrt(p(1-p)/n + z^2/4n^2) / (...)
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    # the interval contains p; rounding can put an end a hair past it at 0 % or 100 %
+    return (min(max(0.0, centre - half), p), max(min(1.0, centre + half), p))
 
 
 def mean_ci(x: np.ndarray) -> dict:

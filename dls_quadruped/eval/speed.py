@@ -84,7 +84,7 @@ def plot(res: dict, path: Path) -> None:
     rate = np.array([100 * s["survival"]["rate"] for s in surv])
     lo = np.array([100 * s["survival"]["ci95"][0] for s in surv])
     hi = np.array([100 * s["survival"]["ci95"][1] for s in surv])
-    ax0.errorbar(v, rate, yerr=[rate - lo, hi - rate], marker="o", capsize=3)
+    ax0.errorbar(v, rate, yerr=S.yerr(rate, lo, hi), marker="o", capsize=3)
     ax0.axhline(100 * SURVIVAL_LEVEL, color="0.6", ls="--", lw=1)
     ax0.set_xlabel("commanded v_x [m/s]")
     ax0.set_ylabel("survival [%] (95 % Wilson)")
@@ -93,7 +93,7 @@ def plot(res: dict, path: Path) -> None:
     alo = np.array([s["achieved_v_x"]["ci95"][0] for s in surv], dtype=float)
     ahi = np.array([s["achieved_v_x"]["ci95"][1] for s in surv], dtype=float)
     ax1.plot([0, v.max()], [0, v.max()], color="0.6", lw=1, label="achieved = commanded")
-    ax1.errorbar(v, ach, yerr=[np.nan_to_num(ach - alo), np.nan_to_num(ahi - ach)], marker="o", capsize=3,
+    ax1.errorbar(v, ach, yerr=S.yerr(ach, alo, ahi), marker="o", capsize=3,
                  label="mean over episodes (95 % CI)")
     ax1.set_xlabel("commanded v_x [m/s]")
     ax1.set_ylabel(f"achieved v_x [m/s] (mean after {res['settle_s']:g} s)")

@@ -112,7 +112,7 @@ def plot(res: dict, path: Path) -> None:
         r = np.array([100 * x[key]["rate"] for x in res["per_height"]])
         lo = np.array([100 * x[key]["ci95"][0] for x in res["per_height"]])
         hi = np.array([100 * x[key]["ci95"][1] for x in res["per_height"]])
-        ax.errorbar(h, r, yerr=[r - lo, hi - r], fmt=style, capsize=3,
+        ax.errorbar(h, r, yerr=S.yerr(r, lo, hi), fmt=style, capsize=3,
                     label="reached the top" if key == "success" else "survived 15 s")
     c = np.array([100 * x["climbed_fraction"]["mean"] for x in res["per_height"]], dtype=float)
     ax.plot(h, c, ":^", label="mean fraction of the flight climbed")

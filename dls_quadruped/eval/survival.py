@@ -119,7 +119,7 @@ def _bars(ax, labels, cells, title):
     r = np.array([100 * c["rate"] for c in cells])
     lo = np.array([100 * c["ci95"][0] for c in cells])
     hi = np.array([100 * c["ci95"][1] for c in cells])
-    ax.bar(range(len(cells)), r, yerr=[r - lo, hi - r], capsize=3)
+    ax.bar(range(len(cells)), r, yerr=S.yerr(r, lo, hi), capsize=3)
     ax.set_xticks(range(len(cells)), labels, fontsize=7, rotation=20)
     ax.set_ylim(0, 105)
     ax.set_ylabel("survival [%] (95 % Wilson)")

@@ -160,3 +160,9 @@ def pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def yerr(value, lo, hi) -> list[np.ndarray]:
+    """Error-bar lengths [value - lo, hi - value] for matplotlib: missing ends (NaN, None) as 0."""
+    value, lo, hi = (np.asarray(x, dtype=float) for x in (value, lo, hi))
+    return [np.nan_to_num(np.clip(value - lo, 0, None)), np.nan_to_num(np.clip(hi - value, 0, None))]
