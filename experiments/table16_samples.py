@@ -1,0 +1,97 @@
+"""Table 16 and Fig. 29 (thesis 7.3.4): number of samples M in {4 000, 10 000, 25 000}, first-spline,
+H = 10, dt = 0.02 s, forces only, simple task; the change of each median against M = 10 000.
+
+    python experiments/table16_samples.py --scale small
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from experiments.warm_start_common import Cell, med, parse_args, run_cells, survival, write_config, write_table  # noqa: E402
+from dls_quadruped.core.json_io import write_json  # noqa: E402
+
+SAMPLES = (4000, 10000, 25000)
+THESIS = {  # (controller, M): (RL reward, initial cost, rollout cost)
+    ("rl_warm_start", 4000): (2.348, 33.64, 333.5), ("rl_warm_start", 10000): (2.347, 32.10, 303.3),
+    ("rl_warm_start", 25000): (2.348, 30.62, 278.4), ("naive_warm_start", 4000): (2.252, 33.82, 243.4),
+    ("naive_warm_start", 10000): (2.261, 28.47, 193.6), ("naive_warm_start", 25000): (2.269, 27.15, 172.6),
+}
+
+
+def cells() -> list[Cell]:
+    return [Cell(f"{ctrl}_M{m}", ctrl, {"num_samples": m}, row={"Controller": ctrl, "M": m})
+            for ctrl in ("rl_warm_start", "naive_warm_start") for m in SAMPLES]
+
+
+def _delta(s: dict, ref: dict, key: str) -> str:
+    try:
+        return f"{100 * (s[key]['median'] / ref[key]['median'] - 1):+.1f} %"
+    except (KeyError, TypeError, ZeroDivisionError):
+        return "-"
+
+
+def figure(results: dict, path: Path) -> None:
+    """Fig. 29: initial cost vs M (median, IQR)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    for off, ctrl, color in ((-0.03, "rl_warm_start", "C0"), (0.03, "naive_warm_start", "C1")):
+        xs, ms, lo, hi = [], [], [], []
+        for m in SAMPLES:
+            s = results.get(f"{ctrl}_M{m}", {})
+            ic = s.get("initial_cost")
+            if not ic or not ic.get("n"):
+                continue
+            xs.append(m * (1 + off)), ms.append(ic["median"]), lo.append(ic["median"] - ic["q1"]), hi.append(ic["q3"] - ic["median"])
+        if xs:
+            ax.errorbar(xs, ms, yerr=[lo, hi], fmt="o-", color=color, capsize=3, label=ctrl)
+    ax.set_xscale("log")
+    ax.set_xlabel("samples M")
+    ax.set_ylabel("initial cost (median, IQR)")
+    ax.set_title("Fig. 29: initial cost vs number of samples", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    args = parse_args(__doc__, "table16_samples")
+    todo = cells()
+    results = run_cells(todo, args)
+    rows = []
+    for c in todo:
+        s = results.get(c.name)
+        if s is None:
+            continue
+        row = dict(c.row)
+        if "skipped" in s:
+            row["RL reward"] = f"skipped: {s['skipped']}"
+        else:
+            ref = results.get(f"{c.controller}_M10000", {})
+            row.update({"RL reward": med(s["rl_reward"], 3), "Δ reward": _delta(s, ref, "rl_reward"),
+                        "Initial cost": med(s["initial_cost"]), "Δ initial": _delta(s, ref, "initial_cost"),
+                        "Rollout cost": med(s.get("rollout_cost")), "Δ rollout": _delta(s, ref, "rollout_cost"),
+                        "Survival": survival(s)})
+        th = THESIS.get((c.controller, c.row["M"]), (None, None, None))
+        row.update({"thesis RL reward": th[0], "thesis initial": th[1], "thesis rollout": th[2]})
+        rows.append(row)
+    cols = ["Controller", "M", "RL reward", "Δ reward", "Initial cost", "Δ initial", "Rollout cost", "Δ rollout",
+            "Survival", "thesis RL reward", "thesis initial", "thesis rollout"]
+    write_table(rows, cols, args.out / "table", f"Table 16 ({args.scale}: {args.episodes} episodes x {args.seconds:g} s "
+                f"per cell; median [q1, q3]; first-spline, H = 10, dt = 0.02 s, F only; Δ vs M = 10 000)")
+    write_json(results, args.out / "results.json", indent=1)
+    figure(results, args.out / "fig29.png")
+    write_config(args, todo)
+    print((args.out / "table.md").read_text())
+
+
+if __name__ == "__main__":
+    main()
