@@ -1,4 +1,4 @@
-# dls_quadruped: `make demo` (main job, small default), `make test`, `make bench`, `make train TASK=...`.
+# dls_quadruped: `make demo` (main job, small default: student-warm-started MPC vs naive MPC vs RL), `make test`, `make bench`, `make train TASK=...`.
 # A fresh clone needs nothing but python3: the first target creates .venv and installs what it needs.
 
 PYTHON ?= python3
@@ -14,7 +14,7 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install test test-all demo bench bench-env bench-terrain bench-mpc bench-rl lint clean
+.PHONY: install test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-closed-loop lint clean
 
 $(STAMP): setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -33,10 +33,21 @@ test-all: $(STAMP)
 lint: $(STAMP)
 	$(PY) -m ruff check dls_quadruped tests
 
-demo: $(STAMP)
-	$(PY) -m dls_quadruped.demo --num-envs $(NUM_ENVS) --seconds $(SECONDS_PER_PHASE) --out $(OUT)/demo
+# The main job (thesis 7.3): the committed student warm-starting the sampling MPC beside the naive MPC and
+# the RL expert alone, DEMO_EPISODES robots each on the simple task, M = 10 000 (docs/demo.md).
+DEMO_EPISODES ?= 4
+DEMO_SECONDS ?= 6
+DEMO_ARGS ?=
 
-bench: bench-env bench-terrain bench-mpc bench-rl
+demo: $(STAMP)
+	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.closed_loop --controllers rl_warm_start,naive_warm_start,rl_baseline \
+		--episodes $(DEMO_EPISODES) --seconds $(DEMO_SECONDS) --video --out $(OUT)/demo $(DEMO_ARGS)
+
+# The foundation's demo: N robots stand, then trot in place under the balance controller.
+demo-balance: $(STAMP)
+	$(PY) -m dls_quadruped.demo --num-envs $(NUM_ENVS) --seconds $(SECONDS_PER_PHASE) --out $(OUT)/demo_balance
+
+bench: bench-env bench-terrain bench-mpc bench-rl bench-closed-loop
 
 bench-env: $(STAMP)
 	$(PY) -m dls_quadruped.bench.env --out $(OUT)/bench
@@ -49,6 +60,9 @@ bench-mpc: $(STAMP)
 
 bench-rl: $(STAMP)
 	$(PY) -m dls_quadruped.bench.rl_env --out $(OUT)/bench
+
+bench-closed-loop: $(STAMP)
+	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.bench.closed_loop --out $(OUT)/bench
 
 clean:
 	rm -rf $(VENV) results .pytest_cache
