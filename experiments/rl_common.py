@@ -21,6 +21,8 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
+import resource
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -56,6 +58,12 @@ def sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+def cpu_seconds() -> float:
+    """User + system CPU time of this process and of its waited-for children (simulator workers) [s]."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def episodes_of(scenario: str, scale: str) -> int:
     return SCALES[scale]["episodes"].get(scenario, SCENARIOS[scenario].default_episodes)
 
@@ -89,10 +97,12 @@ def evaluate_policies(scenario: str, args: argparse.Namespace) -> tuple[dict[str
                 print(f"[{scenario}] {task}: {done} is up to date, not evaluated again", flush=True)
                 results[task] = old
                 continue
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), cpu_seconds()
         res = sc.evaluate(path, EvalOptions(episodes=episodes, seed=args.seed, num_workers=args.num_workers,
                                             episode_length_s=length))
         res["wall_s"] = round(time.perf_counter() - t0, 1)
+        res["cpu_s"] = round(cpu_seconds() - cpu0, 1)  # this process + its finished simulator workers
+        res["load_avg_1min_end"] = round(os.getloadavg()[0], 2)
         res["experiment_key"] = key
         out.mkdir(parents=True, exist_ok=True)
         write_json(res, done, indent=1)

@@ -58,7 +58,9 @@ def summarize(rec: Recording, group: np.ndarray, directions_deg: tuple[float, ..
               settle_s: float = SETTLE_S) -> dict:
     """Per-cell rates and per-direction isolines (module docstring)."""
     D, K = len(directions_deg), len(magnitudes)
-    success = M.grouped_rate(success_flags(rec, settle_s), group, D * K)
+    ok = success_flags(rec, settle_s)
+    mean_v = M.masked_mean(rec.probes["velocity"], S.settled(rec, settle_s))
+    success = M.grouped_rate(ok, group, D * K)
     survival = S.survival_of(rec, group, D * K)
     isolines = []
     for d, theta in enumerate(directions_deg):
@@ -77,7 +79,10 @@ def summarize(rec: Recording, group: np.ndarray, directions_deg: tuple[float, ..
             "cells": [{"direction_deg": directions_deg[g // K], "magnitude": magnitudes[g % K], "success": success[g],
                        "survival": survival[g]} for g in range(D * K)],
             "isolines": isolines,
-            "isoline_success_mean": M.mean_ci(np.array([i["success"]["magnitude"] for i in isolines]))}
+            "isoline_success_mean": M.mean_ci(np.array([i["success"]["magnitude"] for i in isolines])),
+            "isoline_survival_mean": M.mean_ci(np.array([i["survival"]["magnitude"] for i in isolines])),
+            "per_episode": {"command": rec.command.round(4).tolist(), "mean_velocity": np.round(mean_v, 4).tolist(),
+                            "success": ok.tolist(), "fell": rec.fell.astype(bool).tolist()}}
 
 
 def evaluate(policy_path: Path, opts: EvalOptions) -> dict:
@@ -129,4 +134,4 @@ def summary(res: dict) -> str:
 NAME = "omni"
 DESCRIPTION = ("success over 8 directions x magnitudes 0.25-2 m/s, flat; 90 %-success isoline per direction "
                "(Fig. 21)")
-SCENARIO = Scenario(NAME, DESCRIPTION, evaluate, plot, default_episodes=4, summary=summary)
+SCENARIO = Scenario(NAME, DESCRIPTION, evaluate, plot, default_episodes=3, summary=summary)
