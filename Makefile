@@ -97,15 +97,17 @@ play: $(STAMP)
 # ---------------------------------------------------------------------------------------------
 # Policy evaluation (issue 14; scenarios in dls_quadruped/eval/scenarios.py, see docs/eval.md).
 # `make eval POLICY=docs/policies/base_actor.pt SCENARIO=simple EPISODES=256 EVAL_OUT=results/eval/base`
+# Scenarios: simple, forward, survival, stairs, speed, omni, cot, gait. EPISODES is per condition
+# (per speed, step height, grid cell); empty = the scenario's small default.
 POLICY ?= docs/policies/base_actor.pt
 SCENARIO ?= simple
-EPISODES ?= 256
+EPISODES ?=
 EVAL_OUT ?=
 
 .PHONY: eval
 
 eval: $(STAMP)
-	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval --policy $(POLICY) --scenario $(SCENARIO) --episodes $(EPISODES) \
+	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval --policy $(POLICY) --scenario $(SCENARIO) $(if $(EPISODES),--episodes $(EPISODES),) \
 		$(if $(EVAL_OUT),--out $(EVAL_OUT),)
 
 # ---------------------------------------------------------------------------------------------
