@@ -38,7 +38,9 @@ def rows_of(results: dict) -> list[dict]:
             f = r["f_contacts"]
             ci = "" if not f["n"] or f["ci95"][0] is None else f" [{f['ci95'][0]:.2f}, {f['ci95'][1]:.2f}]"
             rows.append({"policy": task, "commanded v_x [m/s]": r["command_v_x"], "f action [Hz]": _m(r["f_policy"]),
-                         "touch-downs/s [95 % CI]": _m(f) + ci, "duty (contacts)": _m(r["duty_contacts"]),
+                         "touch-downs/s [95 % CI]": _m(f) + ci,
+                         "contact rising edges/s": _m(r["contact_rising_edges_per_s"]),
+                         "duty (contacts)": _m(r["duty_contacts"]),
                          **{f"sync {p}": _m(r["sync"][p]) for p in PAIRS}, "episodes past settle": f["n"],
                          "survival": f"{100 * r['survival']['rate']:.0f} %"})
     return rows

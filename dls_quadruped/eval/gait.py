@@ -6,8 +6,9 @@ latent gait (f [Hz], d) at 50 Hz. Per speed, over the steps after a 2 s settle a
 episode ended, each a mean over episodes with its 95 % interval:
 
 * ``f_policy``: the latent action's step frequency f [Hz], mean over legs and steps;
-* ``f_contacts``: touch-downs (a contact flag rising from one step to the next) per leg per
-  second, mean over legs: the step frequency the feet actually show;
+* ``f_contacts``: touch-downs (contact after at least ``MIN_AIR_S`` without) per leg per second,
+  mean over legs: the step frequency the feet actually show; ``contact_rising_edges_per_s``
+  counts every rising edge (a bouncing foot several times);
 * ``duty_policy`` (d of the action) and ``duty_contacts`` (fraction of the time in contact);
 * ``sync``: for the leg pairs ``diagonal`` (FL-RR, FR-RL), ``lateral`` (FL-RL, FR-RR), ``front``
   (FL-FR) and ``rear`` (RL-RR), the fraction of steps on which both legs share their contact
@@ -35,22 +36,33 @@ from dls_quadruped.eval.velocity_tracking import SETTLE_S
 LEGS = ("FL", "FR", "RL", "RR")
 PAIRS = {"diagonal": ((0, 3), (1, 2)), "lateral": ((0, 2), (1, 3)), "front": ((0, 1),), "rear": ((2, 3),)}
 """Leg pairs (indices into ``LEGS``) whose contact agreement is reported."""
+MIN_AIR_S = 0.06
+"""[s] a touch-down counts after at least this long without contact (3 policy steps; a swing at
+f <= 3 Hz and d <= 0.8 lasts >= 67 ms), so a bouncing foot is one touch-down."""
 WINDOW_S = 2.0
 """[s] length of each Hildebrand diagram, starting at the settle."""
 
 
-def touchdown_rate(contact: np.ndarray, ok: np.ndarray, step_dt: float) -> np.ndarray:
-    """(E, 4) touch-downs per second of each leg: rising edges between two consecutive ``ok`` steps.
+def touchdown_rate(contact: np.ndarray, ok: np.ndarray, step_dt: float, min_air_steps: int = 1) -> np.ndarray:
+    """(E, 4) touch-downs per second of each leg: steps in contact after ``min_air_steps``
+    consecutive steps without, all of them ``ok`` (1: every rising edge, a bounce included).
 
     Args:
-        contact: (T, E, 4) 0/1; ok: (T, E) bool; step_dt: [s].
+        contact: (T, E, 4) 0/1; ok: (T, E) bool; step_dt: [s]; min_air_steps: >= 1.
     """
     c = contact > 0.5
-    both = ok[1:] & ok[:-1]                                       # (T-1, E) consecutive valid steps
-    rising = (c[1:] & ~c[:-1]) & both[..., None]                  # (T-1, E, 4)
-    seconds = both.sum(axis=0) * step_dt                          # (E,)
+    k = int(min_air_steps)
+    T = c.shape[0]
+    span = np.ones(ok[k:].shape, bool)                            # (T-k, E) steps t-k..t all valid
+    air = np.ones(c[k:].shape, bool)                              # (T-k, E, 4) feet off at t-k..t-1
+    for j in range(1, k + 1):
+        span &= ok[k - j:T - j]
+        air &= ~c[k - j:T - j]
+    span &= ok[k:]
+    touch = c[k:] & air & span[..., None]
+    seconds = span.sum(axis=0) * step_dt                          # (E,)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(seconds[:, None] > 0, rising.sum(axis=0) / seconds[:, None], np.nan)
+        return np.where(seconds[:, None] > 0, touch.sum(axis=0) / seconds[:, None], np.nan)
 
 
 def pair_sync(contact: np.ndarray, ok: np.ndarray) -> dict[str, np.ndarray]:
@@ -88,7 +100,8 @@ def summarize(rec: Recording, group: np.ndarray, speeds: tuple[float, ...], sett
     contact = rec.probes["contact"]
     per = {
         "f_policy": M.masked_mean(rec.probes["freq"].mean(axis=-1), ok),
-        "f_contacts": touchdown_rate(contact, ok, rec.step_dt).mean(axis=-1),
+        "f_contacts": touchdown_rate(contact, ok, rec.step_dt, round(MIN_AIR_S / rec.step_dt)).mean(axis=-1),
+        "contact_rising_edges_per_s": touchdown_rate(contact, ok, rec.step_dt).mean(axis=-1),
         "duty_policy": M.masked_mean(rec.probes["duty"].mean(axis=-1), ok),
         "duty_contacts": M.masked_mean(contact.mean(axis=-1), ok),
     }
@@ -163,7 +176,7 @@ def summary(res: dict) -> str:
     for r in res["per_speed"]:
         s = r["sync"]
         lines.append(f"  v_cmd {r['command_v_x']:.2f}: f {r['f_policy']['mean']:.2f} Hz (action), "
-                     f"{r['f_contacts']['mean']:.2f} Hz (touch-downs), duty {r['duty_contacts']['mean']:.2f}; "
+                     f"{r['f_contacts']['mean']:.2f} Hz (touch-downs; {r['contact_rising_edges_per_s']['mean']:.2f} rising edges/s), duty {r['duty_contacts']['mean']:.2f}; "
                      f"sync diag {s['diagonal']['mean']:.2f} lat {s['lateral']['mean']:.2f} "
                      f"front {s['front']['mean']:.2f} rear {s['rear']['mean']:.2f}; survival {S.pct(r['survival'])}")
     return "\n".join(lines)

@@ -112,6 +112,11 @@ def test_gait_figures_of_an_ideal_trot():
     sync = gait.pair_sync(c, ok)
     assert sync["diagonal"][0] == 1.0 and sync["lateral"][0] == 0.0
     assert sync["front"][0] == 0.0 and sync["rear"][0] == 0.0
+    assert gait.touchdown_rate(c, ok, DT, 3)[0] == pytest.approx([2.0] * 4, abs=0.11)  # 12-step swings pass
+    bouncing = c.copy()
+    bouncing[1::25] = 1 - bouncing[1::25]  # one flicker per half cycle, on each leg
+    assert (gait.touchdown_rate(bouncing, ok, DT)[0] > 3.5).all()
+    assert gait.touchdown_rate(bouncing, ok, DT, 3)[0] == pytest.approx([2.0] * 4, abs=0.11)
     ok[250:] = False  # half the time: half the touch-downs, same rate
     assert gait.touchdown_rate(c, ok, DT)[0] == pytest.approx([2.0] * 4, abs=0.21)
     cmd, group = speed.forward_commands((0.5,), 1)
