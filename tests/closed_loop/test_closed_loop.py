@@ -111,6 +111,11 @@ def test_bad_configurations_are_refused(tmp_path: Path, capsys) -> None:
     try:
         with pytest.raises(ValueError, match=r"horizon = 10 \(MPC: 5\)"):
             make_controller(ControllerConfig("rl_warm_start", student=STUDENT, sampler=SamplerConfig(horizon=5)), env)
+        # a student answering for another number of robots (mismatched B) is refused before any solve
+        ctrl = make_controller(ControllerConfig("rl_warm_start", student=STUDENT, sampler=SMALL), env)
+        ctrl.student = lambda x: torch.zeros(1, 64)
+        with pytest.raises(ValueError, match=r"returned shape \(1, 64\), expected \(2, 64\)"):
+            ctrl.prepare(env.get_observations())
     finally:
         env.close()
     for argv, message in (
