@@ -48,6 +48,9 @@ def cells() -> list[Cell]:
             out.append(Cell(f"{ctrl}_{p}-{F}", ctrl, {"encoding_p": p, "encoding_F": F},
                             row={"Controller": ctrl, "p": p, "F": F}))
     out.append(Cell("rl_baseline", "rl_baseline", row={"Controller": "rl_baseline", "p": "-", "F": "-"}))
+    # beyond the thesis: Algorithm 2's set {previous solution, RL}: half the samples around each
+    out.append(Cell("rl_plus_naive_first-spline", "rl_warm_start", {"encoding_p": "first", "encoding_F": "spline"},
+                    naive_share=0.5, row={"Controller": "rl_warm_start + naive (50/50)", "p": "first", "F": "spline"}))
     return out
 
 
@@ -89,18 +92,20 @@ def main() -> None:
         if s is None:
             continue
         key = (c.controller, c.row["p"], c.row["F"])
-        th = THESIS.get(key, (None, None, None))
+        th = (None, None, None) if c.naive_share else THESIS.get(key, (None, None, None))
         row = dict(c.row)
         if "skipped" in s:
             row["RL reward"] = f"skipped: {s['skipped']}"
         else:
+            won = s.get("warm_start_won") or {}
             row.update({"RL reward": med(s["rl_reward"], 3), "Initial cost": med(s["initial_cost"]),
                         "Rollout cost": med(s.get("rollout_cost")), "Survival": survival(s),
-                        "|v_xy - cmd|": med(s["vel_error"], 3)})
+                        "|v_xy - cmd|": med(s["vel_error"], 3),
+                        "student won": f"{100 * won.get('0', 0.0):.0f} %" if c.naive_share else ""})
         row.update({"thesis RL reward": th[0], "thesis initial": th[1], "thesis rollout": th[2] or "-"})
         rows.append(row)
     cols = ["Controller", "p", "F", "RL reward", "Initial cost", "Rollout cost", "Survival", "|v_xy - cmd|",
-            "thesis RL reward", "thesis initial", "thesis rollout"]
+            "student won", "thesis RL reward", "thesis initial", "thesis rollout"]
     write_table(rows, cols, args.out / "table", f"Table 14 ({args.scale}: {args.episodes} episodes x {args.seconds:g} s "
                 f"per cell; median [q1, q3] over every step; M = 10 000, H = 10, dt = 0.02 s, F only)")
     write_json(results, args.out / "results.json", indent=1)

@@ -57,6 +57,7 @@ class Cell:
     sampler: dict = field(default_factory=dict)   # SamplerConfig overrides (num_samples, horizon, dt, encoding_*)
     optimise: tuple[str, ...] = ("F",)
     vx: float | None = None                      # fixed forward speed, else the simple task
+    naive_share: float = 0.0                      # rl_warm_start: share of samples around the previous solution
     row: dict = field(default_factory=dict)       # table columns
 
 
@@ -110,13 +111,14 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
                 print(f"[{args.out.name}] {cell.name}: skipped ({out[cell.name]['skipped']})", flush=True)
                 continue
         cfg = ControllerConfig(cell.controller, policy=args.policy, student=student, sampler=sampler,
-                               optimise=cell.optimise, seed=args.seed)
+                               optimise=cell.optimise, naive_share=cell.naive_share, seed=args.seed)
         t0 = time.monotonic()
         traces = run_controllers([cfg], commands(args.episodes, args.seed, cell.vx), args.seconds, args.seed,
                                  args.num_workers)[cell.controller]
         summary = summarize(traces)
         summary.update({"cell": cell.name, "student": str(student) if student else None, "row": cell.row,
                         "sampler": cell.sampler, "optimise": list(cell.optimise), "vx": cell.vx,
+                        "naive_share": cell.naive_share,
                         "seconds_wall": time.monotonic() - t0})
         write_json(summary, path, indent=1)
         out[cell.name] = summary
