@@ -102,7 +102,7 @@ def main() -> None:
                         "Rollout cost": med(s.get("rollout_cost")), "Survival": survival(s),
                         "|v_xy - cmd|": med(s["vel_error"], 3),
                         "student won": f"{100 * won.get('0', 0.0):.0f} %" if c.naive_share else ""})
-        row.update({"thesis RL reward": th[0], "thesis initial": th[1], "thesis rollout": th[2] or "-"})
+        row.update({"thesis RL reward": th[0] or "-", "thesis initial": th[1] or "-", "thesis rollout": th[2] or "-"})
         rows.append(row)
     cols = ["Controller", "p", "F", "RL reward", "Initial cost", "Rollout cost", "Survival", "|v_xy - cmd|",
             "student won", "thesis RL reward", "thesis initial", "thesis rollout"]
