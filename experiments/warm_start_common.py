@@ -71,7 +71,7 @@ def parse_args(description: str, name: str) -> argparse.Namespace:
     p.add_argument("--episodes", type=int, default=None, help="override the scale's episodes per cell (even)")
     p.add_argument("--seconds", type=float, default=None, help="override the scale's episode length [s]")
     p.add_argument("--threads", type=int, default=1, help="torch / MPC kernel threads")
-    p.add_argument("--num-workers", type=int, default=-1)
+    p.add_argument("--num-workers", type=int, default=0, help="simulator processes (0: in-process, the closed loop's fastest)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--only", nargs="*", default=None, help="run only these cells")
     args = p.parse_args()

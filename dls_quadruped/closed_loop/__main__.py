@@ -70,7 +70,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--kernel", default="cpp", choices=("cpp", "fast", "reference"))
     p.add_argument("--threads", type=positive_int, default=1, help="torch / MPC kernel threads")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--num-workers", type=int, default=-1, help="simulator worker processes (-1: one per core, 0: in-process)")
+    p.add_argument("--num-workers", type=int, default=0,
+                   help="simulator worker processes (0, default: in-process: the MPC keeps the cores busy, so separate "
+                        "simulator processes only add IPC; measured in docs/benchmarks.md 'Closed loop'; -1: one per core)")
     p.add_argument("--video", action="store_true", help="render robot 0 of each controller side by side (GIF)")
     p.add_argument("--video-seconds", type=positive_float, default=4.0)
     p.add_argument("--record-robots", type=non_negative_int, default=1)
