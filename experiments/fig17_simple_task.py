@@ -39,7 +39,7 @@ def rows_of(results: dict) -> list[dict]:
         rows.append({"policy": task, "reward per step [95 % CI]": mean_cell(r),
                      "pooled reward per step": num(res["reward"]["per_step"]),
                      "survival": rate_cell({**res["survival"], "k": res["survival"].get("survived")}),
-                     "median |v_xy - cmd| [m/s]": num(res["tracking"]["vxy_error"]["median"]),
+                     "median tracking error v_xy [m/s]": num(res["tracking"]["vxy_error"]["median"]),
                      "base vs this": gap, "thesis": THESIS[task]})
     return rows
 

@@ -35,7 +35,7 @@ def rows_of(results: dict) -> list[dict]:
                 cot = f"{c['mean']:.2f} [{c['ci95'][0]:.2f}, {c['ci95'][1]:.2f}] (n = {c['n']})" \
                     if c["ci95"][0] is not None else f"{c['mean']:.2f} (n = {c['n']})"
             rows.append({"policy": task, "commanded v_x [m/s]": r["command_v_x"],
-                         "achieved |v_xy| [m/s]": "-" if a["mean"] is None else f"{a['mean']:.2f}",
+                         "achieved planar speed [m/s]": "-" if a["mean"] is None else f"{a['mean']:.2f}",
                          "CoT [95 % CI]": cot,
                          "power [W]": "-" if r["power_w"]["mean"] is None else f"{r['power_w']['mean']:.0f}",
                          "survival": f"{100 * r['survival']['rate']:.0f} % ({r['survival']['k']}/{r['survival']['n']})",

@@ -115,10 +115,13 @@ def threshold_crossing(levels: np.ndarray, rates: np.ndarray, threshold: float) 
 def crossing_interval(levels: np.ndarray, successes: np.ndarray, n: np.ndarray, threshold: float,
                       draws: int = 2000, seed: int = 0) -> list[float]:
     """95 % parametric-bootstrap interval of ``threshold_crossing``: every level's successes
-    redrawn from Binomial(n, k / n), the crossing recomputed, its 2.5 and 97.5 percentiles."""
+    redrawn from Binomial(n, (k + 2) / (n + 4)), the crossing recomputed, its 2.5 and 97.5
+    percentiles. The Agresti-Coull shrinkage keeps a level seen at 0 % or 100 % from being
+    treated as certain (with k / n every redraw of such a grid is the same and the interval
+    collapses to a point, whatever n)."""
     rng = np.random.default_rng(seed)
     n = np.asarray(n, dtype=int)
-    p = np.asarray(successes, dtype=float) / np.maximum(n, 1)
+    p = (np.asarray(successes, dtype=float) + 2.0) / (n + 4.0)
     sims = rng.binomial(n[None, :], p[None, :], size=(draws, len(n))) / np.maximum(n, 1)  # (draws, M)
     values = np.array([threshold_crossing(levels, s, threshold) for s in sims])
     lo, hi = np.percentile(values, [2.5, 97.5])

@@ -44,10 +44,16 @@ def test_threshold_crossing_by_hand():
     assert M.threshold_crossing(levels, [1.0, 0.8, 1.0, 1.0], 0.9) == pytest.approx(1.5)
 
 
-def test_crossing_interval_is_a_point_for_certain_rates_and_widens_with_few_episodes():
-    assert M.crossing_interval([1.0, 2.0, 3.0], [10, 10, 0], [10, 10, 10], 0.9) == pytest.approx([2.1, 2.1])
-    lo, hi = M.crossing_interval([1.0, 2.0, 3.0], [4, 3, 1], [4, 4, 4], 0.9)
-    assert lo < M.threshold_crossing([1.0, 2.0, 3.0], [1.0, 0.75, 0.25], 0.9) <= hi and hi - lo > 0.3
+def test_crossing_interval_shrinks_with_episodes_and_never_collapses_at_0_or_100_percent():
+    levels = [1.0, 2.0, 3.0]
+    point = M.threshold_crossing(levels, [1.0, 1.0, 0.0], 0.9)  # 2.1
+    few = M.crossing_interval(levels, [10, 10, 0], [10, 10, 10], 0.9)
+    many = M.crossing_interval(levels, [1000, 1000, 0], [1000, 1000, 1000], 0.9)
+    assert few[0] < few[1] and few[0] <= point + 1e-9 and point - 1e-9 <= few[1]  # 0 % / 100 % are not certain
+    assert many[1] - many[0] < few[1] - few[0] and many[0] <= point + 1e-9 <= many[1] + 2e-9
+    assert many == pytest.approx([2.1, 2.1], abs=0.01)
+    lo, hi = M.crossing_interval(levels, [4, 3, 1], [4, 4, 4], 0.9)
+    assert lo < M.threshold_crossing(levels, [1.0, 0.75, 0.25], 0.9) <= hi and hi - lo > 0.3
 
 
 def recording(command, probes, valid=None, fell=None) -> Recording:
