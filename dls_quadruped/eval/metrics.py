@@ -93,27 +93,38 @@ def grouped_mean(values: np.ndarray, group: np.ndarray, num_groups: int) -> list
     return [mean_ci(values[group == g]) for g in range(num_groups)]
 
 
-def threshold_crossing(levels: np.ndarray, rates: np.ndarray, threshold: float) -> float:
-    """Where a rate that should fall with the level first drops below ``threshold``.
+def threshold_crossing(levels: np.ndarray, rates: np.ndarray, threshold: float, outermost: bool = False) -> float:
+    """Where a rate that should fall with the level drops below ``threshold``.
 
-    ``levels`` ascending (M,), ``rates`` (M,). Returns the level interpolated linearly between the
-    last level before the first one below ``threshold`` and that one; ``levels[-1]`` if none is
-    below (the crossing is beyond the grid) and ``levels[0]`` if the first already is (before it).
+    ``levels`` ascending (M,), ``rates`` (M,). Default: at the *first* level below ``threshold``;
+    ``outermost``: after the *last* level at or above it (the edge of the region where the rate is
+    high, ignoring failures at low levels). Returns the level interpolated linearly between that
+    level at or above and the next one; ``levels[-1]`` if there is no level below after it (the
+    crossing is beyond the grid) and ``levels[0]`` if none before it is at or above (before it).
     """
     levels, rates = np.asarray(levels, dtype=float), np.asarray(rates, dtype=float)
-    below = np.nonzero(~(rates >= threshold))[0]  # NaN counts as below
-    if below.size == 0:
-        return float(levels[-1])
-    j = int(below[0])
-    if j == 0:
-        return float(levels[0])
+    high = rates >= threshold  # NaN counts as below
+    if outermost:
+        above = np.nonzero(high)[0]
+        if above.size == 0:
+            return float(levels[0])
+        j = int(above[-1]) + 1
+        if j == len(levels):
+            return float(levels[-1])
+    else:
+        below = np.nonzero(~high)[0]
+        if below.size == 0:
+            return float(levels[-1])
+        j = int(below[0])
+        if j == 0:
+            return float(levels[0])
     l0, l1, r0, r1 = levels[j - 1], levels[j], rates[j - 1], rates[j]
     r1 = 0.0 if not np.isfinite(r1) else r1
     return float(l0 + (r0 - threshold) / (r0 - r1) * (l1 - l0))  # r0 >= thr > r1: on the segment
 
 
 def crossing_interval(levels: np.ndarray, successes: np.ndarray, n: np.ndarray, threshold: float,
-                      draws: int = 2000, seed: int = 0) -> list[float]:
+                      draws: int = 2000, seed: int = 0, outermost: bool = False) -> list[float]:
     """95 % parametric-bootstrap interval of ``threshold_crossing``: every level's successes
     redrawn from Binomial(n, (k + 2) / (n + 4)), the crossing recomputed, its 2.5 and 97.5
     percentiles. The Agresti-Coull shrinkage keeps a level seen at 0 % or 100 % from being
@@ -123,6 +134,6 @@ def crossing_interval(levels: np.ndarray, successes: np.ndarray, n: np.ndarray, 
     n = np.asarray(n, dtype=int)
     p = (np.asarray(successes, dtype=float) + 2.0) / (n + 4.0)
     sims = rng.binomial(n[None, :], p[None, :], size=(draws, len(n))) / np.maximum(n, 1)  # (draws, M)
-    values = np.array([threshold_crossing(levels, s, threshold) for s in sims])
+    values = np.array([threshold_crossing(levels, s, threshold, outermost) for s in sims])
     lo, hi = np.percentile(values, [2.5, 97.5])
     return [float(lo), float(hi)]

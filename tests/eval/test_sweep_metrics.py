@@ -40,8 +40,11 @@ def test_threshold_crossing_by_hand():
     assert M.threshold_crossing(levels, [1.0, 1.0, 0.95, 0.9], 0.9) == 4.0                 # never below: grid end
     assert M.threshold_crossing(levels, [0.5, 1.0, 1.0, 1.0], 0.9) == 1.0                  # below at the first
     assert M.threshold_crossing(levels, [1.0, np.nan, 1.0, 1.0], 0.9) == pytest.approx(1.1)  # NaN counts as 0
-    # the first drop counts, not a later recovery
+    # the first drop counts, not a later recovery; the outermost edge ignores a low-level dip
     assert M.threshold_crossing(levels, [1.0, 0.8, 1.0, 1.0], 0.9) == pytest.approx(1.5)
+    assert M.threshold_crossing(levels, [0.5, 1.0, 0.95, 0.7], 0.9, outermost=True) == pytest.approx(3.2)
+    assert M.threshold_crossing(levels, [0.5, 1.0, 1.0, 1.0], 0.9, outermost=True) == 4.0
+    assert M.threshold_crossing(levels, [0.5, 0.2, 0.0, 0.0], 0.9, outermost=True) == 1.0
 
 
 def test_crossing_interval_shrinks_with_episodes_and_never_collapses_at_0_or_100_percent():
@@ -153,7 +156,9 @@ def test_omni_grid_and_success_rule():
     assert ok.tolist() == [False, False, True, True] * 2 + [False, False, True, False]
     res = omni.summarize(rec, group, (0, 90, 180), (0.5, 1.0), settle_s=1.0)
     assert [c["success"]["rate"] for c in res["cells"]] == [0.0, 1.0, 0.0, 1.0, 0.0, 0.5]
-    assert res["isolines"][0]["success"]["below_grid"] and res["isolines"][0]["survival"]["beyond_grid"]
+    # direction 0: success [0, 1] -> its edge is beyond the grid; 180: survival [1, 0.5]
+    assert res["isolines"][0]["success"]["beyond_grid"] and res["isolines"][0]["success"]["magnitude"] == 1.0
+    assert not res["isolines"][0]["success"]["below_grid"] and res["isolines"][0]["survival"]["beyond_grid"]
     assert res["isolines"][2]["survival"]["magnitude"] == pytest.approx(0.5 + 0.1 / 0.5 * 0.5)
 
 
