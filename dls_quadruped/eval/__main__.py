@@ -39,6 +39,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.episodes is not None and args.episodes < 1:
         p.error(f"argument --episodes: must be >= 1, got {args.episodes}")
+    multiple = SCENARIOS[args.scenario].episodes_multiple
+    if args.episodes is not None and args.episodes % multiple:
+        p.error(f"argument --episodes: scenario {args.scenario} needs a multiple of {multiple} (every command has a "
+                f"mirrored twin), got {args.episodes}")
     return args
 
 

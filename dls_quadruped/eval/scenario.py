@@ -50,6 +50,8 @@ class Scenario:
         default_episodes: ``EvalOptions.episodes`` when the command line does not say (the small
             size: one policy in about two minutes on two cores).
         summary: results -> a few lines for the terminal; None: the tracking headline.
+        episodes_multiple: ``EvalOptions.episodes`` must be a multiple of this (2 where every
+            command has a mirrored twin).
     """
 
     name: str
@@ -58,6 +60,7 @@ class Scenario:
     plot: Callable[[dict, Path], None]
     default_episodes: int = 256
     summary: Callable[[dict], str] | None = None
+    episodes_multiple: int = 1
 
 
 def eval_rewards() -> dict:

@@ -149,4 +149,4 @@ def summary(res: dict) -> str:
 NAME = "survival"
 DESCRIPTION = ("thesis 7.1.3 survival task: simple-task commands on the rough terrains' hardest rows, stronger "
                "pushes and friction spread than rough (Fig. 18)")
-SCENARIO = Scenario(NAME, DESCRIPTION, evaluate, plot, default_episodes=96, summary=summary)
+SCENARIO = Scenario(NAME, DESCRIPTION, evaluate, plot, default_episodes=96, summary=summary, episodes_multiple=2)

@@ -205,7 +205,7 @@ def velocity_scenario(name: str, description: str, commands: Callable[[int, int]
             res["targets"] = check_targets(res, targets)
         return res
 
-    return Scenario(name, description, evaluate, plot_tracking)
+    return Scenario(name, description, evaluate, plot_tracking, episodes_multiple=2)
 
 
 def plot_tracking(results: dict, path: Path) -> None:

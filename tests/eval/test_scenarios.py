@@ -167,6 +167,8 @@ def test_command_line_user_errors(tmp_path, capsys):
     line = _one_line_error(capsys, ["--policy", str(tmp_path / "none.pt"), "--scenario", "speed"])
     assert "none.pt not found" in line
     assert "must be >= 1" in _one_line_error(capsys, ["--policy", "p.pt", "--episodes", "0"])
+    line = _one_line_error(capsys, ["--policy", "p.pt", "--scenario", "survival", "--episodes", "3"])
+    assert "survival needs a multiple of 2" in line
     common = ["--scenario", "simple", "--episodes", "2", "--episode-length-s", "0.1", "--num-workers", "0",
               "--out", str(tmp_path / "out")]
     torch.jit.script(_Other(100, 28)).save(str(tmp_path / "obs100.pt"))
