@@ -5,7 +5,7 @@
 
 Scenario ``omni`` (docs/eval.md): 8 directions x magnitudes 0.25-2 m/s, flat, no disturbance;
 success = survived and |mean v_xy - cmd| <= max(25 % |cmd|, 0.1 m/s). Per policy and direction:
-the magnitude where success first drops below 90 % (bootstrap 95 % interval), and the same for
+the outer edge of the region where success is at least 90 % (95 % interval), and the same for
 survival alone (the thesis does not define its "succeed"). Thesis: rough,
 speed and climb match their training commands; base goes "50 % faster in all directions" than
 its 1 m/s training range.

@@ -125,15 +125,15 @@ def threshold_crossing(levels: np.ndarray, rates: np.ndarray, threshold: float, 
 
 def crossing_interval(levels: np.ndarray, successes: np.ndarray, n: np.ndarray, threshold: float,
                       draws: int = 2000, seed: int = 0, outermost: bool = False) -> list[float]:
-    """95 % parametric-bootstrap interval of ``threshold_crossing``: every level's successes
-    redrawn from Binomial(n, (k + 2) / (n + 4)), the crossing recomputed, its 2.5 and 97.5
-    percentiles. The Agresti-Coull shrinkage keeps a level seen at 0 % or 100 % from being
-    treated as certain (with k / n every redraw of such a grid is the same and the interval
-    collapses to a point, whatever n)."""
+    """95 % interval of ``threshold_crossing`` by posterior simulation: every level's rate drawn
+    from its Jeffreys posterior Beta(k + 1/2, n - k + 1/2), the crossing recomputed, its 2.5 and
+    97.5 percentiles. Unlike resampling from k / n, a level seen at 0 % or 100 % is not treated
+    as certain (that collapses the interval to a point whatever n), and unlike a shrunk k / n it
+    does not pull 16/16 down onto a 90 % threshold. A first-drop crossing over many levels near
+    100 % is honestly uncertain at its low end: any of them may be below the threshold."""
     rng = np.random.default_rng(seed)
-    n = np.asarray(n, dtype=int)
-    p = (np.asarray(successes, dtype=float) + 2.0) / (n + 4.0)
-    sims = rng.binomial(n[None, :], p[None, :], size=(draws, len(n))) / np.maximum(n, 1)  # (draws, M)
+    k, n = np.asarray(successes, dtype=float), np.asarray(n, dtype=float)
+    sims = rng.beta(k + 0.5, n - k + 0.5, size=(draws, len(n)))                         # (draws, M)
     values = np.array([threshold_crossing(levels, s, threshold, outermost) for s in sims])
     lo, hi = np.percentile(values, [2.5, 97.5])
     return [float(lo), float(hi)]

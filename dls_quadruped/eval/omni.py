@@ -10,7 +10,7 @@ rates (Wilson 95 %). Per direction: the isoline, the edge of the region where th
 least 90 % (``metrics.threshold_crossing(outermost=True)``: after the largest magnitude at or above
 90 %, linear interpolation to the next grid magnitude; the grid end when the last one is at or
 above; a failure at a low magnitude, e.g. drift above the 0.1 m/s floor, shows in the cells, not
-in the isoline), with a parametric-bootstrap 95 % interval, for success and for survival.
+in the isoline), with a 95 % interval (``metrics.crossing_interval``), for success and for survival.
 Thesis: base goes "50 % faster in all directions" than its 1 m/s training range; rough, speed and
 climb match their training command distributions.
 """
@@ -117,7 +117,7 @@ def plot(res: dict, path: Path) -> None:
     ax1.plot(np.linspace(0, 2 * np.pi, 100), np.ones(100), color="0.6", lw=1, label="1 m/s (base training)")
     ax1.set_rmax(max(res["magnitudes"]))
     ax1.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0.8, -0.1))
-    fig.suptitle(f"omni: {Path(res['policy']).name}, isolines of {100 * res['level']:.0f} % (95 % bootstrap band); "
+    fig.suptitle(f"omni: {Path(res['policy']).name}, isolines of {100 * res['level']:.0f} % (95 % band); "
                  f"success = survived and |v - cmd| <= max({res['tolerance']:g} |cmd|, {res['tolerance_abs']:g} m/s)", fontsize=9)
     S.savefig(fig, path)
 

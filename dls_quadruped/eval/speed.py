@@ -6,7 +6,7 @@ perturbation, Table-4 reward). Reported per speed: survival (Wilson 95 %), the a
 speed (per-episode mean base-frame v_x after a 2 s settle; mean over episodes with its 95 %
 interval; a fallen episode counts with what it ran after the settle) and its ratio to the
 command; over speeds: the speed at which survival first drops below 90 % (linear interpolation
-between grid speeds, parametric-bootstrap interval) and the highest mean achieved speed.
+between grid speeds, 95 % interval from ``metrics.crossing_interval``) and the highest mean achieved speed.
 ``forward_sweep`` is shared with ``cot`` and ``gait``.
 """
 

@@ -57,6 +57,11 @@ def test_crossing_interval_shrinks_with_episodes_and_never_collapses_at_0_or_100
     assert many == pytest.approx([2.1, 2.1], abs=0.01)
     lo, hi = M.crossing_interval(levels, [4, 3, 1], [4, 4, 4], 0.9)
     assert lo < M.threshold_crossing(levels, [1.0, 0.75, 0.25], 0.9) <= hi and hi - lo > 0.3
+    # a survival-vs-speed sweep of 16 episodes per speed (the base actor's): the interval holds the estimate
+    speeds, k = [0.25 * i for i in range(1, 11)], np.array([16] * 5 + [15, 13, 2, 0, 0])
+    point = M.threshold_crossing(speeds, k / 16, 0.9)
+    lo, hi = M.crossing_interval(speeds, k, [16] * 10, 0.9)
+    assert point == pytest.approx(1.575) and lo <= point <= hi
 
 
 def recording(command, probes, valid=None, fell=None) -> Recording:
