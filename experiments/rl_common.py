@@ -104,6 +104,7 @@ def evaluate_policies(scenario: str, args: argparse.Namespace) -> tuple[dict[str
         res["cpu_s"] = round(cpu_seconds() - cpu0, 1)  # this process + its finished simulator workers
         res["load_avg_1min_end"] = round(os.getloadavg()[0], 2)
         res["experiment_key"] = key
+        res["git_commit"] = _git_commit()  # of this evaluation (config.json's is of the table)
         out.mkdir(parents=True, exist_ok=True)
         write_json(res, done, indent=1)
         sc.plot(res, out / f"{scenario}.png")
