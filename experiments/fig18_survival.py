@@ -19,7 +19,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.rl_common import evaluate_policies, finish, parse_args, pyplot, rate_cell
+from experiments.rl_common import (
+    evaluate_policies,
+    finish,
+    parse_args,
+    pyplot,
+    rate_cell,
+)
 
 NAME, SCENARIO = "fig18_survival", "survival"
 THESIS = {"base": "does not withstand", "rough": "below climb", "speed": "does not withstand", "climb": "best"}

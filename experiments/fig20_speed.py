@@ -19,7 +19,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.rl_common import evaluate_policies, finish, mean_cell, num, parse_args, pyplot
+from experiments.rl_common import (
+    evaluate_policies,
+    finish,
+    mean_cell,
+    num,
+    parse_args,
+    pyplot,
+)
 
 NAME, SCENARIO = "fig20_speed", "speed"
 TRAINED_MAX = {"base": 1.0, "rough": 0.8, "speed": 2.1, "climb": 0.5}

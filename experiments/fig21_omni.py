@@ -20,7 +20,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.rl_common import evaluate_policies, finish, mean_cell, num, parse_args, pyplot
+from experiments.rl_common import (
+    evaluate_policies,
+    finish,
+    mean_cell,
+    num,
+    parse_args,
+    pyplot,
+)
 
 NAME, SCENARIO = "fig21_omni", "omni"
 THESIS = {"base": "~1.5 m/s in every direction", "rough": "its +-0.8 m/s disc", "speed": "forward to ~2 m/s",

@@ -46,13 +46,17 @@ def rows_of(results: dict) -> list[dict]:
     return rows
 
 
+def get(row: dict, key: str, sub: str | None = None) -> float:
+    """A row's mean of ``key`` (or ``key[sub]``); NaN where it is missing."""
+    cell = row[key] if sub is None else row[key][sub]
+    return np.nan if cell["mean"] is None else cell["mean"]
+
+
 def figure(results: dict, path: Path) -> None:
     plt = pyplot()
     fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(11, 4))
     for task, res in results.items():
         v = np.array([r["command_v_x"] for r in res["per_speed"]])
-        get = lambda r, k, s=None: np.nan if (r[k] if s is None else r[k][s])["mean"] is None \
-            else (r[k] if s is None else r[k][s])["mean"]  # noqa: E731
         line, = ax0.plot(v, [get(r, "f_contacts") for r in res["per_speed"]], "o-", label=f"{task}: touch-downs/s")
         ax0.plot(v, [get(r, "f_policy") for r in res["per_speed"]], "--", color=line.get_color(), label=f"{task}: f")
         ax1.plot(v, [get(r, "sync", "diagonal") for r in res["per_speed"]], "o-", color=line.get_color(),

@@ -108,7 +108,7 @@ def evaluate_policies(scenario: str, args: argparse.Namespace) -> tuple[dict[str
         out.mkdir(parents=True, exist_ok=True)
         write_json(res, done, indent=1)
         sc.plot(res, out / f"{scenario}.png")
-        print((sc.summary or (lambda r: f"[{scenario}] {task} done"))(res), flush=True)
+        print(sc.summary(res) if sc.summary else f"[{scenario}] {task} done", flush=True)
         results[task] = json.loads(done.read_text())  # what was written (strict JSON: NaN -> null)
     return results, info
 

@@ -8,7 +8,15 @@ speed, omni, cot, gait; docs/eval.md).
 
 from __future__ import annotations
 
-from dls_quadruped.eval import cot, gait, omni, speed, stairs, survival, velocity_tracking
+from dls_quadruped.eval import (
+                                                      cot,
+                                                      gait,
+                                                      omni,
+                                                      speed,
+                                                      stairs,
+                                                      survival,
+                                                      velocity_tracking,
+)
 from dls_quadruped.eval.scenario import Scenario
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in (*velocity_tracking.SCENARIOS, survival.SCENARIO, stairs.SCENARIO,

@@ -138,9 +138,10 @@ def plot(res: dict, path: Path) -> None:
 
 
 def summary(res: dict) -> str:
+    q = res["length_s"]["quartiles"]
     lines = [f"[eval] survival: {res['policy']}, {res['episodes']} episodes of {res['episode_length_s']:g} s",
-             f"  survival {S.pct(res['survival'])}; episode length median {res['length_s']['quartiles']['median']:.1f} s "
-             f"(IQR {res['length_s']['quartiles']['q1']:.1f}-{res['length_s']['quartiles']['q3']:.1f})"]
+             (f"  survival {S.pct(res['survival'])}; episode length median {q['median']:.1f} s "
+              f"(IQR {q['q1']:.1f}-{q['q3']:.1f})")]
     lines += [f"  {t:12s} {S.pct(c)}" for t, c in res["per_type"].items()]
     lines += [f"  row {r['row']} (d = {r['rough_difficulty']:.1f}) {S.pct(r['survival'])}" for r in res["per_row"]]
     return "\n".join(lines)

@@ -38,7 +38,7 @@ def test_speed_grid_and_commands():
 def test_stairs_terrain_puts_each_height_on_its_row():
     terrain = stairs.stairs_terrain((0.1, 0.2, 0.3))
     cfg = TerrainConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in terrain.items()})
-    model, t = build_scene(cfg)
+    _, t = build_scene(cfg)
     n = cfg.num_steps
     assert n == 6 and cfg.num_rows == 3 and cfg.types == ("stairs_up",)
     x = torch.tensor(t.tile_origins_w[:, 0, 0], dtype=torch.float32)
