@@ -184,4 +184,4 @@ def summary(res: dict) -> str:
 
 NAME = "gait"
 DESCRIPTION = "contact diagrams, step frequency and leg-pair synchrony vs forward speed 0.25-2.5 m/s, flat (Fig. 23)"
-SCENARIO = Scenario(NAME, DESCRIPTION, evaluate, plot, default_episodes=4, summary=summary)
+SCENARIO = Scenario(NAME, DESCRIPTION, evaluate, plot, default_episodes=8, summary=summary)
