@@ -13,7 +13,8 @@ uncommitted files, policy paths and sha256, what was skipped). Default ``--out``
 Scales (``--scale``): ``small`` is each scenario's default size (``Scenario.default_episodes``:
 one policy in one to two minutes on two cores); ``thesis`` approaches the thesis's 50 000
 trajectories per evaluation within one batched env (4096 episodes for simple and survival,
-512 per condition for the sweeps, 128 per cell for omni); it was not run.
+512 per condition for the sweeps, 128 per cell for omni: 3-6 M env steps per policy and
+scenario); it was not run.
 """
 
 from __future__ import annotations
