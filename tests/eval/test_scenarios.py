@@ -179,4 +179,44 @@ def test_command_line_user_errors(tmp_path, capsys):
     assert "outputs (12,) actions" in line and "takes 28" in line
     (tmp_path / "junk.pt").write_bytes(b"junk")
     assert "unreadable" in _one_line_error(capsys, ["--policy", str(tmp_path / "junk.pt"), *common])
+    line = _one_line_error(capsys, ["--policy", str(_checkpoint_without_height_scan(tmp_path)), *common])
+    assert "'policy': 72" in line and "'policy': 259" in line  # 259 - 187 height-scan values
     assert not (tmp_path / "out").exists()  # nothing written for a refused policy
+
+
+def _checkpoint_without_height_scan(tmp_path):
+    """An rsl-rl checkpoint of a task without the height scan (72 observations), one iteration."""
+    import yaml
+
+    from dls_quadruped.envs.config import TASKS_DIR
+    from dls_quadruped.learning import train
+
+    small = tmp_path / "blind.yaml"
+    small.write_text(yaml.safe_dump({"inherit": str(TASKS_DIR / "base.yaml"), "scene": {"num_workers": 0},
+                                     "observations": {"policy": {"terms": {"height_scan": None}}},
+                                     "agent": {"actor": {"hidden_dims": [8]}, "critic": {"hidden_dims": [8]}}}))
+    run_dir = train.main(["--task", str(small), "--num-envs", "2", "--iterations", "1", "--run-dir",
+                          str(tmp_path / "blind_run")])
+    return run_dir / "model_0.pt"
+
+
+def test_survival_env_places_robots_on_every_tile_row_by_row():
+    from dls_quadruped.envs.env import LocomotionEnv
+    from dls_quadruped.robots.aliengo import constants as C
+
+    cmd = np.zeros((12, 3))
+    task = survival.survival_task(cmd, EvalOptions(num_workers=0), rows=2)
+    env = LocomotionEnv(task, num_envs=12, verbose=False)
+    try:
+        S.place_on_rows(env, survival.start_rows(12, 6, rows=2))
+        assert env.scene.terrain_types.tolist() == list(range(6)) * 2
+        assert env.scene.terrain_levels.tolist() == [0] * 6 + [1] * 6
+        origins = env.scene.tile_origins[env.scene.terrain_levels, env.scene.terrain_types]
+        np.testing.assert_allclose(env.scene.env_origins.numpy(), origins.numpy())
+        assert env.scene.terrain.tiles.param[1, 5] == pytest.approx(0.25)  # stairs_down, hardest row: 25 cm
+        base_z = env.state.base_pos_w[:, 2].numpy()
+        ground = env.scene.terrain.height_at(env.state.base_pos_w[:, 0], env.state.base_pos_w[:, 1]).numpy()
+        # every robot at the reset height above the surface under it, not above another tile's
+        np.testing.assert_allclose(base_z - ground, C.STANDING_BASE_HEIGHT + 0.02, atol=1e-3)
+    finally:
+        env.close()
