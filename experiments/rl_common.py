@@ -11,7 +11,8 @@ uncommitted files, policy paths and sha256, what was skipped). Default ``--out``
 ``results/experiments/<script>``; the small-scale files are copied to ``docs/experiments/<script>/``.
 
 Scales (``--scale``): ``small`` is each scenario's default size (``Scenario.default_episodes``:
-one policy in one to two minutes on two cores); ``thesis`` approaches the thesis's 50 000
+one policy in one to two minutes on two cores); ``medium`` three times as many (``MEDIUM_EPISODES``);
+``thesis`` approaches the thesis's 50 000
 trajectories per evaluation within one batched env (4096 episodes for simple and survival,
 512 per condition for the sweeps, 128 per cell for omni: 3-6 M env steps per policy and
 scenario); it was not run.
@@ -38,8 +39,11 @@ TASKS = ("base", "rough", "speed", "climb")
 """The four RL experts of thesis 7.1, in the thesis's order."""
 POLICY_DIR = REPO / "docs" / "policies"
 THESIS_EPISODES = {"simple": 4096, "survival": 4096, "stairs": 512, "speed": 512, "omni": 128, "cot": 512, "gait": 512}
+MEDIUM_EPISODES = {"simple": 512, "survival": 288, "stairs": 36, "speed": 48, "omni": 9, "cot": 24, "gait": 24}
+"""Three times the small defaults (twice for simple): 1.5-3 min per policy and scenario at load ~3."""
 SCALES: dict[str, dict] = {
     "small": {"episodes": {}, "episode_length_s": None},   # {}: each scenario's default_episodes
+    "medium": {"episodes": MEDIUM_EPISODES, "episode_length_s": None},
     "thesis": {"episodes": THESIS_EPISODES, "episode_length_s": None},
 }
 
