@@ -11,16 +11,17 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.warm_start_common import (  # noqa: E402
+from experiments.warm_start_common import (
     Cell,
+    finish,
     med,
     parse_args,
+    pyplot,
     run_cells,
+    save,
     survival,
-    write_config,
-    write_table,
+    tabulate,
 )
-from dls_quadruped.core.json_io import write_json  # noqa: E402
 
 ENCODINGS = [("discrete", "discrete"), ("discrete", "spline"), ("spline", "discrete"), ("spline", "spline"),
              ("first", "discrete"), ("first", "spline")]
@@ -56,11 +57,7 @@ def cells() -> list[Cell]:
 
 def figure(results: dict, path: Path) -> None:
     """Figs. 26-27: initial cost and rollout cost per encoding, medians with quartile bars."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     labels = [f"{p}-{F}" for p, F in ENCODINGS]
     for ax, key, title in ((axes[0], "initial_cost", "Fig. 26: initial (state) cost"),
@@ -77,41 +74,29 @@ def figure(results: dict, path: Path) -> None:
         ax.set_yscale("log")
         ax.set_title(title + " (median, IQR)")
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
+
+
+def columns(c: Cell, s: dict) -> dict:
+    won = s.get("warm_start_won") or {}
+    return {"RL reward": med(s["rl_reward"], 3), "Initial cost": med(s["initial_cost"]),
+            "Rollout cost": med(s.get("rollout_cost")), "Survival": survival(s), "|v_xy - cmd|": med(s["vel_error"], 3),
+            "student won": f"{100 * won.get('0', 0.0):.0f} %" if c.naive_share else ""}
+
+
+def thesis(c: Cell) -> dict:
+    th = (None, None, None) if c.naive_share else THESIS.get((c.controller, c.row["p"], c.row["F"]), (None, None, None))
+    return {"thesis RL reward": th[0] or "-", "thesis initial": th[1] or "-", "thesis rollout": th[2] or "-"}
 
 
 def main() -> None:
     args = parse_args(__doc__, "table14_warm_start")
     todo = cells()
     results = run_cells(todo, args)
-    rows = []
-    for c in todo:
-        s = results.get(c.name)
-        if s is None:
-            continue
-        key = (c.controller, c.row["p"], c.row["F"])
-        th = (None, None, None) if c.naive_share else THESIS.get(key, (None, None, None))
-        row = dict(c.row)
-        if "skipped" in s:
-            row["RL reward"] = f"skipped: {s['skipped']}"
-        else:
-            won = s.get("warm_start_won") or {}
-            row.update({"RL reward": med(s["rl_reward"], 3), "Initial cost": med(s["initial_cost"]),
-                        "Rollout cost": med(s.get("rollout_cost")), "Survival": survival(s),
-                        "|v_xy - cmd|": med(s["vel_error"], 3),
-                        "student won": f"{100 * won.get('0', 0.0):.0f} %" if c.naive_share else ""})
-        row.update({"thesis RL reward": th[0] or "-", "thesis initial": th[1] or "-", "thesis rollout": th[2] or "-"})
-        rows.append(row)
     cols = ["Controller", "p", "F", "RL reward", "Initial cost", "Rollout cost", "Survival", "|v_xy - cmd|",
             "student won", "thesis RL reward", "thesis initial", "thesis rollout"]
-    write_table(rows, cols, args.out / "table", f"Table 14 ({args.scale}: {args.episodes} episodes x {args.seconds:g} s "
-                f"per cell; median [q1, q3] over every step; M = 10 000, H = 10, dt = 0.02 s, F only)")
-    write_json(results, args.out / "results.json", indent=1)
-    figure(results, args.out / "fig26_27.png")
-    write_config(args, todo)
-    print((args.out / "table.md").read_text())
+    finish(args, todo, results, tabulate(todo, results, columns, thesis), cols,
+           "Table 14 (M = 10 000, H = 10, dt = 0.02 s, F only)", figure, "fig26_27.png")
 
 
 if __name__ == "__main__":

@@ -12,8 +12,17 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.warm_start_common import Cell, med, parse_args, run_cells, survival, write_config, write_table  # noqa: E402
-from dls_quadruped.core.json_io import write_json  # noqa: E402
+from experiments.warm_start_common import (
+    Cell,
+    finish,
+    med,
+    parse_args,
+    pyplot,
+    run_cells,
+    save,
+    survival,
+    tabulate,
+)
 
 GRID = [(0.02, 5), (0.04, 5), (0.02, 10), (0.02, 15), (0.04, 10), (0.04, 15)]
 THESIS = {  # (controller, dt, H): (RL reward, initial cost)
@@ -33,11 +42,7 @@ def cells() -> list[Cell]:
 
 
 def figure(results: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
     for ax, ctrl in zip(axes, ("rl_warm_start", "naive_warm_start")):
         for i, (dt, h) in enumerate(GRID):
@@ -51,39 +56,29 @@ def figure(results: dict, path: Path) -> None:
         ax.set_title(f"Fig. 28: {ctrl}, chosen sample's cost per step (median)", fontsize=9)
         ax.legend(fontsize=7)
     axes[0].set_ylabel("cost of step k")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
+
+
+def columns(c: Cell, s: dict) -> dict:
+    hc = s.get("horizon_cost") or []
+    ratio = f"{hc[-1]['median'] / hc[0]['median']:.1f}" if hc and hc[0]["median"] else "-"
+    return {"RL reward": med(s["rl_reward"], 3), "Initial cost": med(s["initial_cost"]),
+            "Rollout cost": med(s.get("rollout_cost")), "Survival": survival(s), "last/first step cost": ratio}
+
+
+def thesis(c: Cell) -> dict:
+    th = THESIS.get((c.controller, c.row["dt [s]"], c.row["H"]), (None, None))
+    return {"thesis RL reward": th[0] or "-", "thesis initial": th[1] or "-"}
 
 
 def main() -> None:
     args = parse_args(__doc__, "table15_horizon")
     todo = cells()
     results = run_cells(todo, args)
-    rows = []
-    for c in todo:
-        s = results.get(c.name)
-        if s is None:
-            continue
-        row = dict(c.row)
-        if "skipped" in s:
-            row["RL reward"] = f"skipped: {s['skipped']}"
-        else:
-            hc = s.get("horizon_cost") or []
-            row.update({"RL reward": med(s["rl_reward"], 3), "Initial cost": med(s["initial_cost"]),
-                        "Rollout cost": med(s.get("rollout_cost")), "Survival": survival(s),
-                        "last/first step cost": (f"{hc[-1]['median'] / hc[0]['median']:.1f}" if hc and hc[0]["median"] else "-")})
-        th = THESIS.get((c.controller, c.row["dt [s]"], c.row["H"]), (None, None))
-        row.update({"thesis RL reward": th[0], "thesis initial": th[1]})
-        rows.append(row)
     cols = ["Controller", "dt [s]", "H", "Time H. [s]", "RL reward", "Initial cost", "Rollout cost", "Survival",
             "last/first step cost", "thesis RL reward", "thesis initial"]
-    write_table(rows, cols, args.out / "table", f"Table 15 ({args.scale}: {args.episodes} episodes x {args.seconds:g} s "
-                f"per cell; median [q1, q3]; first-spline, M = 10 000, F only)")
-    write_json(results, args.out / "results.json", indent=1)
-    figure(results, args.out / "fig28.png")
-    write_config(args, todo)
-    print((args.out / "table.md").read_text())
+    finish(args, todo, results, tabulate(todo, results, columns, thesis), cols,
+           "Table 15 (first-spline, M = 10 000, F only)", figure, "fig28.png")
 
 
 if __name__ == "__main__":

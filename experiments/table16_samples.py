@@ -11,8 +11,17 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.warm_start_common import Cell, med, parse_args, run_cells, survival, write_config, write_table  # noqa: E402
-from dls_quadruped.core.json_io import write_json  # noqa: E402
+from experiments.warm_start_common import (
+    Cell,
+    finish,
+    med,
+    parse_args,
+    pyplot,
+    run_cells,
+    save,
+    survival,
+    tabulate,
+)
 
 SAMPLES = (4000, 10000, 25000)
 THESIS = {  # (controller, M): (RL reward, initial cost, rollout cost)
@@ -36,11 +45,7 @@ def _delta(s: dict, ref: dict, key: str) -> str:
 
 def figure(results: dict, path: Path) -> None:
     """Fig. 29: initial cost vs M (median, IQR)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 4))
     for off, ctrl, color in ((-0.03, "rl_warm_start", "C0"), (0.03, "naive_warm_start", "C1")):
         xs, ms, lo, hi = [], [], [], []
@@ -57,40 +62,29 @@ def figure(results: dict, path: Path) -> None:
     ax.set_ylabel("initial cost (median, IQR)")
     ax.set_title("Fig. 29: initial cost vs number of samples", fontsize=9)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def main() -> None:
     args = parse_args(__doc__, "table16_samples")
     todo = cells()
     results = run_cells(todo, args)
-    rows = []
-    for c in todo:
-        s = results.get(c.name)
-        if s is None:
-            continue
-        row = dict(c.row)
-        if "skipped" in s:
-            row["RL reward"] = f"skipped: {s['skipped']}"
-        else:
-            ref = results.get(f"{c.controller}_M10000", {})
-            row.update({"RL reward": med(s["rl_reward"], 3), "Δ reward": _delta(s, ref, "rl_reward"),
-                        "Initial cost": med(s["initial_cost"]), "Δ initial": _delta(s, ref, "initial_cost"),
-                        "Rollout cost": med(s.get("rollout_cost")), "Δ rollout": _delta(s, ref, "rollout_cost"),
-                        "Survival": survival(s)})
+
+    def columns(c: Cell, s: dict) -> dict:
+        ref = results.get(f"{c.controller}_M10000", {})
+        return {"RL reward": med(s["rl_reward"], 3), "Δ reward": _delta(s, ref, "rl_reward"),
+                "Initial cost": med(s["initial_cost"]), "Δ initial": _delta(s, ref, "initial_cost"),
+                "Rollout cost": med(s.get("rollout_cost")), "Δ rollout": _delta(s, ref, "rollout_cost"),
+                "Survival": survival(s)}
+
+    def thesis(c: Cell) -> dict:
         th = THESIS.get((c.controller, c.row["M"]), (None, None, None))
-        row.update({"thesis RL reward": th[0], "thesis initial": th[1], "thesis rollout": th[2]})
-        rows.append(row)
+        return {"thesis RL reward": th[0] or "-", "thesis initial": th[1] or "-", "thesis rollout": th[2] or "-"}
+
     cols = ["Controller", "M", "RL reward", "Δ reward", "Initial cost", "Δ initial", "Rollout cost", "Δ rollout",
             "Survival", "thesis RL reward", "thesis initial", "thesis rollout"]
-    write_table(rows, cols, args.out / "table", f"Table 16 ({args.scale}: {args.episodes} episodes x {args.seconds:g} s "
-                f"per cell; median [q1, q3]; first-spline, H = 10, dt = 0.02 s, F only; Δ vs M = 10 000)")
-    write_json(results, args.out / "results.json", indent=1)
-    figure(results, args.out / "fig29.png")
-    write_config(args, todo)
-    print((args.out / "table.md").read_text())
+    finish(args, todo, results, tabulate(todo, results, columns, thesis), cols,
+           "Table 16 (first-spline, H = 10, dt = 0.02 s, F only; Δ vs M = 10 000)", figure, "fig29.png")
 
 
 if __name__ == "__main__":

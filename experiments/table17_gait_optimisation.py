@@ -12,8 +12,15 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.warm_start_common import Cell, med, parse_args, run_cells, write_config, write_table  # noqa: E402
-from dls_quadruped.core.json_io import write_json  # noqa: E402
+from experiments.warm_start_common import (
+    Cell,
+    finish,
+    med,
+    parse_args,
+    pyplot,
+    run_cells,
+    save,
+)
 
 SPEEDS = (0.1, 0.5, 1.5)
 GAIT = {"no": ("F",), "frequency": ("F", "f"), "duty": ("F", "d"), "full": ("F", "f", "d")}
@@ -30,31 +37,31 @@ THESIS = {  # (controller, gait): RLR, IC, survival [%] at 0.1, 0.5, 1.5 m/s
 }
 
 
+def cell_name(ctrl: str, gait: str, v: float) -> str:
+    return f"rl_baseline_v{v:g}" if ctrl == "rl_baseline" else f"{ctrl}_{gait}_v{v:g}"
+
+
 def cells() -> list[Cell]:
     out = []
     for ctrl in ("rl_warm_start", "naive_warm_start"):
         for gait, opt in GAIT.items():
             for v in SPEEDS:
-                out.append(Cell(f"{ctrl}_{gait}_v{v:g}", ctrl, optimise=opt, vx=v,
+                out.append(Cell(cell_name(ctrl, gait, v), ctrl, optimise=opt, vx=v,
                                 row={"Controller": ctrl, "Gait opt.": gait}))
-    out += [Cell(f"rl_baseline_v{v:g}", "rl_baseline", vx=v, row={"Controller": "rl_baseline", "Gait opt.": "-"})
+    out += [Cell(cell_name("rl_baseline", "-", v), "rl_baseline", vx=v, row={"Controller": "rl_baseline", "Gait opt.": "-"})
             for v in SPEEDS]
     return out
 
 
 def figure(results: dict, path: Path) -> None:
     """Fig. 30: survival and initial cost vs speed per controller and gait optimisation."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     keys = [(c, g) for c in ("rl_warm_start", "naive_warm_start") for g in GAIT] + [("rl_baseline", "-")]
     for i, (ctrl, gait) in enumerate(keys):
-        name = (lambda v: f"rl_baseline_v{v:g}") if ctrl == "rl_baseline" else (lambda v: f"{ctrl}_{gait}_v{v:g}")
-        sv = [results.get(name(v), {}).get("survival", {}).get("rate") for v in SPEEDS]
-        ic = [(results.get(name(v), {}).get("initial_cost") or {}).get("median") for v in SPEEDS]
+        names = [cell_name(ctrl, gait, v) for v in SPEEDS]
+        sv = [results.get(n, {}).get("survival", {}).get("rate") for n in names]
+        ic = [(results.get(n, {}).get("initial_cost") or {}).get("median") for n in names]
         style = "-" if ctrl == "rl_warm_start" else "--" if ctrl == "naive_warm_start" else ":"
         label = f"{ctrl} {gait}"
         axes[0].plot(SPEEDS, [100 * s if s is not None else None for s in sv], "o" + style, color=f"C{i % 10}", label=label)
@@ -66,9 +73,7 @@ def figure(results: dict, path: Path) -> None:
         ax.set_xlabel("forward speed [m/s]")
     axes[0].legend(fontsize=6)
     axes[0].set_title("Fig. 30: gait optimisation vs speed", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def main() -> None:
@@ -80,8 +85,7 @@ def main() -> None:
         row = {"Controller": ctrl, "Gait opt.": gait}
         th = THESIS[(ctrl, gait)]
         for i, v in enumerate(SPEEDS):
-            name = f"rl_baseline_v{v:g}" if ctrl == "rl_baseline" else f"{ctrl}_{gait}_v{v:g}"
-            s = results.get(name)
+            s = results.get(cell_name(ctrl, gait, v))
             if s is None or "skipped" in s:
                 row[f"RLR {v:g}"] = "skipped" if s else "-"
                 continue
@@ -90,12 +94,8 @@ def main() -> None:
             row[f"Surv {v:g}"] = f"{100 * s['survival']['rate']:.0f} % of {s['survival']['n']} ({th[2][i]} %)"
         rows.append(row)
     cols = ["Controller", "Gait opt."] + [f"{k} {v:g}" for k in ("RLR", "IC", "Surv") for v in SPEEDS]
-    write_table(rows, cols, args.out / "table", f"Table 17 ({args.scale}: {args.episodes} episodes x {args.seconds:g} s "
-                f"per cell; ours (thesis); RLR/IC medians; first-spline, M = 10 000)")
-    write_json(results, args.out / "results.json", indent=1)
-    figure(results, args.out / "fig30.png")
-    write_config(args, todo)
-    print((args.out / "table.md").read_text())
+    finish(args, todo, results, rows, cols, "Table 17 (ours (thesis); RLR/IC medians; first-spline, M = 10 000)",
+           figure, "fig30.png")
 
 
 if __name__ == "__main__":

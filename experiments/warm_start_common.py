@@ -25,22 +25,22 @@ import csv
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-import json  # noqa: E402
+import json
 
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
+import numpy as np
+import torch
 
-from dls_quadruped.closed_loop.__main__ import commands, run_controllers  # noqa: E402
-from dls_quadruped.closed_loop.controllers import ControllerConfig  # noqa: E402
-from dls_quadruped.closed_loop.metrics import summarize  # noqa: E402
-from dls_quadruped.core.json_io import write_json  # noqa: E402
-from dls_quadruped.mpc.config import SamplerConfig  # noqa: E402
+from dls_quadruped.closed_loop.__main__ import commands, run_controllers
+from dls_quadruped.closed_loop.controllers import ControllerConfig
+from dls_quadruped.closed_loop.metrics import summarize
+from dls_quadruped.core.json_io import write_json
+from dls_quadruped.mpc.config import SamplerConfig
 
 SCALES = {"small": {"episodes": 4, "seconds": 5.0}, "medium": {"episodes": 16, "seconds": 15.0},
           "thesis": {"episodes": 100, "seconds": 15.0}}
@@ -168,5 +168,43 @@ def write_config(args: argparse.Namespace, cells: list[Cell], extra: dict | None
                args.out / "config.json")
 
 
-def with_sampler(cell: Cell, **over) -> Cell:
-    return replace(cell, sampler={**cell.sampler, **over})
+def tabulate(cells: list[Cell], results: dict[str, dict], columns, thesis) -> list[dict]:
+    """One row per cell that ran or was skipped: the cell's labels, ``columns(cell, summary)`` (or the
+    reason it was skipped) and ``thesis(cell)``, the thesis's numbers to print beside ours."""
+    rows = []
+    for c in cells:
+        s = results.get(c.name)
+        if s is None:
+            continue
+        row = dict(c.row)
+        row.update({"RL reward": f"skipped: {s['skipped']}"} if "skipped" in s else columns(c, s))
+        row.update(thesis(c))
+        rows.append(row)
+    return rows
+
+
+def finish(args: argparse.Namespace, cells: list[Cell], results: dict, rows: list[dict], columns: list[str],
+           title: str, figure, figure_name: str) -> None:
+    """Write table.md/.csv (titled with the scale), results.json, the figure and config.json; print the table."""
+    write_table(rows, columns, args.out / "table", f"{title} ({args.scale}: {args.episodes} episodes x "
+                f"{args.seconds:g} s per cell; median [q1, q3] over every step)")
+    write_json(results, args.out / "results.json", indent=1)
+    figure(results, args.out / figure_name)
+    write_config(args, cells)
+    print((args.out / "table.md").read_text())
+
+
+def pyplot():
+    """matplotlib.pyplot on the file-only backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save(fig, path: Path) -> None:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    pyplot().close(fig)

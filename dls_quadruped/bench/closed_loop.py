@@ -21,7 +21,12 @@ from pathlib import Path
 import torch
 
 from dls_quadruped.bench.machine import cpu_model
-from dls_quadruped.closed_loop.__main__ import DEFAULT_POLICY, DEFAULT_STUDENT, commands, make_env
+from dls_quadruped.closed_loop.__main__ import (
+    DEFAULT_POLICY,
+    DEFAULT_STUDENT,
+    commands,
+    make_env,
+)
 from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
 from dls_quadruped.closed_loop.runner import run_closed_loop
 from dls_quadruped.core.json_io import write_json
@@ -58,7 +63,7 @@ def run(controller: str, robots: int, seconds: float, samples: int, horizon: int
         ctrl = make_controller(cfg, env)
         run_closed_loop(env, ctrl, num_steps=5)  # warm-up: kernel build, layouts, worker start
         ctrl.mpc.kernel_seconds, ctrl.solve_seconds = 0.0, 0.0
-        tr = run_closed_loop(env, ctrl, num_steps=int(round(seconds / env.step_dt)))
+        tr = run_closed_loop(env, ctrl, num_steps=round(seconds / env.step_dt))
     finally:
         env.close()
     t = tr.timing

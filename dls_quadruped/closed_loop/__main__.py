@@ -19,14 +19,26 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported (offscree
 
 import argparse
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from dls_quadruped.cli import ArgumentParser, UserError, non_negative_int, positive_float, positive_int, run_cli
-from dls_quadruped.closed_loop.controllers import CONTROLLERS, NEEDS_POLICY, NEEDS_STUDENT, ControllerConfig, make_controller
+from dls_quadruped.cli import (
+    ArgumentParser,
+    UserError,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_cli,
+)
+from dls_quadruped.closed_loop.controllers import (
+    CONTROLLERS,
+    NEEDS_POLICY,
+    NEEDS_STUDENT,
+    ControllerConfig,
+    make_controller,
+)
 from dls_quadruped.closed_loop.metrics import summarize
 from dls_quadruped.closed_loop.runner import ClosedLoopTraces, run_closed_loop
 from dls_quadruped.core.json_io import write_json
@@ -159,22 +171,26 @@ def plot(traces: dict[str, ClosedLoopTraces], path: Path, robot: int = 0) -> Non
     plt.close(fig)
 
 
+def _metric(s: dict, key: str, thesis: dict) -> str:
+    """'median [q1, q3] (thesis x)' of one metric of a controller's summary."""
+    if key not in s:
+        return "-"
+    m = s[key]
+    digits = 3 if key == "rl_reward" else 1
+    text = f"{m['median']:.{digits}f} [{m['q1']:.{digits}f}, {m['q3']:.{digits}f}]"
+    return text + (f" (thesis {thesis[key]})" if key in thesis else "")
+
+
 def headline(summary: dict) -> str:
     lines = []
     for name, s in summary["controllers"].items():
         thesis = THESIS_TABLE14_FIRST_SPLINE.get(name, {})
-        def fmt(key):  # noqa: E306
-            if key not in s:
-                return "-"
-            m = s[key]
-            text = f"{m['median']:.3f} [{m['q1']:.3f}, {m['q3']:.3f}]" if key == "rl_reward" else \
-                f"{m['median']:.1f} [{m['q1']:.1f}, {m['q3']:.1f}]"
-            return text + (f" (thesis {thesis[key]})" if key in thesis else "")
         sv = s["survival"]
         tm = s["timing"]
         lines.append(f"[closed_loop] {name}: {s['episodes']} episodes, survival {100 * sv['rate']:.0f} % "
                      f"(95 % CI {100 * sv['ci95'][0]:.0f}-{100 * sv['ci95'][1]:.0f})")
-        lines.append(f"  RL reward {fmt('rl_reward')}; initial cost {fmt('initial_cost')}; rollout cost {fmt('rollout_cost')}")
+        lines.append(f"  RL reward {_metric(s, 'rl_reward', thesis)}; initial cost {_metric(s, 'initial_cost', thesis)}; "
+                     f"rollout cost {_metric(s, 'rollout_cost', thesis)}")
         lines.append(f"  |v_xy - cmd| median {s['vel_error']['median']:.3f} m/s; CoT median {s['cost_of_transport']['median']:.2f}; "
                      f"{tm['robot_seconds_per_second']:.2f} robot-s/s, kernel {100 * tm['kernel_share']:.0f} % of "
                      f"{tm['wall']:.1f} s wall")

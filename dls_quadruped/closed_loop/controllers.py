@@ -184,7 +184,7 @@ class MPCController(Controller):
         super().__init__(cfg, env)
         b = env.num_envs
         period = cfg.sampler.mpc_period / env.physics_dt
-        self.mpc_decimation = int(round(period))
+        self.mpc_decimation = round(period)
         if abs(period - self.mpc_decimation) > 1e-9 or self.mpc_decimation < 1 or env.decimation % self.mpc_decimation:
             raise ValueError(f"the MPC period {cfg.sampler.mpc_period} s must be a whole number of physics steps "
                              f"({env.physics_dt} s) dividing the policy step ({env.decimation} physics steps)")

@@ -20,7 +20,7 @@ SETTLE_S = 2.0
 def cost_of_transport(traces: ClosedLoopTraces, settle_s: float = SETTLE_S) -> np.ndarray:
     """(E,) per-episode CoT (eq. 4.3.7) = mean motor power / (m g mean horizontal speed) over the
     steps after the settle (NaN for an episode that ended before)."""
-    settle = int(round(settle_s / traces.step_dt))
+    settle = round(settle_s / traces.step_dt)
     p, v = traces.power[settle:].astype(float), traces.speed[settle:].astype(float)
     ok = np.isfinite(p) & np.isfinite(v)
     count = ok.sum(0)
@@ -34,7 +34,7 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S) -> dict:
     """JSON-able metrics of one controller's episodes (see the module docstring)."""
     e = traces.reward.shape[1]
     survived = int((~traces.fell).sum())
-    settle = int(round(settle_s / traces.step_dt))
+    settle = round(settle_s / traces.step_dt)
     out = {
         "controller": traces.controller,
         "episodes": e,

@@ -99,7 +99,7 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     """
     n = env.num_envs
     steps = int(num_steps or env.max_episode_length)
-    cpu = lambda t: t.detach().cpu()  # noqa: E731
+    cpu = lambda t: t.detach().cpu()
     sampler = controller.cfg.sampler
     probe = InitialCostProbe(sampler)
     solves = getattr(controller, "solves_per_step", 0)

@@ -34,7 +34,7 @@ def _run(name: str, seconds: float, vx: float | None = None, episodes: int = 2, 
 
 
 def test_student_warm_start_walks_the_simple_task() -> None:
-    tr, ctrl, _ = _run("rl_warm_start", seconds=5.0)
+    tr, _, _ = _run("rl_warm_start", seconds=5.0)
     s = summarize(tr)
     assert s["survival"]["survived"] == 2
     # tracks the commanded planar velocity (0.3-0.6 m/s forward) after the settle

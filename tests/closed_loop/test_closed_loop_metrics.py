@@ -17,7 +17,7 @@ from dls_quadruped.robots.aliengo import constants as C
 def _state(base_z: float, vel_w=(0.0, 0.0, 0.0), yaw: float = 0.0, ang_b=(0.0, 0.0, 0.0)) -> RobotState:
     b = 1
     quat = torch.tensor([[np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]], dtype=torch.float32)
-    z = lambda *s: torch.zeros(b, *s)  # noqa: E731
+    z = lambda *s: torch.zeros(b, *s)
     feet = torch.tensor([[[0.24, 0.13, 0.02], [0.24, -0.13, 0.02], [-0.24, 0.13, 0.02], [-0.24, -0.13, 0.02]]])
     return RobotState(base_pos_w=torch.tensor([[0.3, -0.2, float(base_z)]], dtype=torch.float32), base_quat_w=quat,
                       base_lin_vel_w=torch.tensor([vel_w]), base_ang_vel_b=torch.tensor([ang_b]),
