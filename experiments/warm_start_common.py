@@ -21,7 +21,6 @@ replaced by another).
 from __future__ import annotations
 
 import argparse
-import csv
 import subprocess
 import sys
 import time
@@ -41,6 +40,7 @@ from dls_quadruped.closed_loop.controllers import ControllerConfig
 from dls_quadruped.closed_loop.metrics import summarize
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.mpc.config import SamplerConfig
+from experiments.distill_common import write_table
 
 SCALES = {"small": {"episodes": 4, "seconds": 5.0}, "medium": {"episodes": 16, "seconds": 15.0},
           "thesis": {"episodes": 100, "seconds": 15.0}}
@@ -139,19 +139,6 @@ def med(m: dict | None, digits: int = 1) -> str:
 def survival(s: dict) -> str:
     v = s["survival"]
     return f"{100 * v['rate']:.0f} % [{100 * v['ci95'][0]:.0f}, {100 * v['ci95'][1]:.0f}] (n={v['n']})"
-
-
-def write_table(rows: list[dict], columns: list[str], base: Path, title: str) -> None:
-    """``<base>.csv`` and ``<base>.md``."""
-    base.parent.mkdir(parents=True, exist_ok=True)
-    with open(base.with_suffix(".csv"), "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=columns)
-        w.writeheader()
-        for r in rows:
-            w.writerow({c: r.get(c, "") for c in columns})
-    lines = [f"**{title}**", "", "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    lines += ["| " + " | ".join(str(r.get(c, "")) for c in columns) + " |" for r in rows]
-    base.with_suffix(".md").write_text("\n".join(lines) + "\n")
 
 
 def write_config(args: argparse.Namespace, cells: list[Cell], extra: dict | None = None) -> None:
