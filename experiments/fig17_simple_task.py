@@ -17,13 +17,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import (
-    evaluate_policies,
-    finish,
     mean_cell,
     num,
-    parse_args,
     pyplot,
     rate_cell,
+    run,
+    save,
 )
 
 NAME, SCENARIO = "fig17_simple_task", "simple"
@@ -62,17 +61,11 @@ def figure(results: dict, path: Path) -> None:
     ax1.set_ylim(0, 105)
     n = results[tasks[0]]["episodes"]
     fig.suptitle(f"Fig. 17: simple task, {n} episodes per policy (thesis: base >= 20 % better)", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(__doc__, NAME, argv=argv)
-    results, info = evaluate_policies(SCENARIO, args)
-    rows = rows_of(results)
-    finish(NAME, SCENARIO, args, results, info, rows, list(rows[0]) if rows else ["policy"],
-           f"Fig. 17, scale {args.scale}: simple task, Table-4 reward", figure, "fig17.png")
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 17, scale {scale}: simple task, Table-4 reward", figure, "fig17.png", argv)
 
 
 if __name__ == "__main__":

@@ -20,11 +20,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import (
-    evaluate_policies,
-    finish,
-    parse_args,
     pyplot,
     rate_cell,
+    run,
+    save,
 )
 
 NAME, SCENARIO = "fig18_survival", "survival"
@@ -63,17 +62,11 @@ def figure(results: dict, path: Path) -> None:
     ax.grid(alpha=0.3, axis="y")
     n = results[tasks[0]]["episodes"]
     ax.set_title(f"Fig. 18: survival task, {n} episodes per policy (thesis: climb most robust)", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(__doc__, NAME, argv=argv)
-    results, info = evaluate_policies(SCENARIO, args)
-    rows = rows_of(results)
-    finish(NAME, SCENARIO, args, results, info, rows, list(rows[0]) if rows else ["policy"],
-           f"Fig. 18, scale {args.scale}: survival task", figure, "fig18.png")
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 18, scale {scale}: survival task", figure, "fig18.png", argv)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.rl_common import evaluate_policies, finish, num, parse_args, pyplot
+from experiments.rl_common import num, pyplot, run, save
 
 NAME, SCENARIO = "fig19_stairs", "stairs"
 
@@ -54,17 +54,11 @@ def figure(results: dict, path: Path) -> None:
     ax.legend(fontsize=8)
     n = next(iter(results.values()))["episodes_per_condition"]
     ax.set_title(f"Fig. 19: stairs, {n} episodes per height and policy", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(__doc__, NAME, argv=argv)
-    results, info = evaluate_policies(SCENARIO, args)
-    rows = rows_of(results)
-    finish(NAME, SCENARIO, args, results, info, rows, list(rows[0]) if rows else ["policy"],
-           f"Fig. 19, scale {args.scale}: reached the top of a 6-step flight per step height", figure, "fig19.png")
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 19, scale {scale}: reached the top of a 6-step flight per step height", figure, "fig19.png", argv)
 
 
 if __name__ == "__main__":

@@ -20,12 +20,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import (
-    evaluate_policies,
-    finish,
     mean_cell,
     num,
-    parse_args,
     pyplot,
+    run,
+    save,
 )
 
 NAME, SCENARIO = "fig20_speed", "speed"
@@ -75,17 +74,11 @@ def figure(results: dict, path: Path) -> None:
         ax.legend(fontsize=8)
     n = next(iter(results.values()))["episodes_per_condition"]
     fig.suptitle(f"Fig. 20: forward-speed sweep, flat, {n} episodes per speed and policy", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(__doc__, NAME, argv=argv)
-    results, info = evaluate_policies(SCENARIO, args)
-    rows = rows_of(results)
-    finish(NAME, SCENARIO, args, results, info, rows, list(rows[0]) if rows else ["policy"],
-           f"Fig. 20, scale {args.scale}: survival vs forward speed", figure, "fig20.png")
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 20, scale {scale}: survival vs forward speed", figure, "fig20.png", argv)
 
 
 if __name__ == "__main__":

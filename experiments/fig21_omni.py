@@ -21,12 +21,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import (
-    evaluate_policies,
-    finish,
     mean_cell,
     num,
-    parse_args,
     pyplot,
+    run,
+    save,
 )
 
 NAME, SCENARIO = "fig21_omni", "omni"
@@ -72,17 +71,11 @@ def figure(results: dict, path: Path) -> None:
     ax.set_title(f"Fig. 21: 90 % isolines [m/s] of success (tracked within 25 %) and survival,\n"
                  f"{n} episodes per cell (0 deg forward, 90 deg left)",
                  fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(__doc__, NAME, argv=argv)
-    results, info = evaluate_policies(SCENARIO, args)
-    rows = rows_of(results)
-    finish(NAME, SCENARIO, args, results, info, rows, list(rows[0]) if rows else ["policy"],
-           f"Fig. 21, scale {args.scale}: 90 %-success isoline per direction", figure, "fig21.png")
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 21, scale {scale}: 90 %-success isoline per direction", figure, "fig21.png", argv)
 
 
 if __name__ == "__main__":

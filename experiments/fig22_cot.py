@@ -19,7 +19,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.rl_common import evaluate_policies, finish, parse_args, pyplot
+from experiments.rl_common import pyplot, run, save
 
 NAME, SCENARIO = "fig22_cot", "cot"
 
@@ -61,17 +61,11 @@ def figure(results: dict, path: Path) -> None:
     ax.legend(fontsize=8)
     n = next(iter(results.values()))["episodes_per_condition"]
     ax.set_title(f"Fig. 22: CoT vs speed, flat, {n} episodes per speed and policy", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(__doc__, NAME, argv=argv)
-    results, info = evaluate_policies(SCENARIO, args)
-    rows = rows_of(results)
-    finish(NAME, SCENARIO, args, results, info, rows, list(rows[0]) if rows else ["policy"],
-           f"Fig. 22, scale {args.scale}: cost of transport vs speed", figure, "fig22.png")
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 22, scale {scale}: cost of transport vs speed", figure, "fig22.png", argv)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.rl_common import evaluate_policies, finish, parse_args, pyplot
+from experiments.rl_common import pyplot, run, save
 
 NAME, SCENARIO = "fig23_gait", "gait"
 PAIRS = ("diagonal", "lateral", "front", "rear")
@@ -74,17 +74,11 @@ def figure(results: dict, path: Path) -> None:
     n = next(iter(results.values()))["episodes_per_condition"]
     fig.suptitle(f"Fig. 23: gait vs speed, {n} episodes per speed and policy (diagrams: <task>/gait.png)",
                  fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(__doc__, NAME, argv=argv)
-    results, info = evaluate_policies(SCENARIO, args)
-    rows = rows_of(results)
-    finish(NAME, SCENARIO, args, results, info, rows, list(rows[0]) if rows else ["policy"],
-           f"Fig. 23, scale {args.scale}: gait vs speed", figure, "fig23.png")
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 23, scale {scale}: gait vs speed", figure, "fig23.png", argv)
 
 
 if __name__ == "__main__":

@@ -159,7 +159,26 @@ def mean_cell(m: dict, fmt: str = ".3f") -> str:
     return f"{num(m['mean'], fmt)} [{num(lo, fmt)}, {num(hi, fmt)}] (n = {m['n']})"
 
 
+def run(doc: str, name: str, scenario: str, rows_of: Callable[[dict], list[dict]], title: str,
+        figure: Callable[[dict, Path], None], figure_name: str, argv: list[str] | None = None) -> None:
+    """A figure script's whole main: parse the flags, evaluate every expert on ``scenario``, tabulate with
+    ``rows_of`` and :func:`finish`; ``title`` may use ``{scale}``."""
+    args = parse_args(doc, name, argv=argv)
+    results, info = evaluate_policies(scenario, args)
+    rows = rows_of(results)
+    finish(name, scenario, args, results, info, rows, list(rows[0]) if rows else ["policy"],
+           title.format(scale=args.scale), figure, figure_name)
+
+
+def save(fig, path: Path) -> None:
+    """Lay out, write at 110 dpi and close a figure."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    pyplot().close(fig)
+
+
 def pyplot():
+    """matplotlib.pyplot on the file-only backend."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -41,6 +41,7 @@ from dls_quadruped.closed_loop.metrics import summarize
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.mpc.config import SamplerConfig
 from experiments.distill_common import write_table
+from experiments.rl_common import pyplot, save  # noqa: F401 (the tables' plot helpers, shared with the 7.1 scripts)
 
 SCALES = {"small": {"episodes": 4, "seconds": 5.0}, "medium": {"episodes": 16, "seconds": 15.0},
           "thesis": {"episodes": 100, "seconds": 15.0}}
@@ -179,19 +180,3 @@ def finish(args: argparse.Namespace, cells: list[Cell], results: dict, rows: lis
     figure(results, args.out / figure_name)
     write_config(args, cells)
     print((args.out / "table.md").read_text())
-
-
-def pyplot():
-    """matplotlib.pyplot on the file-only backend."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def save(fig, path: Path) -> None:
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    pyplot().close(fig)
