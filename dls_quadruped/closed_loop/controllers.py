@@ -106,7 +106,18 @@ class SolveRecord:
     student_fallback: torch.Tensor
 
 
-def _check_obs(module_name: str, obs: torch.Tensor, out: torch.Tensor, dim: int) -> None:
+def _load_student(path: Path, env, device: str = "cpu"):
+    """A student export and its metadata, refused unless it was distilled for the env's observation size."""
+    from dls_quadruped.learning.student import load_student
+
+    module, meta = load_student(path, device=device)
+    if int(meta.get("obs_dim", -1)) != env.obs_dims["policy"]:
+        raise ValueError(f"student {path} was distilled for {meta.get('obs_dim')} observations, "
+                         f"the env gives {env.obs_dims['policy']}")
+    return module, meta
+
+
+def _check_output(module_name: str, obs: torch.Tensor, out: torch.Tensor, dim: int) -> None:
     if out.dim() != 2 or tuple(out.shape) != (obs.shape[0], dim):
         raise ValueError(f"{module_name} returned shape {tuple(out.shape)}, expected ({obs.shape[0]}, {dim})")
 
@@ -162,18 +173,13 @@ class PolicyController(Controller):
             self._policy = load_policy(cfg.policy, env)
             self._what = f"policy {cfg.policy}"
         else:
-            from dls_quadruped.learning.student import load_student
-
-            module, meta = load_student(cfg.student, device=str(env.device))
-            if int(meta.get("obs_dim", -1)) != env.obs_dims["policy"]:
-                raise ValueError(f"student {cfg.student} was distilled for {meta.get('obs_dim')} observations, "
-                                 f"the env gives {env.obs_dims['policy']}")
+            module, _ = _load_student(cfg.student, env, str(env.device))
             self._policy = lambda obs: module.first_action(obs["policy"])
             self._what = f"student {cfg.student}"
 
     def act(self, obs: TensorDict) -> torch.Tensor:
         out = _call(self._what, self._policy, obs)
-        _check_obs(self._what, obs["policy"], out, ACTION_DIM)
+        _check_output(self._what, obs["policy"], out, ACTION_DIM)
         return out
 
 
@@ -195,15 +201,11 @@ class MPCController(Controller):
             self.mpc = self.baseline.mpc
             self.sampler_cfg = self.baseline.sampler_cfg
         else:
-            from dls_quadruped.learning.student import load_student
 
             self.sampler_cfg = optimised(cfg.sampler, cfg.optimise)
             self.mpc = SamplingMPC(self.sampler_cfg, device="cpu", seed=cfg.seed)
-            self.student, meta = load_student(cfg.student)
+            self.student, meta = _load_student(cfg.student, env)
             warm_start.check_student_encoding(meta, self.sampler_cfg)
-            if int(meta.get("obs_dim", -1)) != env.obs_dims["policy"]:
-                raise ValueError(f"student {cfg.student} was distilled for {meta.get('obs_dim')} observations, "
-                                 f"the env gives {env.obs_dims['policy']}")
             self.default = warm_start.nominal_trot(b, self.sampler_cfg)
         self._solves = 0
         self._student_ws: torch.Tensor | None = None
@@ -220,7 +222,7 @@ class MPCController(Controller):
             return
         x = obs["policy"].cpu()
         out = _call(f"student {self.cfg.student}", self.student, x)
-        _check_obs(f"student {self.cfg.student}", x, out, self.mpc.dim)
+        _check_output(f"student {self.cfg.student}", x, out, self.mpc.dim)
         ok = torch.isfinite(out).all(dim=1)
         self._student_ok = ok
         self._student_ws = warm_start.from_student(torch.where(ok[:, None], out, torch.zeros_like(out)), self.sampler_cfg)
