@@ -201,7 +201,6 @@ class MPCController(Controller):
             self.mpc = self.baseline.mpc
             self.sampler_cfg = self.baseline.sampler_cfg
         else:
-
             self.sampler_cfg = optimised(cfg.sampler, cfg.optimise)
             self.mpc = SamplingMPC(self.sampler_cfg, device="cpu", seed=cfg.seed)
             self.student, meta = _load_student(cfg.student, env)
