@@ -82,6 +82,12 @@ TRAIN_THREADS ?= 1
 DEVICE ?= cpu
 SEED ?= 0
 RESUME ?=
+# INIT_FROM=docs/policies/base_networks.pt starts the run from the base expert's actor and critic
+# (fine-tuning; how the speed, rough and climb experts were trained, docs/train.md).
+INIT_FROM ?=
+INIT_STD ?=
+# simulator worker processes (empty: the task's scene.num_workers, one per core; 0 = in-process)
+TRAIN_WORKERS ?=
 CHECKPOINT ?=
 PLAY_SECONDS ?= 10
 
@@ -89,7 +95,9 @@ PLAY_SECONDS ?= 10
 
 train: $(STAMP)
 	OMP_NUM_THREADS=$(TRAIN_THREADS) $(PY) -m dls_quadruped.learning.train --task $(TASK) --num-envs $(TRAIN_NUM_ENVS) --iterations $(ITERATIONS) \
-		--device $(DEVICE) --seed $(SEED) $(if $(RESUME),--resume,)
+		--device $(DEVICE) --seed $(SEED) $(if $(RESUME),--resume,) $(if $(INIT_FROM),--init-from $(INIT_FROM),) \
+		$(if $(INIT_STD),--init-std $(INIT_STD),) \
+		$(if $(TRAIN_WORKERS),--num-workers $(TRAIN_WORKERS),)
 
 play: $(STAMP)
 	$(PY) -m dls_quadruped.learning.play --task $(TASK) --seconds $(PLAY_SECONDS) $(if $(CHECKPOINT),--checkpoint $(CHECKPOINT),)

@@ -16,7 +16,6 @@ See docs/distill.md.
 from __future__ import annotations
 
 import argparse
-import hashlib
 from pathlib import Path
 
 import torch
@@ -40,7 +39,7 @@ from dls_quadruped.learning.distill_config import (
     load_distill_config,
 )
 from dls_quadruped.learning.distill_trainer import CHECKPOINT, DistillTrainer
-from dls_quadruped.learning.runner import new_run_dir
+from dls_quadruped.learning.runner import new_run_dir, sha256_file
 from dls_quadruped.mpc.config import ENCODING_KINDS
 
 RESOLVED = "distill.yaml"
@@ -131,10 +130,6 @@ def check_expert(expert, path: str | Path, obs_dim: int, num_actions: int) -> No
             from None
     if tuple(out.shape) != (2, num_actions):
         raise UserError(f"expert {path} outputs {tuple(out.shape[1:])} actions per robot; the task needs {num_actions}")
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def distill_task(task: str, num_workers: int | None):
@@ -235,7 +230,7 @@ def main(argv: list[str] | None = None) -> Path:
         run_dir.mkdir(parents=True, exist_ok=True)
         hidden = list(cfg.student.hidden_dims or agent_actor.get("hidden_dims", [512, 256, 128]))
         activation = cfg.student.activation or agent_actor.get("activation", "elu")
-        info = {"path": str(cfg.expert), "sha256": _sha256(Path(cfg.expert))}
+        info = {"path": str(cfg.expert), "sha256": sha256_file(Path(cfg.expert))}
         if state is not None and state.get("expert", {}).get("sha256") not in (None, info["sha256"]):
             raise UserError(f"--resume: expert {cfg.expert} changed since {run_dir} started (sha256 "
                             f"{state['expert']['sha256'][:12]}..., now {info['sha256'][:12]}...); its labels "

@@ -1,6 +1,8 @@
-"""Re-export a TorchScript actor (``exported/policy.pt``, ``docs/policies/*.pt``) to ONNX, checked numerically.
+"""Re-export a TorchScript actor (``exported/policy.pt``, ``docs/policies/*.pt``) to ONNX, checked
+numerically; or export any training checkpoint's actor (TorchScript + ONNX, as training does at its end).
 
     python -m dls_quadruped.learning.export docs/policies/base_actor.pt docs/policies/base_actor.onnx --task base
+    python -m dls_quadruped.learning.export --checkpoint runs/speed/<run>/model_300.pt --task speed --out-dir DIR
 
 The actor is rebuilt from the task's ``agent.actor`` config (the same rsl-rl ``MLPModel`` training
 makes), the TorchScript weights are loaded into it (every normaliser and MLP tensor must match), and
@@ -21,7 +23,10 @@ from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.learning.runner import (
     AtomicOnPolicyRunner,
+    CheckpointMismatch,
     export_actor_onnx,
+    export_policy,
+    read_checkpoint,
     runner_config,
 )
 
@@ -71,12 +76,47 @@ def torchscript_to_onnx(jit_path: Path, onnx_path: Path, task_name: str) -> Path
         env.close()
 
 
+def checkpoint_to_policy(ckpt_path: Path, out_dir: Path, task_name: str) -> dict[str, Path | str]:
+    """Export the deterministic actor of a training checkpoint (``model_<it>.pt``) to
+    ``out_dir/policy.pt`` (TorchScript) and ``out_dir/policy.onnx``, as training does at its end.
+
+    Raises:
+        UserError: the file is not a checkpoint, or its networks do not fit the task's.
+    """
+    try:
+        ckpt = read_checkpoint(ckpt_path)
+    except ValueError as err:
+        raise UserError(f"--checkpoint: cannot read {ckpt_path}: {err}") from None
+    task = load_task(task_name, overrides={"scene": {"num_workers": 0}})
+    env = LocomotionEnv(task, num_envs=1, verbose=False)
+    try:
+        runner = AtomicOnPolicyRunner(env, runner_config(task.data["agent"]), log_dir=None)
+        try:
+            runner.init_networks(ckpt, str(ckpt_path))
+        except CheckpointMismatch as err:
+            raise UserError(f"--checkpoint: {err}") from None
+        return export_policy(runner, out_dir)
+    finally:
+        env.close()
+
+
 def main(argv: list[str] | None = None) -> Path:
     p = ArgumentParser(description=__doc__)
-    p.add_argument("torchscript", type=Path)
-    p.add_argument("onnx", type=Path)
+    p.add_argument("torchscript", type=Path, nargs="?", help="TorchScript actor to re-export")
+    p.add_argument("onnx", type=Path, nargs="?", help="ONNX file to write")
     p.add_argument("--task", default="base", help="task whose agent.actor built the policy")
+    p.add_argument("--checkpoint", type=Path, default=None,
+                   help="instead: export this training checkpoint's actor to --out-dir")
+    p.add_argument("--out-dir", type=Path, default=None, help="with --checkpoint: where policy.pt/.onnx go")
     args = p.parse_args(argv)
+    if args.checkpoint is not None:
+        if args.torchscript is not None or args.out_dir is None:
+            raise UserError("--checkpoint exports to --out-dir; give --checkpoint CKPT --out-dir DIR and no positional files")
+        exported = checkpoint_to_policy(args.checkpoint, args.out_dir, args.task)
+        print(f"[export] {args.checkpoint} -> {exported}")
+        return Path(exported["jit"])
+    if args.torchscript is None or args.onnx is None:
+        raise UserError("give TORCHSCRIPT ONNX (re-export) or --checkpoint CKPT --out-dir DIR")
     if not args.torchscript.is_file():
         raise UserError(f"{args.torchscript}: no such file")
     out = torchscript_to_onnx(args.torchscript, args.onnx, args.task)

@@ -20,6 +20,7 @@ stops every rank at the end of the same iteration.
 from __future__ import annotations
 
 import copy
+import hashlib
 import os
 import re
 import signal
@@ -153,23 +154,62 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         Raises:
             CheckpointMismatch: the checkpoint was trained on other observation or action sizes.
         """
-        env_dims = dict(self.env.obs_dims)
-        if "obs_dims" in ckpt and (ckpt["obs_dims"] != env_dims or ckpt["num_actions"] != self.env.num_actions):
-            raise CheckpointMismatch(f"{path} was trained with observations {ckpt['obs_dims']} and "
-                                     f"{ckpt['num_actions']} actions; this task has {env_dims} and "
-                                     f"{self.env.num_actions}")
+        self._check_sizes(ckpt, path)
         try:
             self.alg.load(ckpt, None, True)
         except (RuntimeError, KeyError) as err:  # size mismatch of a checkpoint without obs_dims
-            first = str(err).strip().splitlines()
-            raise CheckpointMismatch(f"{path} does not fit this task's networks: "
-                                     f"{' '.join(line.strip() for line in first[:3])}") from err
+            raise CheckpointMismatch(_load_error(path, err)) from err
         self.current_learning_iteration = ckpt["iter"]
         if env_state and "env_state" in ckpt and hasattr(self.env, "load_state_dict"):
             try:
                 self.env.load_state_dict(ckpt["env_state"])
             except (KeyError, ValueError) as err:
                 raise CheckpointMismatch(f"{path}: env state does not fit this task: {err}") from err
+
+
+    def init_networks(self, ckpt: dict, path: str) -> None:
+        """Start a new run from another run's networks (``--init-from``): the actor (with its action
+        std) and the critic are loaded, observation normalisers included; the optimiser, the
+        iteration counter and the env state (curricula, terrain levels, command ranges) start afresh.
+
+        The normalisers keep their statistics *and* sample counts, so every input keeps the meaning
+        the networks were trained with and the new task's observations move the statistics only as
+        fast as further training would have. (Lowering the counts so the new task's statistics take
+        over at once was tried and is wrong: a speed command range of [0, 1] m/s re-centres the
+        command input on 0.5 m/s, which the base actor reads as "stand still"; those runs fell.)
+
+        Raises:
+            CheckpointMismatch: the checkpoint was trained on other observation or action sizes, or
+                its networks do not fit this task's (hidden sizes).
+        """
+        self._check_sizes(ckpt, path)
+        try:
+            self.alg.load(ckpt, {"actor": True, "critic": True}, True)
+        except (RuntimeError, KeyError) as err:
+            raise CheckpointMismatch(_load_error(path, err)) from err
+        self.current_learning_iteration = 0
+
+    def set_action_std(self, std: float) -> None:
+        """Set every action dimension's exploration std of the actor's Gaussian to ``std`` (its
+        ``std_param``, or ``log_std_param`` for a log parameterisation)."""
+        dist = self.alg.get_policy().distribution
+        with torch.no_grad():
+            if getattr(dist, "std_type", "scalar") == "log":
+                dist.log_std_param.fill_(float(torch.log(torch.tensor(std))))
+            else:
+                dist.std_param.fill_(std)
+
+    def _check_sizes(self, ckpt: dict, path: str) -> None:
+        env_dims = dict(self.env.obs_dims)
+        if "obs_dims" in ckpt and (ckpt["obs_dims"] != env_dims or ckpt["num_actions"] != self.env.num_actions):
+            raise CheckpointMismatch(f"{path} was trained with observations {ckpt['obs_dims']} and "
+                                     f"{ckpt['num_actions']} actions; this task has {env_dims} and "
+                                     f"{self.env.num_actions}")
+
+
+def _load_error(path: str, err: Exception) -> str:
+    first = str(err).strip().splitlines()
+    return f"{path} does not fit this task's networks: {' '.join(line.strip() for line in first[:3])}"
 
 
 class CheckpointMismatch(ValueError):
@@ -281,6 +321,11 @@ def export_actor_onnx(actor, path: Path, verbose: bool = False) -> Path:
                       input_names=model.input_names, output_names=model.output_names, verbose=verbose,
                       dynamic_shapes=({0: torch.export.Dim("batch")},))
     return path
+
+
+def sha256_file(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes (records which expert or checkpoint a run started from)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def write_yaml(data: dict, path: Path) -> None:

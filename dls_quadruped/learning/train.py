@@ -2,6 +2,7 @@
 
     python -m dls_quadruped.learning.train --task rough --num-envs 64 --iterations 100 --device cpu --seed 0
     python -m dls_quadruped.learning.train --task rough --resume          # continue the latest run
+    python -m dls_quadruped.learning.train --task speed --init-from docs/policies/base_networks.pt
 
 Checkpoints (written atomically, with the env's curricula, terrain levels, command ranges, reward
 weights and RNG state) every ``--save-interval`` iterations (default: a tenth of the run, at most
@@ -9,8 +10,11 @@ weights and RNG state) every ``--save-interval`` iterations (default: a tenth of
 end, and on SIGINT/SIGTERM (at the end of the current iteration; a second signal stops at once).
 ``--resume`` reloads the newest readable checkpoint of the newest run (or of ``--run-dir``),
 restores the env state and continues for ``--iterations`` more; a checkpoint that does not fit
-the task is refused before anything in the run directory is written. At the end the actor is
-exported to TorchScript and ONNX.
+the task is refused before anything in the run directory is written. ``--init-from`` starts a new
+run from another run's actor and critic (a checkpoint file or a run directory's newest one; fresh
+optimiser, iteration 0, the task's own curricula; see ``AtomicOnPolicyRunner.init_networks``); it is
+recorded in the run directory's ``init_from.yaml``. At the end the actor is exported to TorchScript
+and ONNX.
 Distributed: ``torchrun --standalone --nproc_per_node=N -m dls_quadruped.learning.train ...`` runs N
 processes, each with its own ``--num-envs`` robots and seed ``--seed + rank``, all-reducing the
 gradients (gloo with ``--device cpu``; NCCL with ``--device cuda``, which becomes ``cuda:$LOCAL_RANK``).
@@ -54,6 +58,7 @@ from dls_quadruped.learning.runner import (
     read_checkpoint,
     remove_stale_tmp,
     runner_config,
+    sha256_file,
     write_yaml,
 )
 
@@ -69,6 +74,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--device", default="cpu")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--resume", action="store_true", help="continue from the newest readable checkpoint")
+    p.add_argument("--init-from", type=Path, default=None, metavar="CKPT",
+                   help="start from another run's actor and critic: a model_<it>.pt (or a networks-only "
+                        "file such as docs/policies/base_networks.pt) or a run directory (its newest); "
+                        "not with --resume")
+    p.add_argument("--init-std", type=positive_float, default=None, metavar="S",
+                   help="with --init-from: set the actor's exploration std to S in every action dimension "
+                        "(default: keep the source's)")
     p.add_argument("--run-dir", type=Path, default=None,
                    help="run directory (default: a new <log-root>/<task>/<time>); must be empty unless --resume")
     p.add_argument("--log-root", type=Path, default=Path("runs"))
@@ -100,6 +112,21 @@ def _fresh_dir(args: argparse.Namespace, task_dir: Path) -> Path:
         raise UserError(f"--run-dir {args.run_dir} is not empty; add --resume to continue it or choose a new one")
     args.run_dir.mkdir(parents=True, exist_ok=True)
     return args.run_dir
+
+
+def _init_source(path: Path) -> tuple[Path, dict]:
+    """The checkpoint ``--init-from`` names (a file, or a run directory's newest readable one)."""
+    if path.is_dir():
+        found = newest_readable_checkpoint(path)
+        if found is None:
+            raise UserError(f"--init-from: no readable model_<it>.pt in {path}")
+        return found
+    if not path.is_file():
+        raise UserError(f"--init-from: {path} does not exist (give a model_<it>.pt or a run directory)")
+    try:
+        return path, read_checkpoint(path)
+    except ValueError as err:
+        raise UserError(f"--init-from: cannot read {path}: {err}") from None
 
 
 def _choose_run(args: argparse.Namespace, task_dir: Path) -> tuple[Path, tuple[Path, dict] | None]:
@@ -157,6 +184,11 @@ def main(argv: list[str] | None = None) -> Path:
 def _train(args: argparse.Namespace, ranks: Ranks) -> Path:
     overrides = {"scene": {"num_workers": args.num_workers}} if args.num_workers is not None else None
     task = load_task(args.task, overrides=overrides)
+    if args.init_from is not None and args.resume:
+        raise UserError("--init-from starts a new run and --resume continues one; give only one of them")
+    if args.init_std is not None and args.init_from is None:
+        raise UserError("--init-std sets the exploration std of an --init-from start; give --init-from too")
+    source = _init_source(args.init_from) if args.init_from is not None else None
     task_dir = args.log_root / task.name
     cfg = runner_config(task.data["agent"], args.iterations, args.seed)
     cfg["save_interval"] = args.save_interval or default_save_interval(int(cfg["max_iterations"]),
@@ -181,6 +213,21 @@ def _train(args: argparse.Namespace, ranks: Ranks) -> Path:
             restored = "env state restored" if "env_state" in ckpt else "no env state in it: curricula start afresh"
             print(f"[train] resumed from {path} at iteration {runner.current_learning_iteration} ({restored}; "
                   f"curriculum {dict(env.curriculum_manager.values)})", flush=True)
+        elif source is not None:
+            path, ckpt = source
+            try:
+                runner.init_networks(ckpt, str(path))
+            except CheckpointMismatch as err:
+                raise UserError(f"--init-from: {err}") from None
+            if args.init_std is not None:
+                runner.set_action_std(args.init_std)
+            print(f"[train] initialised actor and critic from {path} (its iteration {ckpt['iter']}; action std "
+                  f"{'set to ' + str(args.init_std) if args.init_std is not None else 'kept'}); "
+                  f"optimiser, iteration and env state start afresh (curriculum "
+                  f"{dict(env.curriculum_manager.values)}); normalisers go on from its statistics", flush=True)
+            if ranks.is_main:
+                write_yaml({"init_from": str(path), "iteration": int(ckpt["iter"]),
+                            "sha256": sha256_file(path), "init_std": args.init_std}, run_dir / "init_from.yaml")
         if ranks.is_main:
             for stale in remove_stale_tmp(run_dir):
                 print(f"[train] note: removed {stale} (left by a save that was killed)")

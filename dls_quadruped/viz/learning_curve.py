@@ -6,7 +6,9 @@
 Per PPO iteration: ``Train/mean_reward`` (mean return of the episodes finished so far, rsl-rl's
 window of 100), ``Train/mean_episode_length`` [policy steps, 50 per s], the velocity-tracking error
 ``Episode_Metric/lin_vel_xy_error`` (|v_xy,b - v_cmd,xy| averaged over each finished episode [m/s],
-logged by ``LocomotionEnv``) and the iteration time (``Perf/collection_time + Perf/learning_time`` [s]).
+logged by ``LocomotionEnv``), the iteration time (``Perf/collection_time + Perf/learning_time`` [s]),
+the mean exploration std of the actions (``Policy/mean_std``) and, where the task has them, the
+terrain-level and forward-speed curricula (``Curriculum/terrain_levels``, ``Curriculum/speed``).
 """
 
 from __future__ import annotations
@@ -27,6 +29,9 @@ COLUMNS = {
     "lin_vel_xy_error": "Episode_Metric/lin_vel_xy_error",
     "collection_s": "Perf/collection_time",
     "learning_s": "Perf/learning_time",
+    "action_std": "Policy/mean_std",
+    "terrain_level": "Curriculum/terrain_levels",
+    "speed_range": "Curriculum/speed",
 }
 
 
@@ -57,11 +62,13 @@ def write_csv(rows: list[dict[str, float]], path: Path) -> None:
 
 
 def plot(rows: list[dict[str, float]], path: Path, title: str, marks: tuple[int, ...] = ()) -> None:
-    """Three panels over the iterations; ``marks``: iterations to draw as dotted lines (e.g. a resume)."""
+    """Four panels over the iterations; ``marks``: iterations to draw as dotted lines (e.g. a resume, the
+    exported checkpoint)."""
     it = [r["iteration"] for r in rows]
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    fig, axes = plt.subplots(1, 4, figsize=(17, 3.6))
     specs = [("mean_reward", "mean reward (episode return)"), ("mean_episode_length", "mean episode length [steps]"),
-             ("lin_vel_xy_error", "velocity-tracking error |v_xy - v_cmd| [m/s]")]
+             ("lin_vel_xy_error", "velocity-tracking error |v_xy - v_cmd| [m/s]"),
+             ("action_std", "mean action std (exploration)")]
     for ax, (col, label) in zip(axes, specs):
         pts = [(i, r[col]) for i, r in zip(it, rows) if col in r]
         if pts:
@@ -73,7 +80,7 @@ def plot(rows: list[dict[str, float]], path: Path, title: str, marks: tuple[int,
             ax.axvline(m, color="tab:red", ls=":", lw=1.0)
     axes[1].axhline(750, color="grey", ls="--", lw=0.8, label="15 s episode (time-out)")
     axes[2].axhline(0.15, color="grey", ls="--", lw=0.8, label="0.15 m/s (target on the simple task)")
-    for ax in axes[1:]:
+    for ax in axes[1:3]:
         ax.legend(loc="upper left", fontsize=8)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()

@@ -37,6 +37,7 @@ def test_learning_curve_reads_scalars_and_later_event_file_wins(tmp_path):
         w.add_scalar("Train/mean_reward", 1.0 + it, it)
         w.add_scalar("Train/mean_episode_length", 10.0 * it, it)
         w.add_scalar("Episode_Metric/lin_vel_xy_error", 0.5 - 0.1 * it, it)
+        w.add_scalar("Policy/mean_std", 1.0 + 0.25 * it, it)
     w.close()
     time.sleep(1.1)  # event file names carry the second: the resumed run's file sorts after
     w = SummaryWriter(log_dir=str(tmp_path))
@@ -46,6 +47,7 @@ def test_learning_curve_reads_scalars_and_later_event_file_wins(tmp_path):
     assert [r["iteration"] for r in rows] == [0, 1, 2]
     assert [r["mean_reward"] for r in rows] == pytest.approx([1.0, 2.0, 7.0])
     assert rows[1]["lin_vel_xy_error"] == pytest.approx(0.4)
+    assert rows[2]["action_std"] == pytest.approx(1.5) and "terrain_level" not in rows[2]
     write_csv(rows, tmp_path / "c.csv")
     with open(tmp_path / "c.csv") as fh:
         table = list(csv.DictReader(fh))
