@@ -83,6 +83,25 @@ def test_init_from_with_resume_is_refused(source, tmp_path):
                         "--init-from", str(source)))
 
 
+def test_a_run_started_from_another_resumes_from_its_own_checkpoint(source, tmp_path):
+    """``make train … RESUME=1`` (no INIT_FROM) continues a fine-tuning run where it stopped: its own
+    iteration, normaliser counts and record of where it started; the source is not read again."""
+    run_dir = tmp_path / "run"
+    task = write_task(tmp_path)
+    train.main(args(task, run_dir, "--iterations", "1", "--init-from", str(source), "--init-std", "0.3"))
+    record = (run_dir / "init_from.yaml").read_text()
+    train.main(args(task, run_dir, "--iterations", "1", "--resume"))
+    resumed = read_checkpoint(run_dir / "model_1.pt")
+    assert resumed["iter"] == 1
+    for net in ("actor_state_dict", "critic_state_dict"):  # 3 source iterations + 1 + 1
+        assert int(resumed[net]["obs_normalizer.count"]) == 5 * ENVS * STEPS
+    std = resumed["actor_state_dict"]["distribution.std_param"]
+    assert (std - 0.3).abs().max() < 0.1  # the resumed run keeps its own std, not the source's
+    steps = {int(s["step"]) for s in resumed["optimizer_state_dict"]["state"].values()}
+    assert steps == {40}  # Adam went on: 2 iterations x 20 updates
+    assert (run_dir / "init_from.yaml").read_text() == record
+
+
 @pytest.mark.parametrize("what", ["missing", "garbage", "empty_dir"])
 def test_init_from_unusable_source_is_one_line_and_writes_nothing(what, tmp_path):
     bad = {"missing": tmp_path / "nope.pt", "garbage": tmp_path / "model_1.pt", "empty_dir": tmp_path / "d"}[what]
