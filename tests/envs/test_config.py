@@ -66,3 +66,16 @@ def test_tasks_resolve_and_match_table6(name):
             alg["clip_param"], alg["entropy_coef"], alg["desired_kl"], alg["schedule"]) == (
         1e-3, 0.99, 0.95, 5, 4, 0.2, 0.005, 0.1, "adaptive")
     assert agent["actor"]["distribution_cfg"]["init_std"] == 1.0
+
+
+def test_climb_finetune_is_climb_without_entropy_and_with_a_std_cap():
+    """tasks/climb_finetune.yaml (the climb expert's second stage) changes only the agent's
+    exploration: the env, rewards and curricula are climb's, and rsl-rl's own signature check
+    (agent_config) accepts the std clamp."""
+    from dls_quadruped.learning.agent_config import check_agent_section
+
+    climb, fine = load_task("climb"), load_task("climb_finetune")
+    assert {k: v for k, v in fine.data.items() if k != "agent"} == {k: v for k, v in climb.data.items() if k != "agent"}
+    assert fine.data["agent"]["algorithm"]["entropy_coef"] == 0.0 != climb.data["agent"]["algorithm"]["entropy_coef"]
+    assert fine.data["agent"]["actor"]["distribution_cfg"]["std_range"] == [0.05, 1.0]
+    check_agent_section(fine)  # load_task ran it too; explicit here
