@@ -6,6 +6,7 @@ from pathlib import Path
 
 import onnx
 import onnxruntime as ort  # dev extra: the numeric ONNX check is not optional
+import pytest
 import torch
 from tensordict import TensorDict
 
@@ -69,11 +70,12 @@ def test_train_resume_export(tmp_path):
         env.close()
 
 
-def test_committed_base_actor_onnx_matches_its_torchscript():
-    """docs/policies/base_actor.onnx was exported from base_actor.pt (``python -m
+@pytest.mark.parametrize("task", ["base", "rough", "speed", "climb"])
+def test_committed_actor_onnx_matches_its_torchscript(task):
+    """docs/policies/<task>_actor.onnx was exported with <task>_actor.pt (``python -m
     dls_quadruped.learning.export``); both give the same actions for 1 and for 64 observations."""
     root = Path(__file__).resolve().parents[2] / "docs" / "policies"
-    jit = torch.jit.load(str(root / "base_actor.pt")).eval()
+    jit = torch.jit.load(str(root / f"{task}_actor.pt")).eval()
     for batch in (1, 64):
-        assert onnx_error(root / "base_actor.onnx", jit, batch) <= ONNX_ATOL, batch
+        assert onnx_error(root / f"{task}_actor.onnx", jit, batch) <= ONNX_ATOL, batch
     assert ONNX_ATOL == 1e-5
