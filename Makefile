@@ -105,7 +105,7 @@ play: $(STAMP)
 # ---------------------------------------------------------------------------------------------
 # Policy evaluation (issue 14; scenarios in dls_quadruped/eval/scenarios.py, see docs/eval.md).
 # `make eval POLICY=docs/policies/base_actor.pt SCENARIO=simple EPISODES=256 EVAL_OUT=results/eval/base`
-# Scenarios: simple, forward, survival, stairs, speed, omni, cot, gait. EPISODES is per condition
+# Scenarios: simple, forward, survival, survival_sweep, stairs, speed, omni, cot, gait. EPISODES is per condition
 # (per speed, step height, grid cell); empty = the scenario's small default.
 POLICY ?= docs/policies/base_actor.pt
 SCENARIO ?= simple

@@ -38,8 +38,8 @@ REPO = Path(__file__).resolve().parents[1]
 TASKS = ("base", "rough", "speed", "climb")
 """The four RL experts of thesis 7.1, in the thesis's order."""
 POLICY_DIR = REPO / "docs" / "policies"
-THESIS_EPISODES = {"simple": 4096, "survival": 4096, "stairs": 512, "speed": 512, "omni": 128, "cot": 512, "gait": 512}
-MEDIUM_EPISODES = {"simple": 512, "survival": 288, "stairs": 36, "speed": 48, "omni": 9, "cot": 24, "gait": 24}
+THESIS_EPISODES = {"simple": 4096, "survival": 4096, "survival_sweep": 4096, "stairs": 512, "speed": 512, "omni": 128, "cot": 512, "gait": 512}
+MEDIUM_EPISODES = {"simple": 512, "survival": 288, "survival_sweep": 288, "stairs": 36, "speed": 48, "omni": 9, "cot": 24, "gait": 24}
 """Three times the small defaults (twice for simple): 1.5-3 min per policy and scenario at load ~3."""
 SCALES: dict[str, dict] = {
     "small": {"episodes": {}, "episode_length_s": None},   # {}: each scenario's default_episodes

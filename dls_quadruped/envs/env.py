@@ -204,6 +204,7 @@ class LocomotionEnv(VecEnv):
         self.refresh_state()
         self.episode_length_buf += 1
         self.common_step_counter += 1
+        self.command_manager.integrate(self.step_dt)
         self._vel_err_sum += torch.linalg.vector_norm(
             obs_mdp.base_lin_vel(self)[:, :2] - self.command_manager.command[:, :2], dim=-1)
         dones = self.termination_manager.compute(nonfinite)

@@ -2,7 +2,7 @@
 
 A scenario says which env it builds, how it runs the policy and what it reports; the command
 line (``python -m dls_quadruped.eval``) only looks it up here. A scenario is one ``Scenario``
-value, defined in its own module of this package and listed below (thesis 7.1: survival, stairs,
+value, defined in its own module of this package and listed below (thesis 7.1: survival, survival_sweep, stairs,
 speed, omni, cot, gait; docs/eval.md).
 """
 
@@ -19,6 +19,7 @@ from dls_quadruped.eval import (
 )
 from dls_quadruped.eval.scenario import Scenario
 
-SCENARIOS: dict[str, Scenario] = {s.name: s for s in (*velocity_tracking.SCENARIOS, survival.SCENARIO, stairs.SCENARIO,
-                                                      speed.SCENARIO, omni.SCENARIO, cot.SCENARIO, gait.SCENARIO)}
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in (*velocity_tracking.SCENARIOS, survival.SCENARIO,
+                                                      survival.SWEEP_SCENARIO, stairs.SCENARIO, speed.SCENARIO,
+                                                      omni.SCENARIO, cot.SCENARIO, gait.SCENARIO)}
 """Every scenario by name."""

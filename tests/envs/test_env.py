@@ -101,9 +101,11 @@ def test_terrain_curriculum_moves_levels_up_and_down():
         state.base_pos_w[:, :2] = origins[:, :2]
         state.base_pos_w[0, 0] += 0.6 * scene.terrain.cfg.tile_size  # walked far: up
         env._state = state
-        env.command_manager.command[:] = torch.tensor([0.5, 0.0, 0.0])  # asked for 7.5 m in 15 s
-        env.command_manager.command[2] = 0.0  # env 2: asked to stand and stood: stays
-        env.command_manager.command[3, 0] = 0.01
+        env.episode_length_buf[:] = 750
+        env.termination_manager.time_outs[:] = True  # every episode ran to its end
+        env.command_manager.commanded_disp[:] = torch.tensor([7.5, 0.0])  # asked for 7.5 m
+        env.command_manager.commanded_disp[2] = 0.0  # env 2: asked to stand and stood: stays
+        env.command_manager.commanded_disp[3, 0] = 0.15
         cur_mdp.terrain_levels(env, torch.tensor([0, 1, 2]))
         assert scene.terrain_levels[:3].tolist() == [2, 0, 1]
         assert int(scene.terrain_levels[3]) == 1  # not in env_ids: untouched
@@ -111,6 +113,64 @@ def test_terrain_curriculum_moves_levels_up_and_down():
         # solving the last row sends the robot to a random row; never below 0
         scene.update_levels(torch.tensor([1]), torch.tensor([-1]))
         assert int(scene.terrain_levels[1]) == 0
+    finally:
+        env.close()
+
+
+def _arc(v: torch.Tensor, omega: float, yaw0: float, t: float) -> torch.Tensor:
+    """Closed form: world displacement after t of base velocity v = (v_x, v_y) at yaw rate omega
+    from heading yaw0 (integral of R(yaw0 + omega s) v ds)."""
+    a = omega * t
+    local = torch.tensor([v[0] * np.sin(a) - v[1] * (1 - np.cos(a)), v[0] * (1 - np.cos(a)) + v[1] * np.sin(a)]) / omega
+    c, s = np.cos(yaw0), np.sin(yaw0)
+    return torch.tensor([c * local[0] - s * local[1], s * local[0] + c * local[1]])
+
+
+def test_commanded_displacement_is_the_arc_of_the_command():
+    env = make_env("rough", num_envs=2)
+    try:
+        cm = env.command_manager
+        v = torch.tensor([0.6, -0.2])
+        cm.command[:] = torch.tensor([[0.6, -0.2, 0.5], [0.6, -0.2, -0.8]])
+        cm.commanded_disp[:] = 0.0
+        cm.commanded_yaw[:] = torch.tensor([0.3, -2.0])
+        for _ in range(750):  # 15 s at the 50 Hz policy rate
+            cm.integrate(0.02)
+        for i, (omega, yaw0) in enumerate([(0.5, 0.3), (-0.8, -2.0)]):
+            np.testing.assert_allclose(cm.commanded_disp[i].numpy(), _arc(v, omega, yaw0, 15.0).numpy(), atol=2e-4)
+        assert cm.commanded_yaw.tolist() == pytest.approx([0.3 + 7.5, -2.0 - 12.0], abs=1e-3)  # float32 sum
+        # the env integrates it every step and restarts it, at the robot's heading, on reset
+        env.reset()
+        assert cm.commanded_disp.abs().max() == 0.0
+        from dls_quadruped.core.rotations import yaw_from_quat
+        assert torch.allclose(cm.commanded_yaw, yaw_from_quat(env.state.base_quat_w))
+        cm.command[:] = torch.tensor([[0.5, 0.0, 0.0], [0.0, 0.3, 0.0]])
+        cm.time_left[:] = 100.0  # no resampling
+        env.step(torch.zeros(2, 28))
+        assert torch.linalg.vector_norm(cm.commanded_disp, dim=-1).tolist() == pytest.approx([0.01, 0.006], rel=1e-5)
+    finally:
+        env.close()
+
+
+def test_terrain_curriculum_keeps_a_perfect_tracker_on_an_arc_and_demotes_a_fall():
+    """A robot at the end of the arc its command (0.8 m/s, 0.5 rad/s) asks for in 15 s stays on
+    its row: the straight-line rule (|v| x 15 s / 2 = 6 m > the 1.83 m chord) demoted it. The same
+    robot, had its episode ended by a fall, goes down."""
+    env = make_env("rough")
+    try:
+        scene, cm = env.scene, env.command_manager
+        scene.update_levels(torch.arange(4), 1 - scene.terrain_levels)
+        chord = _arc(torch.tensor([0.8, 0.0]), 0.5, 0.0, 15.0)
+        assert 1.8 < float(torch.linalg.vector_norm(chord)) < 0.5 * scene.terrain.cfg.tile_size  # not far enough to go up
+        cm.commanded_disp[:] = chord
+        cm.command[:] = torch.tensor([0.8, 0.0, 0.5])  # what the straight-line rule read
+        state = env.state.clone()
+        state.base_pos_w[:, :2] = scene.env_origins[:, :2] + chord.to(state.base_pos_w)
+        env._state = state
+        env.episode_length_buf[:] = 750
+        env.termination_manager.time_outs[:] = torch.tensor([True, False, True, True])
+        cur_mdp.terrain_levels(env, torch.tensor([0, 1]))
+        assert scene.terrain_levels.tolist() == [1, 0, 1, 1]
     finally:
         env.close()
 

@@ -19,7 +19,7 @@ from dls_quadruped.eval.scenario import EvalOptions
 from dls_quadruped.eval.scenarios import SCENARIOS
 from dls_quadruped.sim.terrain import TerrainConfig, build_scene
 
-NEW = ("survival", "stairs", "speed", "omni", "cot", "gait")
+NEW = ("survival", "survival_sweep", "stairs", "speed", "omni", "cot", "gait")
 
 
 def test_every_scenario_is_registered_with_a_small_default():
@@ -94,6 +94,20 @@ def test_survival_terrain_and_events_are_harder_than_rough():
     assert rows[:13].tolist() == [0] * 6 + [1] * 6 + [2] and rows.max() == survival.ROWS - 1
     task = survival.survival_task(np.zeros((4, 3)), EvalOptions(num_workers=0))
     assert task.data["observations"]["policy"]["noise_scale"] == 1.0
+    # survival_sweep: rough's whole terrain range, row 0 at difficulty 0, with rough's own disturbances
+    sweep = survival.survival_task(np.zeros((4, 3)), EvalOptions(num_workers=0), rows=survival.SWEEP_ROWS, hard=0.0,
+                                   strength=survival.SWEEP_STRENGTH)
+    assert sweep.data["terrain"]["step_height"] == pytest.approx([0.05, 0.25])
+    assert sweep.data["terrain"]["rugged_amplitude"] == pytest.approx([0.01, 0.08])
+    assert sweep.data["terrain"]["num_rows"] == 8 and set(sweep.data["terrain"]["types"]) == set(terrain["types"])
+    ev1 = sweep.data["events"]
+    assert ev1["friction"]["params"]["friction_range"] == pytest.approx([0.4, 0.8])
+    assert ev1["push"]["params"]["velocity_range"] == pytest.approx([-0.5, 0.5])
+    assert ev1["push"]["interval_s"] == pytest.approx([8.0, 12.0])
+    assert ev1["wrench"]["params"]["force_range"] == pytest.approx([-10.0, 10.0])
+    ev0 = survival.survival_events(0.0)  # no disturbance: nothing widened, no division by zero
+    assert ev0["push"]["params"]["velocity_range"] == [0.0, 0.0] and ev0["push"]["interval_s"] == [8.0, 12.0]
+    assert ev0["friction"]["params"]["friction_range"] == pytest.approx([0.6, 0.6])
     assert task.data["commands"]["base_velocity"]["func"] == "fixed_velocity"
 
 
@@ -118,6 +132,7 @@ def tiny_grids(monkeypatch):
     monkeypatch.setattr(omni, "DIRECTIONS_DEG", (0, 180))
     monkeypatch.setattr(omni, "MAGNITUDES", (0.5, 1.0))
     monkeypatch.setattr(survival, "ROWS", 2)
+    monkeypatch.setattr(survival, "SWEEP_ROWS", 2)
 
 
 @pytest.mark.parametrize("name", NEW)
@@ -129,10 +144,14 @@ def test_command_line_end_to_end(name, zero_policy, tiny_grids, tmp_path):
     saved = json.loads((out / f"{name}.json").read_text())
     assert (out / f"{name}.png").stat().st_size > 0 and saved["scenario"] == name == res["scenario"]
     assert saved["episode_steps"] == 20
-    per = {"survival": None, "stairs": "per_height", "speed": "per_speed", "omni": "cells", "cot": "per_speed",
+    per = {"survival": None, "survival_sweep": None, "stairs": "per_height", "speed": "per_speed", "omni": "cells", "cot": "per_speed",
            "gait": "per_speed"}[name]
     if per is None:
         assert saved["survival"]["n"] == 2 and len(saved["per_row"]) == 2
+        if name == "survival_sweep":  # rows at difficulty 0 and 1; a crossing inside [0, 1] with its interval
+            assert [r["rough_difficulty"] for r in saved["per_row"]] == [0.0, 1.0]
+            c = saved["survival_crossing_50"]
+            assert 0.0 <= c["ci95"][0] <= c["ci95"][1] <= 1.0 and 0.0 <= c["rough_difficulty"] <= 1.0
     else:
         cells = saved[per]
         assert len(cells) == saved["conditions"] == (4 if name == "omni" else 2)

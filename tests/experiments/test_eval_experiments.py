@@ -13,6 +13,7 @@ from dls_quadruped.eval import cot, gait, omni, speed, stairs, survival
 from experiments import (
     fig17_simple_task,
     fig18_survival,
+    fig18b_survival_sweep,
     fig19_stairs,
     fig20_speed,
     fig21_omni,
@@ -21,7 +22,8 @@ from experiments import (
     rl_common,
 )
 
-SCRIPTS = {fig17_simple_task: "simple", fig18_survival: "survival", fig19_stairs: "stairs", fig20_speed: "speed",
+SCRIPTS = {fig17_simple_task: "simple", fig18_survival: "survival", fig18b_survival_sweep: "survival_sweep",
+           fig19_stairs: "stairs", fig20_speed: "speed",
            fig21_omni: "omni", fig22_cot: "cot", fig23_gait: "gait"}
 
 
@@ -44,6 +46,7 @@ def tiny(tmp_path, monkeypatch):
     monkeypatch.setattr(omni, "DIRECTIONS_DEG", (0, 180))
     monkeypatch.setattr(omni, "MAGNITUDES", (0.5, 1.0))
     monkeypatch.setattr(survival, "ROWS", 2)
+    monkeypatch.setattr(survival, "SWEEP_ROWS", 2)
     return tmp_path
 
 

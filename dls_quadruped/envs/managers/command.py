@@ -7,12 +7,19 @@ Task file::
         func: uniform_velocity
         resampling_time_s: [10.0, 10.0]
         params: {lin_vel_x: [-1, 1], lin_vel_y: [-1, 1], ang_vel_z: [-1, 1]}
+
+The manager also keeps the *commanded displacement* of every episode: where a robot that tracked
+its commands exactly would be now, relative to where it started (world frame, (B, 2) [m]). The
+command is a base-frame (v_x, v_y) with a yaw rate, so a robot that obeys (v, omega) walks an arc
+of radius |v| / |omega|, not a line of length |v| t; the terrain curriculum compares the distance
+walked with this displacement.
 """
 
 from __future__ import annotations
 
 import torch
 
+from dls_quadruped.core.rotations import yaw_from_quat
 from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
 from dls_quadruped.envs.mdp import commands as cmd_mdp
@@ -35,6 +42,10 @@ class CommandManager:
         self.resampling_time_s = tuple(float(x) for x in self.term.extra["resampling_time_s"])
         self.command = torch.zeros(env.num_envs, 3, device=env.device)
         self.time_left = torch.zeros(env.num_envs, device=env.device)
+        self.commanded_disp = torch.zeros(env.num_envs, 2, device=env.device)
+        """(B, 2) [m] world-frame displacement of an exact tracker since the episode began."""
+        self.commanded_yaw = torch.zeros(env.num_envs, device=env.device)
+        """(B,) [rad] that tracker's heading (the robot's at reset, then the integrated yaw rate)."""
 
     def resample(self, env_ids: torch.Tensor) -> None:
         if len(env_ids) == 0:
@@ -48,8 +59,20 @@ class CommandManager:
         self.time_left -= dt
         self.resample(torch.nonzero(self.time_left <= 0.0).flatten())
 
+    def integrate(self, dt: float) -> None:
+        """Advance the exact tracker by one policy step of the current command: heading by
+        omega dt, position by the base-frame velocity rotated by the mid-step heading."""
+        v, omega = self.command[:, :2], self.command[:, 2]
+        mid = self.commanded_yaw + 0.5 * dt * omega
+        c, s = torch.cos(mid), torch.sin(mid)
+        self.commanded_disp += dt * torch.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], dim=-1)
+        self.commanded_yaw += dt * omega
+
     def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
+        """Resample the commands of ``env_ids`` and restart their tracker at the robot's (reset) heading."""
         self.resample(env_ids)
+        self.commanded_disp[env_ids] = 0.0
+        self.commanded_yaw[env_ids] = yaw_from_quat(self.env.state.base_quat_w[env_ids]).to(self.commanded_yaw)
         return {}
 
     def summary(self) -> str:

@@ -9,18 +9,25 @@ import torch
 
 
 def terrain_levels(env, env_ids: torch.Tensor, up_fraction: float = 0.5, down_fraction: float = 0.5) -> float:
-    """Move a robot one row up when it walked further than ``up_fraction`` x tile size from its origin,
-    down when it walked less than ``down_fraction`` x the distance its command asked for.
+    """Move a robot one row up when it walked further than ``up_fraction`` x tile size from its
+    origin; down when it fell, or when it walked less than ``down_fraction`` x its *commanded
+    displacement* (``CommandManager.commanded_disp``: how far from its origin a robot that tracked
+    every command of the episode exactly would be).
 
-    A robot that solves the hardest row is sent to a random row (keeps the hardest rows in use without
-    forgetting). Returns the mean level.
+    The commanded displacement, not |v| x episode length: a command (v, omega) is an arc of radius
+    |v| / |omega|, whose chord after 15 s is below half of |v| x 15 s for every |omega| > 0.27 rad/s,
+    so the straight-line rule demoted a perfect tracker on two thirds of the rough task's commands
+    (omega ~ U[-0.8, 0.8]). A fall (the episode ended before its time-out) demotes unless the robot
+    had already walked far enough to go up. A robot that solves the hardest row is sent to a random
+    row (keeps the hardest rows in use without forgetting). Returns the mean level.
     """
     scene = env.scene
     if len(env_ids) > 0:
         dist = torch.linalg.vector_norm(env.state.base_pos_w[env_ids, :2] - scene.env_origins[env_ids, :2], dim=-1)
-        asked = torch.linalg.vector_norm(env.command_manager.command[env_ids, :2], dim=-1) * env.max_episode_length_s
+        asked = torch.linalg.vector_norm(env.command_manager.commanded_disp[env_ids], dim=-1)
+        fell = ~env.termination_manager.time_outs[env_ids] & (env.episode_length_buf[env_ids] > 0)
         up = dist > up_fraction * scene.terrain.cfg.tile_size
-        down = (dist < down_fraction * asked) & ~up
+        down = ((dist < down_fraction * asked) | fell) & ~up
         scene.update_levels(env_ids, up.long() - down.long())
     return float(scene.terrain_levels.float().mean())
 
