@@ -20,6 +20,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import (
+    percent_band,
     pyplot,
     rate_cell,
     run,
@@ -50,9 +51,7 @@ def figure(results: dict, path: Path) -> None:
     width = 0.8 / len(tasks)
     for i, t in enumerate(tasks):
         cells = [results[t]["survival"]] + [results[t]["per_type"][k] for k in types]
-        r = np.array([100 * (c["rate"] or 0.0) for c in cells])
-        lo = np.array([100 * (c["ci95"][0] or 0.0) for c in cells])
-        hi = np.array([100 * (c["ci95"][1] or 0.0) for c in cells])
+        r, lo, hi = percent_band(cells)
         ax.bar(np.arange(len(labels)) + (i - (len(tasks) - 1) / 2) * width, r, width,
                yerr=[r - lo, hi - r], capsize=2, label=t)
     ax.set_xticks(range(len(labels)), labels)

@@ -22,6 +22,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import (
+    percent_band,
     pyplot,
     rate_cell,
     run,
@@ -53,9 +54,7 @@ def figure(results: dict, path: Path) -> None:
     for task, res in results.items():
         d = np.array([r["rough_difficulty"] for r in res["per_row"]])
         cells = [r["survival"] for r in res["per_row"]]
-        rate = np.array([100 * (c["rate"] or 0.0) for c in cells])
-        lo = np.array([100 * (c["ci95"][0] or 0.0) for c in cells])
-        hi = np.array([100 * (c["ci95"][1] or 0.0) for c in cells])
+        rate, lo, hi = percent_band(cells)
         line, = ax.plot(d, rate, "o-", label=task)
         ax.fill_between(d, lo, hi, color=line.get_color(), alpha=0.12)
     ax.axhline(50, color="k", lw=0.6, ls=":")

@@ -151,6 +151,16 @@ def rate_cell(b: dict) -> str:
     return f"{100 * b['rate']:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}] (n = {b['n']})"
 
 
+def percent_band(cells: list[dict]):
+    """(rate, low, high) [%] arrays of binomial results (missing values as 0) for a plot."""
+    import numpy as np
+
+    def pick(f):
+        return np.array([100 * (f(c) or 0.0) for c in cells])
+
+    return pick(lambda c: c["rate"]), pick(lambda c: c["ci95"][0]), pick(lambda c: c["ci95"][1])
+
+
 def mean_cell(m: dict, fmt: str = ".3f") -> str:
     """'0.512 [0.498, 0.526] (n = 16)' of a mean_ci result."""
     if not m or not m.get("n") or m.get("mean") is None:
