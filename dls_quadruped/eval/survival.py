@@ -119,7 +119,7 @@ def evaluate_sweep(policy_path: Path, opts: EvalOptions) -> dict:
     res = _evaluate(policy_path, opts, SWEEP_NAME, SWEEP_DESCRIPTION, SWEEP_ROWS, 0.0, SWEEP_STRENGTH)
     d = np.array([r["rough_difficulty"] for r in res["per_row"]])
     cells = [r["survival"] for r in res["per_row"]]
-    rates = np.array([np.nan if c["rate"] is None else c["rate"] for c in cells])
+    rates = np.array([c["rate"] for c in cells], dtype=float)  # NaN for an empty row
     res["survival_crossing_50"] = {
         "rough_difficulty": M.threshold_crossing(d, rates, 0.5),
         "ci95": M.crossing_interval(d, [c["k"] for c in cells], [c["n"] for c in cells], 0.5),
