@@ -20,11 +20,14 @@ Usage::
 from __future__ import annotations
 
 import ast
+import atexit
 import multiprocessing as mp
+import multiprocessing.util  # noqa: F401  (registers its exit handler before ours, so ours runs first)
 import os
 import signal
 import sys
 import time
+import weakref
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -78,6 +81,30 @@ def _execute(shard: Shard, cmd: str, arg: Any) -> None:
 
 class WorkerError(RuntimeError):
     """A simulator worker process died, hung or could not start."""
+
+
+_RUNNING: weakref.WeakSet[VecSim] = weakref.WeakSet()
+"""Simulators whose workers are running (added when they start, removed by ``close``)."""
+
+
+def _close_running() -> None:
+    """At interpreter exit, close every simulator the script did not close.
+
+    Without it a script that ends by an exception, ``sys.exit`` or Ctrl-C while a ``VecSim`` is
+    still referenced (a traceback holds its frame) hangs for ever: ``multiprocessing``'s own exit
+    handler sends SIGTERM to daemonic children, which the workers ignore (so the trainer can save
+    on Ctrl-C), then joins them without a timeout, while they wait for a command. ``atexit`` runs
+    handlers last-registered-first, and this module imports ``multiprocessing.util`` before
+    registering, so this runs before that join.
+    """
+    for sim in list(_RUNNING):
+        try:
+            sim.close()
+        except Exception:  # noqa: BLE001 -- at exit, a failure to close one must not leave the others running
+            pass
+
+
+atexit.register(_close_running)
 
 
 def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: SimConfig) -> None:
@@ -203,6 +230,7 @@ class VecSim:
         else:
             check_main_guard()
             ctx = mp.get_context("spawn")
+            _RUNNING.add(self)  # before the first start: a Ctrl-C between two starts still closes the first
             for w in range(workers):
                 parent, child = ctx.Pipe()
                 rows = self.buf.rows(self._bounds[w], self._bounds[w + 1])
@@ -444,6 +472,7 @@ class VecSim:
                 proc.kill()  # SIGTERM is ignored by workers; a stopped one ignores everything but SIGKILL
                 proc.join(timeout=5)
         self._conns, self._procs = [], []
+        _RUNNING.discard(self)
 
     def __enter__(self) -> VecSim:
         return self
