@@ -25,6 +25,8 @@ import yaml
 TASKS_DIR = Path(__file__).resolve().parents[2] / "tasks"
 TOP_LEVEL_KEYS = ("env", "terrain", "scene", "observations", "actions", "commands", "rewards", "terminations",
                   "events", "curriculum", "agent")
+REQUIRED_SECTIONS = ("env", "agent")
+"""Sections a task (not a ``_`` fragment) must have after inheritance: what ``train`` reads without defaults."""
 
 
 class ConfigError(ValueError):
@@ -93,27 +95,83 @@ def _merge(base: dict, child: dict, sources: dict[str, str], src: str, prefix: s
     return base
 
 
+def _top_level_line(text: str, key: str) -> int | None:
+    """1-based line of the top-level ``key:`` of a YAML text (None if absent or unreadable)."""
+    try:
+        node = yaml.compose(text)
+    except yaml.YAMLError:
+        return None
+    if isinstance(node, yaml.MappingNode):
+        for key_node, _ in node.value:
+            if key_node.value == key:
+                return key_node.start_mark.line + 1
+    return None
+
+
+def _yaml_error(path: Path, err: yaml.YAMLError) -> str:
+    """One line for a YAML syntax error: file, line and column, YAML's problem, what is expected."""
+    mark = getattr(err, "problem_mark", None)
+    where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
+    problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+    if "'\\t'" in problem:
+        problem = "found a tab character; YAML indents with spaces only"
+    context, context_mark = getattr(err, "context", None), getattr(err, "context_mark", None)
+    if context and context_mark is not None and context_mark.line != getattr(mark, "line", None):
+        problem += f" ({context} that starts on line {context_mark.line + 1})"
+    return (f"{where}: invalid YAML: {problem}; expected `section:` lines with their keys indented by the "
+            "same number of spaces, and every [ and { closed")
+
+
+def _read_mapping(path: Path) -> dict:
+    """The top-level mapping of one task file; anything else is a ConfigError naming the file and line."""
+    text = path.read_text()
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ConfigError(_yaml_error(path, err)) from None
+    expected = f"expected a mapping of sections from {['inherit', *TOP_LEVEL_KEYS]}"
+    if raw is None:
+        raise ConfigError(f"{path}: the file is empty (or only comments); {expected}")
+    if not isinstance(raw, dict):
+        kind = "list" if isinstance(raw, list) else f"single value ({type(raw).__name__} {raw!r:.40})"
+        line = yaml.compose(text).start_mark.line + 1
+        raise ConfigError(f"{path}:{line}: the top level is a {kind}; {expected}")
+    unknown = sorted(str(k) for k in set(raw) - set(TOP_LEVEL_KEYS) - {"inherit"})
+    if unknown:
+        line = _top_level_line(text, unknown[0])
+        raise ConfigError(f"{path}{f':{line}' if line else ''}: unknown top-level keys {unknown}; "
+                          f"allowed: {['inherit', *TOP_LEVEL_KEYS]}")
+    return raw
+
+
+def _parents(path: Path, raw: dict) -> list[Path]:
+    """The files named by ``inherit`` (relative to ``path``), each checked to exist."""
+    parents = raw.pop("inherit", None) or []
+    parents = [parents] if isinstance(parents, str) else parents
+    line = _top_level_line(path.read_text(), "inherit")
+    where = f"{path}{f':{line}' if line else ''}: inherit"
+    if not isinstance(parents, list) or not all(isinstance(p, str) for p in parents):
+        raise ConfigError(f"{where}: expected a file name or a list of file names, got {parents!r}")
+    resolved = [(path.parent / parent).resolve() for parent in parents]
+    for name, parent in zip(parents, resolved):
+        if not parent.is_file():
+            here = sorted(p.name for p in path.parent.glob("*.y*ml"))
+            raise ConfigError(f"{where}: {name!r} not found (no file {parent}); files next to it: {here}")
+    return resolved
+
+
 def _load_file(path: Path, chain: tuple[Path, ...]) -> tuple[dict, dict[str, str]]:
     if path in chain:
         raise ConfigError(f"{path}: inherit: cycle {' -> '.join(str(p) for p in (*chain, path))}")
     if not path.is_file():
-        where = f"{chain[-1]}: inherit: " if chain else ""
-        raise ConfigError(f"{where}task file {path} not found; available: {available_tasks()}")
-    with open(path) as fh:
-        raw = yaml.safe_load(fh) or {}
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{path}: top level must be a mapping")
-    parents = raw.pop("inherit", None) or []
-    parents = [parents] if isinstance(parents, str) else parents
+        raise ConfigError(f"task file {path} not found; available: {available_tasks()}")
+    raw = _read_mapping(path)
     data: dict = {}
     sources: dict[str, str] = {}
-    for parent in parents:
-        p_data, p_sources = _load_file((path.parent / parent).resolve(), (*chain, path))
+    for parent in _parents(path, raw):
+        p_data, p_sources = _load_file(parent, (*chain, path))
         _merge(data, p_data, sources, "")
         sources.update(p_sources)
-    unknown = sorted(set(raw) - set(TOP_LEVEL_KEYS))
-    if unknown:
-        raise ConfigError(f"{path}: unknown top-level keys {unknown}; allowed: {['inherit', *TOP_LEVEL_KEYS]}")
     _merge(data, raw, sources, str(path))
     return data, sources
 
@@ -125,6 +183,11 @@ def available_tasks(tasks_dir: Path = TASKS_DIR) -> list[str]:
 
 def load_task(task: str | Path, overrides: dict | None = None, validate: bool = True) -> TaskConfig:
     """Load a task by name (``tasks/<name>.yaml``) or path, resolving ``inherit`` chains.
+
+    Every file must be a YAML mapping of known sections; a syntax error, an empty file, a list or a
+    scalar, an ``inherit`` of a file that does not exist, and (with ``validate``, for a task that is
+    not a ``_`` fragment) a missing ``env`` or ``agent`` section fail with one line naming the file,
+    the line where YAML gives one, and what was expected.
 
     Args:
         task: task name or YAML path.
@@ -138,6 +201,9 @@ def load_task(task: str | Path, overrides: dict | None = None, validate: bool = 
     path = Path(task)
     if path.suffix not in (".yaml", ".yml"):
         path = TASKS_DIR / f"{task}.yaml"
+        if str(task).startswith("_") and path.is_file():
+            raise ConfigError(f"{task} is a shared fragment that tasks inherit, not a task; available: "
+                              f"{available_tasks()}")
         if not path.is_file():
             raise ConfigError(f"unknown task {task!r}; available: {available_tasks()}")
     path = path.resolve()
@@ -145,6 +211,11 @@ def load_task(task: str | Path, overrides: dict | None = None, validate: bool = 
     if overrides:
         _merge(data, overrides, sources, "<override>")
     loaded = TaskConfig(path.stem, path, data, sources)
+    missing = [name for name in REQUIRED_SECTIONS if name not in data]
+    if validate and missing and not path.name.startswith("_"):
+        raise ConfigError(f"{path}: no {' and no '.join(repr(m) for m in missing)} section (in the file or what it "
+                          f"inherits); a task needs {list(REQUIRED_SECTIONS)}: add {'it' if len(missing) == 1 else 'them'}, or "
+                          "`inherit: _common.yaml` (tasks/) for the shared ones")
     if validate:
         from dls_quadruped.envs.validate import (
             validate_task,  # imports the managers, which import this module
