@@ -53,6 +53,7 @@ from dls_quadruped.envs.managers.scene import SceneManager
 from dls_quadruped.envs.managers.termination import TerminationManager
 from dls_quadruped.envs.mdp import events as event_mdp
 from dls_quadruped.envs.mdp import observations as obs_mdp
+from dls_quadruped.envs.schedule import EpisodeSchedule
 
 
 @dataclass(frozen=True)
@@ -88,6 +89,7 @@ class LocomotionEnv(VecEnv):
         self.device = torch.device(device)
         self.seed = self.env_cfg.seed if seed is None else seed
         torch.manual_seed(self.seed)
+        self.schedule = EpisodeSchedule(self.seed, self.num_envs, self.device)
         self.cfg = self.task.data
         self.scene = SceneManager(self.task, self)
         self.physics_dt = self.scene.sim.physics_dt
@@ -113,7 +115,8 @@ class LocomotionEnv(VecEnv):
         self.extras: dict = {"log": {}}
         self.event_manager.apply("startup")
         self.curriculum_manager.start()
-        self._reset_idx(torch.arange(self.num_envs, device=self.device))
+        # no curriculum here: it would judge robots that were never placed (and move their rows)
+        self._reset_idx(torch.arange(self.num_envs, device=self.device), curriculum=False)
         self.obs_buf = self.observation_manager.compute()
         if run_dir is not None:
             save_resolved(self.task, Path(run_dir) / "task.yaml")
@@ -221,14 +224,33 @@ class LocomotionEnv(VecEnv):
         self.extras["time_outs"] = time_outs
         return self.obs_buf, reward, dones.long(), self.extras
 
-    def reset(self) -> tuple[TensorDict, dict]:
-        """Reset every env (gymnasium-style); returns (obs, extras)."""
-        self._reset_idx(torch.arange(self.num_envs, device=self.device))
+    def reset(self, seed: int | None = None, episode_keys: torch.Tensor | None = None) -> tuple[TensorDict, dict]:
+        """Reset every env (gymnasium-style); returns (obs, extras).
+
+        Args:
+            seed: restart the episode schedule (``envs/schedule.py``) with this seed: env i then plays
+                episode 0 of key ``episode_keys[i]``, then 1, 2, ... after its own resets; the same
+                (seed, key) gives the same commands, events, tile and observation noise to any policy
+                or controller (the env is then as if built with this seed, curriculum state aside).
+                None: go on with the schedule (every env starts its next episode).
+            episode_keys: (num_envs,) non-negative integer keys (default ``arange(num_envs)``); only
+                with ``seed``. K policies on the same E episodes in one env: ``arange(K * E) % E``.
+        """
+        ids = torch.arange(self.num_envs, device=self.device)
+        if seed is not None:
+            self.seed = int(seed)
+            self.schedule.restart(self.seed, episode_keys)
+            self.scene.assign_tiles()
+            self.event_manager.apply("startup")  # per-robot model values follow the key too
+        elif episode_keys is not None:
+            raise ValueError("episode_keys needs a seed: reset(seed=..., episode_keys=...)")
+        self._reset_idx(ids, curriculum=seed is None)
         self.obs_buf = self.observation_manager.compute()
         return self.obs_buf, self.extras
 
     def _reset_idx(self, env_ids: torch.Tensor, curriculum: bool = True) -> None:
         log = self.extras.setdefault("log", {})
+        self.schedule.start_episodes(env_ids)
         if curriculum:
             log.update(self.curriculum_manager.compute(env_ids))
         self.event_manager.apply("reset", env_ids)
@@ -245,8 +267,8 @@ class LocomotionEnv(VecEnv):
         """What training needs to continue where it stopped (saved in every checkpoint).
 
         Curriculum state and values, reward weights (the penalty switch), command ranges, terrain
-        levels, the step counter and the torch RNG state. Robot poses are not kept: robots
-        restart their episodes on resume.
+        levels, the step counter, the episode schedule's counters and the torch RNG state. Robot poses
+        are not kept: robots restart their episodes on resume (each its next scheduled episode).
         """
         state = {
             "curriculum_state": copy.deepcopy(self.curriculum_manager.state),
@@ -255,6 +277,7 @@ class LocomotionEnv(VecEnv):
             "command_params": copy.deepcopy(self.command_manager.params),
             "terrain_levels": self.scene.terrain_levels.cpu().clone(),
             "common_step_counter": self.common_step_counter,
+            "schedule": self.schedule.state_dict(),
             "rng_cpu": torch.get_rng_state(),
         }
         if self.device.type == "cuda":
@@ -287,6 +310,12 @@ class LocomotionEnv(VecEnv):
         self.scene.update_levels(torch.arange(self.num_envs, device=self.device),
                                  levels.to(self.device) - self.scene.terrain_levels)
         self.common_step_counter = int(state["common_step_counter"])
+        if "schedule" in state:  # checkpoints before the episode schedule have none
+            if tuple(state["schedule"]["episode"].shape) == (self.num_envs,):
+                self.schedule.load_state_dict(state["schedule"])
+            else:  # another --num-envs: a fresh schedule, advanced past the episodes already played
+                self.schedule.restart(int(state["schedule"]["seed"]))
+                self.schedule.episode[:] = int(state["schedule"]["episode"].max())
         self._reset_idx(torch.arange(self.num_envs, device=self.device), curriculum=False)
         self.obs_buf = self.observation_manager.compute()
         torch.set_rng_state(state["rng_cpu"])

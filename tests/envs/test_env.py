@@ -238,7 +238,8 @@ def test_speed_curriculum_widens_forward_range():
         for _ in range(15):
             top = cur_mdp.command_speed_growth(env, ids, "track_lin_vel_xy", 0.7, 0.1, 2.1)
         assert top == pytest.approx(2.1)  # capped at the task's top speed
-        cmd = env.command_manager.term.func(env, torch.arange(500), **cm.params)
+        # 500 draws: successive draws of the 4 envs' schedules (each call advances their command stream)
+        cmd = torch.cat([env.command_manager.term.func(env, ids, **cm.params) for _ in range(125)])
         assert cmd[:, 0].min() >= 0.0 and cmd[:, 0].max() <= 2.1 and cmd[:, 0].max() > 1.5
     finally:
         env.close()
@@ -247,7 +248,9 @@ def test_speed_curriculum_widens_forward_range():
 def test_omnidirectional_command_stays_in_its_disc():
     env = make_env("base")
     try:
-        cmd = env.command_manager.term.func(env, torch.arange(2000), max_speed=1.0, ang_vel_z=(-1.0, 1.0))
+        ids = torch.arange(env.num_envs)
+        cmd = torch.cat([env.command_manager.term.func(env, ids, max_speed=1.0, ang_vel_z=(-1.0, 1.0))
+                         for _ in range(2000 // env.num_envs)])
         speed = cmd[:, :2].norm(dim=1)
         assert speed.max() <= 1.0 + 1e-6 and speed.max() > 0.95
         assert (cmd[:, 0] < -0.5).any() and (cmd[:, 1] > 0.5).any()  # all directions

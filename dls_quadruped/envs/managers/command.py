@@ -52,7 +52,7 @@ class CommandManager:
             return
         self.command[env_ids] = self.term.func(self.env, env_ids, **self.params).to(self.command)
         lo, hi = self.resampling_time_s
-        self.time_left[env_ids] = torch.empty(len(env_ids), device=self.env.device).uniform_(lo, hi)
+        self.time_left[env_ids] = self.env.schedule.uniform(env_ids, (), lo, hi, stream="command_time")
 
     def compute(self, dt: float) -> None:
         """Advance the timers by the policy step and resample the expired commands."""

@@ -1,5 +1,7 @@
 """Event manager: terms run at ``startup`` (once), at ``reset`` (for the reset envs) or on an
-``interval`` (per-env timer drawn from ``interval_s`` [s], e.g. pushes every 8-12 s)."""
+``interval`` (per-env timer drawn from ``interval_s`` [s], e.g. pushes every 8-12 s; as in IsaacLab,
+a reset env draws a fresh timer, so an episode's push times do not depend on the one before).
+Timers come from the env's episode schedule (stream ``interval/<term>``)."""
 
 from __future__ import annotations
 
@@ -30,13 +32,21 @@ class EventManager:
         # placement first: VecSim.reset clears the base wrench, so e.g. external_wrench must come after it
         self.terms = sorted(resolve_events(task), key=lambda t: t.func is not event_mdp.reset_robot)
         self.timers: dict[str, torch.Tensor] = {}
+        self.restart_timers()
+
+    def _draw(self, term, env_ids: torch.Tensor) -> torch.Tensor:
+        lo, hi = term.extra["interval_s"]
+        return self.env.schedule.uniform(env_ids, (), float(lo), float(hi), stream=f"interval/{term.name}")
+
+    def restart_timers(self, env_ids: torch.Tensor | None = None) -> None:
+        """Draw fresh interval timers for ``env_ids`` (default: every env)."""
+        if env_ids is None:
+            env_ids = torch.arange(self.env.num_envs, device=self.env.device)
         for t in self.terms:
             if t.extra["mode"] == "interval":
-                self.timers[t.name] = self._draw(t, env.num_envs)
-
-    def _draw(self, term, n: int) -> torch.Tensor:
-        lo, hi = term.extra["interval_s"]
-        return torch.empty(n, device=self.env.device).uniform_(float(lo), float(hi))
+                if t.name not in self.timers:
+                    self.timers[t.name] = torch.zeros(self.env.num_envs, device=self.env.device)
+                self.timers[t.name][env_ids] = self._draw(t, env_ids)
 
     def apply(self, mode: str, env_ids: torch.Tensor | None = None, dt: float = 0.0) -> None:
         """Run the terms of ``mode``; ``env_ids`` for reset, ``dt`` [s] advances interval timers."""
@@ -49,12 +59,14 @@ class EventManager:
                 timer -= dt
                 ids = torch.nonzero(timer <= 0.0).flatten()
                 if len(ids):
-                    timer[ids] = self._draw(t, len(ids))
+                    timer[ids] = self._draw(t, ids)
                     t(self.env, ids)
             elif mode == "startup":
                 t(self.env, all_ids)
             elif env_ids is not None and len(env_ids):
                 t(self.env, env_ids)
+        if mode == "reset" and env_ids is not None and len(env_ids):
+            self.restart_timers(env_ids)
 
     def summary(self) -> str:
         rows = [(t.name, t.func.__name__, t.extra["mode"], t.extra["interval_s"] or "", t.params) for t in self.terms]

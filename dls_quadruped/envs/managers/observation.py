@@ -50,13 +50,15 @@ class ObservationManager:
     def compute(self) -> TensorDict:
         """Evaluate every group: concatenation of its terms plus U(-noise, noise) x noise_scale."""
         out = {}
+        ids = torch.arange(self.env.num_envs, device=self.env.device)
         for group, terms in self.groups.items():
             parts = []
             for term in terms:
                 value = term(self.env).reshape(self.env.num_envs, -1).float()
                 noise = term.extra["noise"] * self.noise_scale[group]
-                if noise > 0.0:
-                    value = value + (2.0 * torch.rand_like(value) - 1.0) * noise
+                if noise > 0.0:  # from the episode schedule: the same noise in the same episode for any policy
+                    value = value + self.env.schedule.uniform(ids, (value.shape[1],), -noise, noise,
+                                                              stream=f"obs_noise/{group}/{term.name}")
                 parts.append(value)
             self.dims.setdefault(group, {t.name: p.shape[1] for t, p in zip(terms, parts)})
             out[group] = torch.cat(parts, dim=-1)

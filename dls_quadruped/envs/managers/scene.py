@@ -6,7 +6,8 @@ Task file::
     scene: {num_workers: -1, max_init_level: 0}
 
 Each env owns a terrain tile: row = level (difficulty), column = type (envs spread evenly over
-the columns). Robots reset onto their tile origin; the terrain curriculum moves rows.
+the columns by their episode key, ``envs/schedule.py``). Robots reset onto their tile origin; the
+terrain curriculum moves rows.
 """
 
 from __future__ import annotations
@@ -45,12 +46,23 @@ class SceneManager:
         n = env.num_envs
         rows, cols = self.terrain.num_rows, self.terrain.num_cols
         self.tile_origins = torch.as_tensor(self.terrain.tile_origins_w, dtype=torch.float32, device=dev)
-        self.terrain_types = torch.arange(n, device=dev) % cols
-        max_init = min(self.cfg.max_init_level, rows - 1)
-        self.terrain_levels = torch.randint(0, max_init + 1, (n,), device=dev)
-        self.env_origins = self.tile_origins[self.terrain_levels, self.terrain_types].clone()
+        self.terrain_types = torch.zeros(n, dtype=torch.long, device=dev)
+        self.terrain_levels = torch.zeros(n, dtype=torch.long, device=dev)
+        self.env_origins = torch.zeros(n, 3, device=dev)
+        self.assign_tiles()
         # foot contacts take the feet's friction (contact priority 1), so randomising the feet is enough
         self.friction_geom_ids = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in C.FOOT_GEOM_NAMES]
+
+    def assign_tiles(self) -> None:
+        """Every env's tile from the episode schedule (``env.schedule``): column = episode key mod the
+        number of types (envs spread evenly over the columns), row = U{0..max_init_level} drawn from the
+        key's schedule, so envs that share a key share a tile."""
+        schedule, rows = self.env.schedule, self.terrain.num_rows
+        ids = torch.arange(self.env.num_envs, device=self.env.device)
+        self.terrain_types = schedule.keys % self.terrain.num_cols
+        max_init = min(self.cfg.max_init_level, rows - 1)
+        self.terrain_levels = schedule.integers(ids, 0, max_init + 1, stream="terrain_init")
+        self.env_origins = self.tile_origins[self.terrain_levels, self.terrain_types].clone()
 
     @property
     def difficulty(self) -> torch.Tensor:
@@ -61,7 +73,7 @@ class SceneManager:
         """Move envs by ``delta`` rows; beyond the last row -> a random row; below 0 -> 0."""
         rows = self.terrain.num_rows
         lv = self.terrain_levels[env_ids] + delta
-        lv = torch.where(lv >= rows, torch.randint_like(lv, 0, rows), lv.clamp(min=0))
+        lv = torch.where(lv >= rows, self.env.schedule.integers(env_ids, 0, rows, stream="terrain_level"), lv.clamp(min=0))
         self.terrain_levels[env_ids] = lv
         self.env_origins[env_ids] = self.tile_origins[lv, self.terrain_types[env_ids]]
 

@@ -2,6 +2,8 @@
 
 The command manager calls the sampler for the envs whose resampling timer expired or that reset.
 Ranges are ``[low, high]`` and may be changed at run time by a curriculum (e.g. speed growth).
+Every draw comes from the env's episode schedule (stream ``"command"``, ``envs/schedule.py``), so an
+episode's commands do not depend on what the other robots did.
 """
 
 from __future__ import annotations
@@ -9,17 +11,18 @@ from __future__ import annotations
 import torch
 
 
-def _uniform(n: int, rng: tuple[float, float], device) -> torch.Tensor:
-    return torch.empty(n, device=device).uniform_(float(rng[0]), float(rng[1]))
+def _uniform(env, env_ids: torch.Tensor, rng: tuple[float, float], width: int = 1) -> torch.Tensor:
+    """(n, width) U[rng) from the env's episode schedule (one draw of stream "command" per env)."""
+    return env.schedule.uniform(env_ids, (width,), float(rng[0]), float(rng[1]), stream="command")
 
 
 def uniform_velocity(env, env_ids: torch.Tensor, lin_vel_x: tuple[float, float], lin_vel_y: tuple[float, float],
                      ang_vel_z: tuple[float, float], standing_fraction: float = 0.0) -> torch.Tensor:
     """Independent uniform components (omnidirectional, or forward when lin_vel_x >= 0); a
     ``standing_fraction`` of the samples is set to zero (learn to stand)."""
-    n, dev = len(env_ids), env.device
-    cmd = torch.stack([_uniform(n, lin_vel_x, dev), _uniform(n, lin_vel_y, dev), _uniform(n, ang_vel_z, dev)], dim=-1)
-    stand = torch.rand(n, device=dev) < standing_fraction
+    cmd = torch.cat([_uniform(env, env_ids, lin_vel_x), _uniform(env, env_ids, lin_vel_y),
+                     _uniform(env, env_ids, ang_vel_z)], dim=-1)
+    stand = _uniform(env, env_ids, (0.0, 1.0))[:, 0] < standing_fraction
     return torch.where(stand[:, None], torch.zeros_like(cmd), cmd)
 
 
@@ -27,11 +30,10 @@ def omnidirectional_velocity(env, env_ids: torch.Tensor, max_speed: float, ang_v
                              standing_fraction: float = 0.0) -> torch.Tensor:
     """Planar velocity uniform in direction and in speed in [0, max_speed] (a disc, so no corner
     exceeds the task's speed, e.g. +-1 m/s for base), yaw rate uniform."""
-    n, dev = len(env_ids), env.device
-    heading = _uniform(n, (-torch.pi, torch.pi), dev)
-    speed = _uniform(n, (0.0, max_speed), dev)
-    cmd = torch.stack([speed * torch.cos(heading), speed * torch.sin(heading), _uniform(n, ang_vel_z, dev)], dim=-1)
-    stand = torch.rand(n, device=dev) < standing_fraction
+    heading = _uniform(env, env_ids, (-torch.pi, torch.pi))
+    speed = _uniform(env, env_ids, (0.0, max_speed))
+    cmd = torch.cat([speed * torch.cos(heading), speed * torch.sin(heading), _uniform(env, env_ids, ang_vel_z)], dim=-1)
+    stand = _uniform(env, env_ids, (0.0, 1.0))[:, 0] < standing_fraction
     return torch.where(stand[:, None], torch.zeros_like(cmd), cmd)
 
 

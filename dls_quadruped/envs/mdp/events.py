@@ -3,6 +3,7 @@
 Modes (set per term in the task file): ``startup`` (once, all envs), ``reset`` (envs being reset),
 ``interval`` (per-env timer drawn from ``interval_s``). "High" values are in ``tasks/rough.yaml``;
 "low" ones (one third of the variation) in ``tasks/_low_perturbation.yaml``.
+Every draw comes from the env's episode schedule (one stream per term function, ``envs/schedule.py``).
 """
 
 from __future__ import annotations
@@ -17,8 +18,9 @@ from dls_quadruped.core.rotations import quat_from_yaw
 from dls_quadruped.robots.aliengo import constants as C
 
 
-def _uniform(shape, rng, device) -> torch.Tensor:
-    return torch.empty(shape, device=device).uniform_(float(rng[0]), float(rng[1]))
+def _uniform(env, env_ids: torch.Tensor, shape: tuple[int, ...], rng, stream: str) -> torch.Tensor:
+    """(n, *shape) U[rng) of ``env_ids`` (n,) from the env's episode schedule."""
+    return env.schedule.uniform(env_ids, shape, float(rng[0]), float(rng[1]), stream=stream)
 
 
 def reset_robot(env, env_ids: torch.Tensor, joint_scale: tuple[float, float] = (1.0, 1.0),
@@ -26,15 +28,15 @@ def reset_robot(env, env_ids: torch.Tensor, joint_scale: tuple[float, float] = (
                 height: float = C.STANDING_BASE_HEIGHT + 0.02) -> None:
     """Place robots on their terrain origin: random yaw, xy offset in [-xy_offset, xy_offset] [m],
     base ``height`` [m] above the terrain, joints = nominal x U(joint_scale) (0.8-1.2 in "high")."""
-    n, dev = len(env_ids), env.device
+    dev = env.device
     origins = env.scene.env_origins[env_ids]
-    xy = origins[:, :2] + _uniform((n, 2), (-xy_offset, xy_offset), dev)
+    xy = origins[:, :2] + _uniform(env, env_ids, (2,), (-xy_offset, xy_offset), "reset_robot")
     z = env.scene.terrain.height_at(xy[:, 0], xy[:, 1]) + height
     nominal = torch.as_tensor(C.NOMINAL_JOINT_POS, dtype=torch.float32, device=dev)
-    q = nominal * _uniform((n, 12), joint_scale, dev)
+    q = nominal * _uniform(env, env_ids, (12,), joint_scale, "reset_robot")
     lim = torch.as_tensor(C.JOINT_RANGES, dtype=torch.float32, device=dev)
     q = torch.clamp(q, lim[:, 0], lim[:, 1])
-    env.scene.reset_robots(env_ids, torch.cat([xy, z[:, None]], dim=-1), quat_from_yaw(_uniform(n, yaw, dev)), q)
+    env.scene.reset_robots(env_ids, torch.cat([xy, z[:, None]], dim=-1), quat_from_yaw(_uniform(env, env_ids, (), yaw, "reset_robot")), q)
 
 
 def randomize_friction(env, env_ids: torch.Tensor, friction_range: tuple[float, float]) -> None:
@@ -47,7 +49,7 @@ def randomize_friction(env, env_ids: torch.Tensor, friction_range: tuple[float, 
     """
     model = env.scene.model
     ids = env.scene.friction_geom_ids
-    mu = _uniform((len(env_ids),), friction_range, "cpu").numpy()
+    mu = _uniform(env, env_ids, (), friction_range, "randomize_friction").cpu().numpy()
     values = np.repeat(model.geom_friction[None, ids].copy(), len(env_ids), axis=0)  # (n, 4, 3)
     values[:, :, 0] = mu[:, None]
     env.scene.sim.set_model_field("geom_friction", env_ids.cpu(), values, index=ids)
@@ -62,7 +64,7 @@ def randomize_base_mass(env, env_ids: torch.Tensor, scale_range: tuple[float, fl
     """
     model = env.scene.model
     bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)
-    scale = _uniform((len(env_ids),), scale_range, "cpu").numpy()
+    scale = _uniform(env, env_ids, (), scale_range, "randomize_base_mass").cpu().numpy()
     values = np.repeat(model.body_mass[None].copy(), len(env_ids), axis=0)
     robot_mass = float(model.body_subtreemass[bid])
     values[:, bid] += (scale - 1.0) * robot_mass
@@ -72,9 +74,8 @@ def randomize_base_mass(env, env_ids: torch.Tensor, scale_range: tuple[float, fl
 def external_wrench(env, env_ids: torch.Tensor, force_range: tuple[float, float],
                     torque_range: tuple[float, float]) -> None:
     """Constant force [N] and torque [N m] on the base, each world component U(range), until the next call."""
-    n = len(env_ids)
-    force = _uniform((n, 3), force_range, "cpu")
-    torque = _uniform((n, 3), torque_range, "cpu")
+    force = _uniform(env, env_ids, (3,), force_range, "external_wrench").cpu()
+    torque = _uniform(env, env_ids, (3,), torque_range, "external_wrench").cpu()
     env.scene.sim.set_external_wrench(env_ids.cpu(), force, torque)
 
 
@@ -83,5 +84,5 @@ def push_robot(env, env_ids: torch.Tensor, velocity_range: tuple[float, float]) 
     if len(env_ids) == 0:
         return
     v = env.state.base_lin_vel_w[env_ids].cpu().clone()
-    v[:, :2] += _uniform((len(env_ids), 2), velocity_range, "cpu")
+    v[:, :2] += _uniform(env, env_ids, (2,), velocity_range, "push_robot").cpu()
     env.scene.sim.set_base_velocity(env_ids.cpu(), v)

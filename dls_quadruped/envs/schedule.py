@@ -1,0 +1,141 @@
+"""Episode schedule: every random number of the env as a pure function of (seed, episode key, episode, stream, draw).
+
+Why: with one global torch generator, what robot i draws at its 10 s command resample (or its next
+push) depends on how many numbers the *other* robots drew before, i.e. on when they fell. Two
+controllers evaluated with the same seed then see different commands, pushes and terrain once any
+robot falls, and a per-episode difference between them is no longer paired. Here each draw is a hash
+of
+
+    (seed, key of the env's episode, how many episodes that env has started, stream, draw count)
+
+so env i's j-th episode is fixed before the run, whatever the other robots do, and so is every
+episode of another env given the same key (``episode_keys``: e.g. K policies batched in one env
+on the same E episodes use keys ``arange(K * E) % E``).
+
+Streams are named per purpose (``"command"``, ``"push_robot"``, ``"obs_noise"``, ...): each has its
+own draw counter per env, so adding observation noise to a task does not shift its commands.
+
+The generator is a counter-based integer hash (Wellons' "lowbias32" finaliser, chained over the
+key fields), evaluated in int64 with every product kept below 2**49, so it is exact on any torch
+device; a uniform is its top 24 bits / 2**24 (every float32 in [0, 1) on that grid).
+"""
+
+from __future__ import annotations
+
+import zlib
+
+import torch
+
+_MASK32 = 0xFFFFFFFF
+
+
+def _mul32(x: torch.Tensor, c: int) -> torch.Tensor:
+    """(x * c) mod 2**32 for int64 x in [0, 2**32) and a 32-bit constant, without int64 overflow."""
+    lo, hi = c & 0xFFFF, c >> 16
+    return (x * lo + (((x * hi) & 0xFFFF) << 16)) & _MASK32  # x c = x lo + 2^16 x hi
+
+
+def hash32(x: torch.Tensor) -> torch.Tensor:
+    """Integer finaliser ("lowbias32") of int64 values taken mod 2**32; returns int64 in [0, 2**32)."""
+    x = x & _MASK32
+    x = x ^ (x >> 16)
+    x = _mul32(x, 0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = _mul32(x, 0x846CA68B)
+    return x ^ (x >> 16)
+
+
+def stream_id(name: str) -> int:
+    """Stable 32-bit id of a stream name (crc32: the same in every process and Python version)."""
+    return zlib.crc32(name.encode())
+
+
+class EpisodeSchedule:
+    """Per-env episode counters and per-stream draw counters of ``num_envs`` envs.
+
+    Args:
+        seed: schedule seed (``env.seed``).
+        num_envs: B.
+        device: where the counters and draws live.
+        episode_keys: (B,) long, the episode key of each env (default ``arange(B)``).
+
+    Attributes:
+        episode: (B,) long, episodes each env has started since the schedule began (-1 before the first).
+    """
+
+    def __init__(self, seed: int, num_envs: int, device: torch.device | str = "cpu",
+                 episode_keys: torch.Tensor | None = None):
+        self.num_envs = int(num_envs)
+        self.device = torch.device(device)
+        self.restart(seed, episode_keys)
+
+    def restart(self, seed: int, episode_keys: torch.Tensor | None = None) -> None:
+        """Start over: no episode started yet, keys ``episode_keys`` (B,) (default ``arange(B)``).
+
+        Raises:
+            ValueError: keys not (B,) non-negative integers.
+        """
+        b = self.num_envs
+        if episode_keys is None:
+            keys = torch.arange(b, device=self.device)
+        else:
+            keys = torch.as_tensor(episode_keys, device=self.device)
+            if keys.shape != (b,) or keys.dtype.is_floating_point or keys.dtype == torch.bool or bool((keys < 0).any()):
+                raise ValueError(f"episode_keys must be {b} non-negative integers (one per env), "
+                                 f"got shape {tuple(keys.shape)} of {keys.dtype}")
+        self.seed = int(seed)
+        self.keys = keys.to(torch.long).clone()
+        self.episode = torch.full((b,), -1, dtype=torch.long, device=self.device)
+        self._draws: dict[str, torch.Tensor] = {}
+
+    def start_episodes(self, env_ids: torch.Tensor) -> None:
+        """``env_ids`` begin their next episode: episode += 1, every stream's draw count restarts."""
+        self.episode[env_ids] += 1
+        for count in self._draws.values():
+            count[env_ids] = 0
+
+    def _bits(self, env_ids: torch.Tensor, shape: tuple[int, ...], stream: str) -> torch.Tensor:
+        """(n, *shape) int64 hashes in [0, 2**32); advances ``stream``'s draw count of ``env_ids`` by one."""
+        env_ids = torch.as_tensor(env_ids, device=self.device, dtype=torch.long)
+        count = self._draws.setdefault(stream, torch.zeros(self.num_envs, dtype=torch.long, device=self.device))
+        n, size = len(env_ids), 1
+        for s in shape:
+            size *= int(s)
+        h = hash32(torch.full((n,), self.seed, dtype=torch.long, device=self.device))
+        for field in (self.keys[env_ids], self.episode[env_ids] + 1, torch.full_like(env_ids, stream_id(stream)),
+                      count[env_ids]):
+            h = hash32(h ^ hash32(field))
+        element = torch.arange(size, device=self.device, dtype=torch.long)
+        count[env_ids] += 1
+        return hash32(h[:, None] ^ hash32(element)[None, :]).reshape(n, *shape)
+
+    def uniform(self, env_ids: torch.Tensor, shape: tuple[int, ...] = (), low: float = 0.0, high: float = 1.0,
+                stream: str = "default") -> torch.Tensor:
+        """(n, *shape) float32 U[low, high) for the envs ``env_ids`` (n,), one draw of ``stream`` each."""
+        u = (self._bits(env_ids, tuple(shape), stream) >> 8).to(torch.float32) * (1.0 / 16777216.0)  # 24 bits / 2^24
+        return float(low) + (float(high) - float(low)) * u
+
+    def integers(self, env_ids: torch.Tensor, low: int, high: int, shape: tuple[int, ...] = (),
+                 stream: str = "default") -> torch.Tensor:
+        """(n, *shape) long, uniform on {low, ..., high - 1}."""
+        if high <= low:
+            raise ValueError(f"integers: need high > low, got [{low}, {high})")
+        return low + self._bits(env_ids, tuple(shape), stream) % (high - low)
+
+    def state_dict(self) -> dict:
+        """Counters and keys (for a checkpoint: a resumed run draws what the uninterrupted one would)."""
+        return {"seed": self.seed, "keys": self.keys.cpu().clone(), "episode": self.episode.cpu().clone(),
+                "draws": {k: v.cpu().clone() for k, v in self._draws.items()}}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore :meth:`state_dict` output.
+
+        Raises:
+            ValueError: saved for another number of envs.
+        """
+        if tuple(state["episode"].shape) != (self.num_envs,):
+            raise ValueError(f"schedule state is for {tuple(state['episode'].shape)[0]} envs, this env has {self.num_envs}")
+        self.seed = int(state["seed"])
+        self.keys = state["keys"].to(self.device, torch.long).clone()
+        self.episode = state["episode"].to(self.device, torch.long).clone()
+        self._draws = {k: v.to(self.device, torch.long).clone() for k, v in state["draws"].items()}
