@@ -96,11 +96,14 @@ class ControllerConfig:
 
 @dataclass
 class SolveRecord:
-    """One batched MPC solve (B robots). step_costs: (B, N); the rest (B,)."""
+    """One batched MPC solve (B robots). step_costs, step_input_costs: (B, N); the rest (B,).
+    best_cost is the full J of the chosen sample; input_cost its foothold-deviation part."""
 
     best_cost: torch.Tensor
+    input_cost: torch.Tensor
     initial_cost: torch.Tensor
     step_costs: torch.Tensor
+    step_input_costs: torch.Tensor
     warm_start_index: torch.Tensor
     fallback: torch.Tensor
     student_fallback: torch.Tensor
@@ -277,8 +280,9 @@ class MPCController(Controller):
             env.scene.sim.step(self.mpc_decimation)
             env.refresh_state()
             self.records.append(SolveRecord(
-                best_cost=result.best_cost.cpu(), initial_cost=result.initial_cost.cpu(),
-                step_costs=result.step_costs.cpu(), warm_start_index=result.warm_start_index.cpu(),
+                best_cost=result.best_cost.cpu(), input_cost=result.best_input_cost.cpu(),
+                initial_cost=result.initial_cost.cpu(), step_costs=result.step_costs.cpu(),
+                step_input_costs=result.step_input_costs.cpu(), warm_start_index=result.warm_start_index.cpu(),
                 fallback=result.fallback.cpu(), student_fallback=~self._student_ok.cpu()))
         am.prev_raw_action[:] = prev  # the action rate of the policy step, as the policy controllers see it
         return None

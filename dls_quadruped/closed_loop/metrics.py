@@ -1,8 +1,20 @@
-"""Summaries of closed-loop traces, as thesis 7.3.1 reports them: medians with first and third quartiles.
+"""Summaries of closed-loop traces: thesis 7.3.1's medians and quartiles, computed per episode first.
 
-The thesis pools its per-step metrics over 100 trajectories and reports medians because resets
-produce aberrant cost values; we pool every step of every episode until it ends (a fallen episode
-contributes its steps up to the fall) and give the number of episodes and of pooled values.
+Every per-step metric (RL reward, initial cost, velocity error; per solve: rollout costs) is reduced
+to one value per episode (its median over the episode's steps until it ended), then summarised across
+episodes: median, first and third quartiles, and a 95 % interval of the median from a two-level
+bootstrap over episodes and sampler seeds (``eval.metrics.episode_summary``). So a robot that fell
+after 1 s weighs as much as one that walked 15 s, and correlated steps of one episode are not counted
+as independent. ``pooled`` keeps the thesis's own statistic, the median over every step of every
+episode. The per-episode values are kept (``per_episode``), so two controllers can be compared by
+their paired differences on the same episodes (``eval.metrics.paired_difference``).
+
+Sampler seeds: a run of S seeds on E episodes holds E x S envs, env ``s E + e`` playing episode e with
+seed s (``replicas``); per-episode values are (S, E) arrays.
+
+Rollout cost: ``rollout_cost`` is the state-only cost of the chosen sample, the comparison figure
+(``mpc/cost.py``: the input term is zero for a naive warm start by construction); ``rollout_cost_full``
+is the J the sampler minimised. The initial cost is a state cost by definition (no input at x_0).
 """
 
 from __future__ import annotations
@@ -30,32 +42,93 @@ def cost_of_transport(traces: ClosedLoopTraces, settle_s: float = SETTLE_S) -> n
         return mean_p / (C.TOTAL_MASS * C.GRAVITY * mean_v)
 
 
-def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S) -> dict:
-    """JSON-able metrics of one controller's episodes (see the module docstring)."""
-    e = traces.reward.shape[1]
-    survived = int((~traces.fell).sum())
+def per_episode_median(x: np.ndarray) -> np.ndarray:
+    """(T, ..., E) per-step values (NaN after the episode's end) -> (E,) median of each episode's finite values."""
+    flat = np.asarray(x, dtype=float).reshape(-1, x.shape[-1])
+    out = np.full(flat.shape[1], np.nan)
+    for e in range(flat.shape[1]):  # E is small (episodes of one cell); nanmedian warns on empty columns
+        col = flat[:, e]
+        col = col[np.isfinite(col)]
+        if col.size:
+            out[e] = np.median(col)
+    return out
+
+
+def _units(values: np.ndarray, replicas: int) -> np.ndarray:
+    """(E x S,) env values -> (S, E): env s E + e is episode e with sampler seed s."""
+    return np.asarray(values, dtype=float).reshape(replicas, -1)
+
+
+def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: int = 1) -> dict:
+    """JSON-able metrics of one controller's episodes (see the module docstring).
+
+    Args:
+        traces: one run; its env count must be a multiple of ``replicas``.
+        settle_s: [s] start-up left out of the velocity error and the CoT.
+        replicas: S sampler seeds on the same episodes (env s E + e = episode e, seed s).
+    """
+    n = traces.reward.shape[1]
+    if replicas < 1 or n % replicas:
+        raise ValueError(f"replicas must divide the {n} envs, got {replicas}")
+    episodes = n // replicas
     settle = round(settle_s / traces.step_dt)
+    survived_env = (~traces.fell).astype(float)
+    survived = int(survived_env.sum())
+    per_ep = {
+        "rl_reward": per_episode_median(traces.reward),
+        "initial_cost": per_episode_median(traces.initial_cost),
+        "vel_error": per_episode_median(traces.vel_error[settle:]),
+        "cost_of_transport": cost_of_transport(traces, settle_s),
+        "survived": survived_env,
+    }
+    mpc = bool(np.isfinite(traces.rollout_cost).any())
+    if mpc:
+        per_ep.update({"rollout_cost": per_episode_median(traces.rollout_state_cost),
+                       "rollout_cost_full": per_episode_median(traces.rollout_cost),
+                       "mpc_initial_cost": per_episode_median(traces.mpc_initial_cost)})
+    units = {k: _units(v, replicas) for k, v in per_ep.items()}
     out = {
         "controller": traces.controller,
-        "episodes": e,
-        "survival": {"rate": survived / e if e else float("nan"), "survived": survived, "n": e,
-                     "ci95": list(M.wilson_interval(survived, e))},
-        "rl_reward": {**M.median_iqr(traces.reward), "mean": M.mean_ci(traces.reward)["mean"]},
+        "episodes": episodes,
+        "replicas": replicas,
+        "survival": {"rate": survived / n if n else float("nan"), "survived": survived, "n": n,
+                     "ci95": list(M.wilson_interval(survived, n)),
+                     "ci95_bootstrap": M.bootstrap_ci(units["survived"], np.nanmean)},
         "rl_reward_episode_mean": M.mean_ci(np.nanmean(traces.reward, axis=0)),
-        "initial_cost": M.median_iqr(traces.initial_cost),
-        "vel_error": M.median_iqr(traces.vel_error[settle:]),
-        "cost_of_transport": M.median_iqr(cost_of_transport(traces, settle_s)),
+        "per_episode": {k: v.tolist() for k, v in units.items()},
     }
-    if np.isfinite(traces.rollout_cost).any():
-        n = traces.step_costs.shape[-1]
+    pooled = {"rl_reward": traces.reward, "initial_cost": traces.initial_cost, "vel_error": traces.vel_error[settle:]}
+    if mpc:
+        pooled.update({"rollout_cost": traces.rollout_state_cost, "rollout_cost_full": traces.rollout_cost,
+                       "mpc_initial_cost": traces.mpc_initial_cost})
+    for key, v in units.items():
+        if key == "survived":
+            continue
+        out[key] = M.episode_summary(v)
+        if key in pooled:
+            out[key]["pooled"] = M.median_iqr(pooled[key])
+    if mpc:
         winners = traces.winner[traces.winner >= 0]
+        horizon = traces.step_costs.shape[-1]
         out.update({
-            "rollout_cost": M.median_iqr(traces.rollout_cost),
-            "mpc_initial_cost": M.median_iqr(traces.mpc_initial_cost),
-            "horizon_cost": [M.median_iqr(traces.step_costs[..., k]) for k in range(n)],
+            "horizon_cost": [M.episode_summary(_units(per_episode_median(traces.step_state_costs[..., k]), replicas))
+                             for k in range(horizon)],
+            "horizon_cost_full": [M.episode_summary(_units(per_episode_median(traces.step_costs[..., k]), replicas))
+                                  for k in range(horizon)],
             "warm_start_won": {str(g): float((winners == g).mean()) for g in np.unique(winners)} if winners.size else {},
             "mpc_fallbacks": traces.mpc_fallbacks,
             "student_fallbacks": traces.student_fallbacks,
         })
     out["timing"] = dict(traces.timing)
     return out
+
+
+def compare(a: dict, b: dict, metrics: tuple[str, ...] = ("rl_reward", "initial_cost", "rollout_cost", "vel_error",
+                                                          "survived")) -> dict:
+    """Paired differences a - b of two summaries of the same episodes (``per_episode`` values): per metric
+    {mean, ci95, relative, relative_ci95, episodes}; metrics missing from either side are left out."""
+    pa, pb = a["per_episode"], b["per_episode"]
+    if len(pa["rl_reward"][0]) != len(pb["rl_reward"][0]):
+        raise ValueError(f"{a['controller']} and {b['controller']} were not run on the same episodes "
+                         f"({len(pa['rl_reward'][0])} vs {len(pb['rl_reward'][0])})")
+    return {k: M.paired_difference(np.array(pa[k]), np.array(pb[k])) for k in metrics if k in pa and k in pb}

@@ -6,8 +6,9 @@ robot: the per-step RL reward (the env's reward without the dt factor, on the th
 scale when the env uses the base task's Table-4 reward), the initial cost (the MPC's state cost of
 the current state, computed the same way for every controller, so the RL baseline gets one too),
 the planar velocity-tracking error and the motor power of eq. 4.3.7; per MPC solve (100 Hz, MPC
-controllers): the rollout cost of the chosen sample, its cost at each horizon step (Fig. 28) and
-which warm start it came from (Fig. 34).
+controllers): the rollout cost of the chosen sample (full J and its input part, so that the
+state-only cost that comparisons use is their difference, ``mpc/cost.py``), its cost at each horizon
+step (Fig. 28) and which warm start it came from (Fig. 34).
 """
 
 from __future__ import annotations
@@ -39,8 +40,10 @@ class ClosedLoopTraces:
         vel_error: (T, E) |v_xy - cmd_xy| [m/s] after the step (base frame), NaN after the end.
         power: (T, E) [W] motor power (numerator of eq. 4.3.7); speed: (T, E) [m/s] horizontal base speed.
         base_vel: (T, E, 3) measured (v_x, v_y, omega_z), base frame.
-        rollout_cost, mpc_initial_cost: (T, S, E) per solve (NaN without an MPC or after the end).
-        step_costs: (T, S, E, N) cost of the chosen sample per horizon step.
+        rollout_cost, mpc_initial_cost: (T, S, E) per solve (NaN without an MPC or after the end);
+            rollout_cost is the full J of the chosen sample.
+        rollout_input_cost: (T, S, E) its input (foothold-deviation) part; ``rollout_state_cost`` = J - it.
+        step_costs: (T, S, E, N) cost of the chosen sample per horizon step; step_input_costs: its input part.
         winner: (T, S, E) warm-start group of the chosen sample (-1: fallback or no MPC).
         fell: (E,) ended by a non-time-out termination; length: (E,) policy steps it lasted.
         qpos: (T, R, 19) generalized positions of the first R robots (for the video).
@@ -57,8 +60,10 @@ class ClosedLoopTraces:
     speed: np.ndarray
     base_vel: np.ndarray
     rollout_cost: np.ndarray
+    rollout_input_cost: np.ndarray
     mpc_initial_cost: np.ndarray
     step_costs: np.ndarray
+    step_input_costs: np.ndarray
     winner: np.ndarray
     fell: np.ndarray
     length: np.ndarray
@@ -67,6 +72,16 @@ class ClosedLoopTraces:
     student_fallbacks: int
     step_dt: float
     timing: dict = field(default_factory=dict)
+
+    @property
+    def rollout_state_cost(self) -> np.ndarray:
+        """(T, S, E) state-only rollout cost of the chosen sample, sum_k (x_k+1 - x_ref)^T Q (x_k+1 - x_ref)."""
+        return self.rollout_cost - self.rollout_input_cost
+
+    @property
+    def step_state_costs(self) -> np.ndarray:
+        """(T, S, E, N) state-only cost of the chosen sample per horizon step."""
+        return self.step_costs - self.step_input_costs
 
     @property
     def time(self) -> np.ndarray:
@@ -112,8 +127,10 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     speed = np.full((steps, n), nan, np.float32)
     base_vel = np.full((steps, n, 3), nan, np.float32)
     roll_cost = np.full((steps, max(solves, 1), n), nan, np.float32)
+    roll_input = np.full_like(roll_cost, nan)
     mpc_init = np.full_like(roll_cost, nan)
     step_costs = np.full((steps, max(solves, 1), n, horizon), nan, np.float32)
+    step_input = np.full_like(step_costs, nan)
     winner = np.full((steps, max(solves, 1), n), -1, np.int16)
     r = min(record_robots, n)
     qpos = np.zeros((steps, r, 19), np.float32)
@@ -139,8 +156,10 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
                 for j, rec in enumerate(controller.records[first:]):
                     live = alive.numpy()
                     roll_cost[k, j] = np.where(live, rec.best_cost.numpy(), nan)
+                    roll_input[k, j] = np.where(live, rec.input_cost.numpy(), nan)
                     mpc_init[k, j] = np.where(live, rec.initial_cost.numpy(), nan)
                     step_costs[k, j] = np.where(live[:, None], rec.step_costs.numpy(), nan)
+                    step_input[k, j] = np.where(live[:, None], rec.step_input_costs.numpy(), nan)
                     winner[k, j] = np.where(live, rec.warm_start_index.numpy(), -1)
                     mpc_fallbacks += int((rec.fallback & alive).sum())
                     student_fallbacks += int((rec.student_fallback & alive).sum())
@@ -176,6 +195,6 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
               "num_threads": torch.get_num_threads()}
     return ClosedLoopTraces(
         controller=controller.name, command=command, reward=reward, initial_cost=init, vel_error=vel_err,
-        power=power, speed=speed, base_vel=base_vel, rollout_cost=roll_cost, mpc_initial_cost=mpc_init,
-        step_costs=step_costs, winner=winner, fell=fell.numpy(), length=length.numpy(), qpos=qpos,
+        power=power, speed=speed, base_vel=base_vel, rollout_cost=roll_cost, rollout_input_cost=roll_input,
+        mpc_initial_cost=mpc_init, step_costs=step_costs, step_input_costs=step_input, winner=winner, fell=fell.numpy(), length=length.numpy(), qpos=qpos,
         mpc_fallbacks=mpc_fallbacks, student_fallbacks=student_fallbacks, step_dt=float(env.step_dt), timing=timing)

@@ -7,6 +7,7 @@ episode (before its termination).
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -137,3 +138,98 @@ def crossing_interval(levels: np.ndarray, successes: np.ndarray, n: np.ndarray, 
     values = np.array([threshold_crossing(levels, s, threshold, outermost) for s in sims])
     lo, hi = np.percentile(values, [2.5, 97.5])
     return [float(lo), float(hi)]
+
+
+def _resample(values: np.ndarray, rng: np.random.Generator, draws: int) -> np.ndarray:
+    """(draws, S, E) copies of ``values`` (S, E) with episodes (columns) resampled with replacement, and
+    rows (seeds) too when there are several."""
+    s, e = values.shape
+    cols = rng.integers(0, e, size=(draws, 1, e))
+    rows = rng.integers(0, s, size=(draws, s, 1)) if s > 1 else np.zeros((draws, 1, 1), dtype=int)
+    return values[rows, cols]
+
+
+def _as_units(values: np.ndarray) -> np.ndarray:
+    v = np.asarray(values, dtype=float)
+    if v.ndim == 1:
+        v = v[None]
+    if v.ndim != 2:
+        raise ValueError(f"values must be (E,) episodes or (S, E) seeds x episodes, got shape {v.shape}")
+    return v
+
+
+def bootstrap_ci(values: np.ndarray, stat=np.nanmedian, draws: int = 2000, seed: int = 0) -> list[float]:
+    """95 % interval of ``stat`` over seeds and episodes: ``values`` (E,) or (S, E) per-episode values of
+    S seeds (e.g. sampler seeds) on the same E episodes; a two-level bootstrap resamples the episodes and,
+    when S > 1, the seeds, and takes the 2.5 and 97.5 percentiles of ``stat`` of the resampled values
+    (NaN values, e.g. episodes without a valid step, are ignored by the nan-statistics)."""
+    v = _as_units(values)
+    if not np.isfinite(v).any():
+        return [math.nan, math.nan]
+    boot = _resample(v, np.random.default_rng(seed), draws).reshape(draws, -1)
+    with np.errstate(all="ignore"):
+        stats = np.array([stat(b) for b in boot])
+    stats = stats[np.isfinite(stats)]
+    if stats.size == 0:
+        return [math.nan, math.nan]
+    lo, hi = np.percentile(stats, [2.5, 97.5])
+    return [float(lo), float(hi)]
+
+
+def episode_summary(values: np.ndarray, seed: int = 0) -> dict:
+    """Per-episode values (E,) or (S, E) -> {median, q1, q3 (across episodes and seeds), ci95 (of the
+    median, two-level bootstrap), mean, mean_ci95, n (finite episode values)}."""
+    v = _as_units(values)
+    flat = v[np.isfinite(v)]
+    if flat.size == 0:
+        return {"median": math.nan, "q1": math.nan, "q3": math.nan, "ci95": [math.nan, math.nan],
+                "mean": math.nan, "mean_ci95": [math.nan, math.nan], "n": 0}
+    q1, med, q3 = np.percentile(flat, [25, 50, 75])
+    return {"median": float(med), "q1": float(q1), "q3": float(q3), "ci95": bootstrap_ci(v, np.nanmedian, seed=seed),
+            "mean": float(flat.mean()), "mean_ci95": bootstrap_ci(v, np.nanmean, seed=seed), "n": int(flat.size)}
+
+
+def paired_difference(a: np.ndarray, b: np.ndarray, draws: int = 2000, seed: int = 0) -> dict:
+    """Paired difference of two controllers (or policies) evaluated on the same E episodes.
+
+    Args:
+        a, b: per-episode values, (E,) or (S, E) with S seeds each (S may differ between a and b, e.g. an
+            RL policy has no sampler seed). Episode e of ``a`` and of ``b`` must be the same episode.
+
+    Returns:
+        {"mean": mean over episodes of d_e = mean_s a_se - mean_s b_se, "ci95": its 95 % interval (two-level
+        bootstrap: episodes resampled together for a and b, seeds independently), "relative": sum_e d_e /
+        sum_e b_e (e.g. Table 16's delta), "relative_ci95", "episodes": episodes where both are finite}.
+        Episodes where either side has no finite value are left out of both.
+    """
+    a, b = _as_units(a), _as_units(b)
+    if a.shape[1] != b.shape[1]:
+        raise ValueError(f"a and b must cover the same episodes, got {a.shape[1]} and {b.shape[1]}")
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an episode without values: NaN, left out below
+        keep = np.isfinite(np.nanmean(a, 0)) & np.isfinite(np.nanmean(b, 0))
+    a, b = a[:, keep], b[:, keep]
+    e = a.shape[1]
+    nan2 = [math.nan, math.nan]
+    if e == 0:
+        return {"mean": math.nan, "ci95": nan2, "relative": math.nan, "relative_ci95": nan2, "episodes": 0}
+
+    def stats(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a resample of all-NaN seeds: NaN, dropped from the interval
+            xm, ym = np.nanmean(x, axis=-2), np.nanmean(y, axis=-2)  # per episode, over seeds
+            d = xm - ym
+            return np.nanmean(d, axis=-1), np.nansum(d, axis=-1) / np.nansum(ym, axis=-1)
+
+    mean, rel = stats(a, b)
+    rng = np.random.default_rng(seed)
+    cols = rng.integers(0, e, size=(draws, 1, e))
+    ra = rng.integers(0, a.shape[0], size=(draws, a.shape[0], 1)) if a.shape[0] > 1 else np.zeros((draws, 1, 1), int)
+    rb = rng.integers(0, b.shape[0], size=(draws, b.shape[0], 1)) if b.shape[0] > 1 else np.zeros((draws, 1, 1), int)
+    bm, br = stats(a[ra, cols], b[rb, cols])
+
+    def ci(x: np.ndarray) -> list[float]:
+        x = x[np.isfinite(x)]
+        return [float(v) for v in np.percentile(x, [2.5, 97.5])] if x.size else nan2
+
+    return {"mean": float(mean), "ci95": ci(bm), "relative": float(rel), "relative_ci95": ci(br), "episodes": int(e)}

@@ -2,6 +2,11 @@
 
 J = sum_{k=0}^{N-1} (x_{k+1} - x_ref)^T Q (x_{k+1} - x_ref) + (u_k - u_ref)^T R (u_k - u_ref)
 
+The sampler minimises J. Evaluations compare controllers by its *state* part alone (the thesis's own
+evaluation code leaves the input terms out): the input part is the foothold deviation from the
+heuristic reference, zero by construction for a naive warm start whose footholds are that heuristic,
+so J would favour it over any other warm start whatever the states it reaches.
+
 The state after each input is costed (x_0 is the same for every sample, so Algorithm 2's
 J(x_i, u_i) indexing only adds a constant); the "initial cost" is the state cost of x_0.
 A NaN cost counts as +inf (MuJoCo MPC convention) so a diverged sample never wins.
@@ -96,6 +101,15 @@ def rollout_cost_reference(
         (B, M) total cost, NaN replaced by +inf.
     """
     return nan_to_inf(rollout_step_costs(x0, contact, foot_target_w, force_w, refs, model, weights, dt).sum(-1))
+
+
+def input_step_costs(foot_target_w: torch.Tensor, force_w: torch.Tensor, refs: Refs, weights: CostWeights) -> torch.Tensor:
+    """(B, M, N) input cost (u_k - u_ref)^T R (u_k - u_ref) of each horizon step; foot_target_w, force_w:
+    (B, M, N, 4, 3) world. With Tables 9-10's R this is the foothold-deviation term alone (R = 1000 on
+    the touch-down x, y; 0 on the forces): zero for footholds at the reference (the naive warm start's
+    heuristic ones), so it is the part of the rollout cost that a comparison across warm starts leaves out."""
+    u = torch.cat([foot_target_w.flatten(-2), force_w.flatten(-2)], dim=-1)  # (B, M, N, 24)
+    return input_cost(u, refs.input_vector()[:, None, None, :], weights)
 
 
 def rollout_step_costs(

@@ -24,7 +24,7 @@ import torch
 
 from dls_quadruped.mpc import warm_start
 from dls_quadruped.mpc.config import SamplerConfig
-from dls_quadruped.mpc.cost import Refs, initial_cost, rollout_step_costs
+from dls_quadruped.mpc.cost import Refs, initial_cost, input_step_costs, rollout_step_costs
 from dls_quadruped.mpc.encodings import encoded_dim
 from dls_quadruped.mpc.kernel import (
     KernelInputs,
@@ -51,7 +51,10 @@ class MPCResult:
         foot_target_w: (B, 4, 3) [m] touch-down targets p_0; force_w: (B, 4, 3) [N] forces F_0.
         p_h: (B, 4, 2) [m], F_h: (B, 4, 3) [N]: the same first action in the horizontal frame
             (p relative to the nominal foothold), i.e. the latent-action units.
-        best_cost: (B,) rollout cost of the chosen sample (+inf if every sample diverged).
+        best_cost: (B,) rollout cost J of the chosen sample (+inf if every sample diverged).
+        best_input_cost: (B,) its input part, sum_k (u_k - u_ref)^T R (u_k - u_ref) (the foothold deviation
+            from the reference; +inf for a fallback robot). The state-only rollout cost, what evaluations
+            compare, is ``best_cost - best_input_cost`` (:attr:`best_state_cost`).
         initial_cost: (B,) state cost of the current state (thesis 7.3.1).
         best_index: (B,) long, winning sample (-1 for a fallback robot).
         warm_start_index: (B,) long, warm start whose group the winner came from (-1 for a fallback).
@@ -62,6 +65,7 @@ class MPCResult:
             re-computed with the reference rollout in float32: sums to ``best_cost`` up to the kernel's
             round-off, NaN where it diverged; thesis Fig. 28) when ``SamplingMPC.record_step_costs`` is on,
             else NaN; +inf for a fallback robot.
+        step_input_costs: (B, N) the input part of ``step_costs`` (always filled; +inf for a fallback robot).
         fallback: (B,) bool, True where an input (state, phase, base_xy_w, base_yaw, terrain_z_w, a
             reference) or the solution was not finite and the previous solution (or the first warm
             start if there was none) was returned unchanged. False always means a finite action.
@@ -76,14 +80,22 @@ class MPCResult:
     p_h: torch.Tensor
     F_h: torch.Tensor
     best_cost: torch.Tensor
+    best_input_cost: torch.Tensor
     initial_cost: torch.Tensor
     best_index: torch.Tensor
     warm_start_index: torch.Tensor
     best_encoded: torch.Tensor
     contact_horizon: torch.Tensor
     step_costs: torch.Tensor
+    step_input_costs: torch.Tensor
     fallback: torch.Tensor
     reason: str = ""
+
+    @property
+    def best_state_cost(self) -> torch.Tensor:
+        """(B,) state-only rollout cost of the chosen sample: sum_k (x_{k+1} - x_ref)^T Q (x_{k+1} - x_ref)."""
+        finite = torch.isfinite(self.best_input_cost)  # a fallback robot: +inf, not inf - inf
+        return torch.where(finite, self.best_cost - torch.where(finite, self.best_input_cost, 0.0), self.best_cost)
 
 
 def _check_tensor(name: str, value: object, shape: tuple[int, ...]) -> None:
@@ -290,6 +302,7 @@ class SamplingMPC:
         dec = decode_samples(best, inp.phase, inp.base_xy_w, inp.base_yaw, inp.terrain_z_w, self.cfg)
         first = {k: v[:, 0] for k, v in dec.items()}  # drop the K = 1 sample dim
         b = best_index.shape[0]
+        step_input = input_step_costs(dec["foot_target_w"], dec["force_w"], inp.refs, self.cfg.weights)[:, 0]  # (B, N)
         if self.record_step_costs:
             step_costs = rollout_step_costs(inp.x0, dec["contact"], dec["foot_target_w"], dec["force_w"], inp.refs,
                                             self.model, self.cfg.weights, self.cfg.dt)[:, 0]
@@ -298,9 +311,10 @@ class SamplingMPC:
         return MPCResult(
             f=first["f"], d=first["d"], contact=first["contact"][:, 0], foot_target_w=first["foot_target_w"][:, 0],
             force_w=first["force_w"][:, 0], p_h=first["p_h"][:, 0], F_h=first["F_h"][:, 0],
-            best_cost=best_cost, initial_cost=init_cost, best_index=best_index,
+            best_cost=best_cost, best_input_cost=step_input.sum(-1), initial_cost=init_cost, best_index=best_index,
             warm_start_index=inp.group[best_index], best_encoded=best[:, 0], contact_horizon=first["contact"],
-            step_costs=step_costs, fallback=torch.zeros(b, dtype=torch.bool, device=best_index.device),
+            step_costs=step_costs, step_input_costs=step_input,
+            fallback=torch.zeros(b, dtype=torch.bool, device=best_index.device),
         )
 
     def _fallback(self, result: MPCResult, bad: torch.Tensor, inp: KernelInputs, why: str) -> MPCResult:
@@ -319,6 +333,8 @@ class SamplingMPC:
         minus = torch.full_like(result.best_index, -1)
         return MPCResult(
             **out, best_cost=torch.where(bad, inf, result.best_cost),
+            best_input_cost=torch.where(bad, inf, result.best_input_cost),
+            step_input_costs=torch.where(bad[:, None], float("inf"), result.step_input_costs),
             initial_cost=torch.where(bad, inf, result.initial_cost),
             best_index=torch.where(bad, minus, result.best_index),
             step_costs=torch.where(bad[:, None], float("inf"), result.step_costs),

@@ -50,8 +50,9 @@ def _traces(reward: np.ndarray, power: np.ndarray, speed: np.ndarray, fell: np.n
     solves = np.full((t, 1, e), np.nan, np.float32)
     return ClosedLoopTraces(
         controller="x", command=np.zeros((e, 3)), reward=reward, initial_cost=nan, vel_error=nan, power=power,
-        speed=speed, base_vel=np.zeros((t, e, 3)), rollout_cost=solves, mpc_initial_cost=solves,
-        step_costs=np.full((t, 1, e, 10), np.nan), winner=np.full((t, 1, e), -1), fell=fell,
+        speed=speed, base_vel=np.zeros((t, e, 3)), rollout_cost=solves, rollout_input_cost=solves,
+        mpc_initial_cost=solves, step_costs=np.full((t, 1, e, 10), np.nan),
+        step_input_costs=np.full((t, 1, e, 10), np.nan), winner=np.full((t, 1, e), -1), fell=fell,
         length=np.full(e, t), qpos=np.zeros((t, 1, 19)), mpc_fallbacks=0, student_fallbacks=0, step_dt=0.5)
 
 
@@ -65,8 +66,37 @@ def test_cost_of_transport_and_medians_by_hand() -> None:
     cot = cost_of_transport(tr, settle_s=1.0)
     np.testing.assert_allclose(cot, [250.0 / (mg * 0.5), 300.0 / (mg * 1.0)], rtol=1e-12)
     s = summarize(tr, settle_s=1.0)
-    # pooled reward values 1, 2, 3, 4, 5, 6, 2, 3, 4: median 3, quartiles 2 and 4
-    assert s["rl_reward"]["median"] == 3.0 and s["rl_reward"]["q1"] == 2.0 and s["rl_reward"]["q3"] == 4.0
-    assert s["rl_reward"]["n"] == 9
+    # per episode first: episode 0 (1..6) median 3.5, episode 1 (2, 3, 4 until its fall) median 3;
+    # across the two episodes: median 3.25, quartiles 3.125 and 3.375 (linear interpolation)
+    r = s["rl_reward"]
+    assert (r["median"], r["q1"], r["q3"], r["n"]) == (3.25, 3.125, 3.375, 2)
+    assert s["per_episode"]["rl_reward"] == [[3.5, 3.0]]
+    assert 3.0 <= r["ci95"][0] <= r["ci95"][1] <= 3.5  # a bootstrap median of {3, 3.5}
+    # the thesis's pooled statistic: values 1, 2, 3, 4, 5, 6, 2, 3, 4: median 3, quartiles 2 and 4
+    p = r["pooled"]
+    assert p["median"] == 3.0 and p["q1"] == 2.0 and p["q3"] == 4.0 and p["n"] == 9
     assert s["survival"]["survived"] == 1 and s["survival"]["n"] == 2 and s["episodes"] == 2
     assert "rollout_cost" not in s  # no MPC in these traces
+
+
+def test_state_only_rollout_cost_and_sampler_replicas() -> None:
+    """Two sampler seeds (replicas) on two episodes: env s E + e; the rollout cost reported is J minus its
+    input part, per episode first."""
+    t, e = 4, 4
+    reward = np.ones((t, e))
+    tr = _traces(reward, np.ones((t, e)), np.ones((t, e)), fell=np.array([False, False, True, False]))
+    full = np.array([[10.0, 20.0, 30.0, 40.0]] * t)[:, None, :]  # (T, 1, E)
+    tr.rollout_cost = full.astype(np.float32)
+    tr.rollout_input_cost = np.full_like(tr.rollout_cost, 4.0)
+    tr.mpc_initial_cost = np.ones_like(tr.rollout_cost)
+    tr.step_costs = np.repeat(tr.rollout_cost[..., None] / 10, 10, axis=-1)
+    tr.step_input_costs = np.full_like(tr.step_costs, 0.4)
+    s = summarize(tr, settle_s=0.0, replicas=2)
+    assert s["episodes"] == 2 and s["replicas"] == 2
+    assert s["per_episode"]["rollout_cost"] == [[6.0, 16.0], [26.0, 36.0]]  # state-only: J - 4
+    assert s["per_episode"]["rollout_cost_full"] == [[10.0, 20.0], [30.0, 40.0]]
+    assert s["rollout_cost"]["median"] == 21.0 and s["rollout_cost_full"]["median"] == 25.0
+    np.testing.assert_allclose(s["horizon_cost"][0]["median"], 2.5 - 0.4, rtol=1e-6)
+    assert s["per_episode"]["survived"] == [[1.0, 1.0], [0.0, 1.0]] and s["survival"]["rate"] == 0.75
+    with pytest.raises(ValueError, match="replicas must divide"):
+        summarize(tr, replicas=3)
