@@ -15,9 +15,9 @@ on the same E episodes use keys ``arange(K * E) % E``).
 Streams are named per purpose (``"command"``, ``"push_robot"``, ``"obs_noise"``, ...): each has its
 own draw counter per env, so adding observation noise to a task does not shift its commands.
 
-The generator is a counter-based integer hash (Wellons' "lowbias32" finaliser, chained over the
-key fields), evaluated in int64 with every product kept below 2**49, so it is exact on any torch
-device; a uniform is its top 24 bits / 2**24 (every float32 in [0, 1) on that grid).
+The generator is the project's counter-based integer hash (``core.hashing.hash32``, the MPC
+sampler's), chained over the key fields, in int64 arithmetic that never overflows, so it is exact on
+any torch device; a uniform is its top 24 bits / 2**24 (every float32 in [0, 1) on that grid).
 """
 
 from __future__ import annotations
@@ -26,24 +26,7 @@ import zlib
 
 import torch
 
-_MASK32 = 0xFFFFFFFF
-
-
-def _mul32(x: torch.Tensor, c: int) -> torch.Tensor:
-    """(x * c) mod 2**32 for int64 x in [0, 2**32) and a 32-bit constant, without int64 overflow."""
-    lo, hi = c & 0xFFFF, c >> 16
-    return (x * lo + (((x * hi) & 0xFFFF) << 16)) & _MASK32  # x c = x lo + 2^16 x hi
-
-
-def hash32(x: torch.Tensor) -> torch.Tensor:
-    """Integer finaliser ("lowbias32") of int64 values taken mod 2**32; returns int64 in [0, 2**32)."""
-    x = x & _MASK32
-    x = x ^ (x >> 16)
-    x = _mul32(x, 0x7FEB352D)
-    x = x ^ (x >> 15)
-    x = _mul32(x, 0x846CA68B)
-    return x ^ (x >> 16)
-
+from dls_quadruped.core.hashing import hash32
 
 def stream_id(name: str) -> int:
     """Stable 32-bit id of a stream name (crc32: the same in every process and Python version)."""

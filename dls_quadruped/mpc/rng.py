@@ -7,8 +7,7 @@ generator is a pure elementwise function of (seed, counter), so inductor fuses i
 rollout kernel (no noise tensor is ever written), every path (fast, reference, re-drawing the
 best sample) gets the same numbers, and it runs unchanged on CUDA.
 
-Construction: two 32-bit integer hashes (xor-shift-multiply, constants < 2^31 so the int64
-products never overflow) per counter give two uniforms; Box-Muller turns them into two
+Construction: two 32-bit integer hashes (``core.hashing.hash32``) per counter give two uniforms; Box-Muller turns them into two
 independent standard normals (cosine and sine branch). The seed itself comes from a
 ``torch.Generator``, so solves are deterministic under a seed.
 """
@@ -19,24 +18,9 @@ import math
 
 import torch
 
-_MASK32 = 0xFFFFFFFF
+from dls_quadruped.core.hashing import hash32
+
 _TWO_PI = 2.0 * math.pi
-
-
-def hash32(x: torch.Tensor) -> torch.Tensor:
-    """Integer hash of int64 values, result in [0, 2^32) (int64).
-
-    A three-round xor-shift-multiply avalanche (the structure of the "lowbias32" family) with
-    multipliers < 2^31, so every product of a 32-bit value fits in int64.
-    """
-    x = x & _MASK32
-    x = x ^ (x >> 16)
-    x = (x * 0x7FEB352D) & _MASK32
-    x = x ^ (x >> 15)
-    x = (x * 0x1B873593) & _MASK32
-    x = x ^ (x >> 16)
-    x = (x * 0x5BD1E995) & _MASK32
-    return x ^ (x >> 13)
 
 
 def normal_pair(seed: torch.Tensor, counter: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -10,28 +10,31 @@ import torch
 
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
-from dls_quadruped.envs.schedule import EpisodeSchedule, hash32
+from dls_quadruped.core.hashing import hash32
+from dls_quadruped.envs.schedule import EpisodeSchedule
 from dls_quadruped.eval.policy import load_policy
 
 POLICY = Path(__file__).resolve().parents[2] / "docs" / "policies" / "base_actor.pt"
 
 
-def _lowbias32(x: int) -> int:
-    """The same finaliser in Python integers mod 2**32 (the cross-check of the int64 torch version)."""
+def _hash32(x: int) -> int:
+    """The same hash in Python integers mod 2**32 (the cross-check of the int64 torch version)."""
     x &= 0xFFFFFFFF
     x ^= x >> 16
     x = (x * 0x7FEB352D) & 0xFFFFFFFF
     x ^= x >> 15
-    x = (x * 0x846CA68B) & 0xFFFFFFFF
-    return x ^ (x >> 16)
+    x = (x * 0x1B873593) & 0xFFFFFFFF
+    x ^= x >> 16
+    x = (x * 0x5BD1E995) & 0xFFFFFFFF
+    return x ^ (x >> 13)
 
 
 def test_hash_matches_pure_python():
     values = torch.randint(0, 2**40, (2000,), generator=torch.Generator().manual_seed(1))
     values = torch.cat([values, torch.tensor([0, 1, 2**32 - 1, 2**32, 0x7FEB352D])])
     got = hash32(values).tolist()
-    assert got == [_lowbias32(int(v)) for v in values]
-    assert _lowbias32(0) == 0 and got[-4] != 0  # 0 is the finaliser's fixed point; 1 is not
+    assert got == [_hash32(int(v)) for v in values]
+    assert _hash32(0) == 0 and got[-4] != 0  # 0 is the hash's fixed point; 1 is not
 
 
 def test_uniform_draws_are_uniform_and_in_range():
