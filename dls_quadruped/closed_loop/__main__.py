@@ -1,9 +1,15 @@
 """Closed-loop comparison of controllers on the simple task (thesis 7.3): summary.json + plot (+ video).
 
     python -m dls_quadruped.closed_loop --controllers rl_warm_start,naive_warm_start,rl_baseline \\
-        --episodes 8 --seconds 15 [--samples 10000] [--vx 0.5] [--optimise F,f] [--out DIR]
+        --episodes 8 --seconds 15 [--sampler-seeds 3] [--samples 10000] [--vx 0.5] [--optimise F,f] [--out DIR]
 
-Every controller gets a fresh env with the same seed: the same commands and starting states.
+Every controller gets a fresh env with the same seed and the same scheduled episodes (commands,
+starting states, and any event or noise, ``envs/schedule.py``), so differences between controllers
+are paired per episode. An MPC controller runs each episode with ``--sampler-seeds`` independent
+sampler noise streams at once (E x S robots in one batched env, robot s E + e playing episode e);
+a policy controller is deterministic and runs each episode once. Summaries are per episode first,
+then across episodes and seeds with 95 % intervals; ``paired`` holds every pair of controllers'
+differences on the same episodes (two-level bootstrap over episodes and seeds).
 ``--vx`` replaces the simple task's random commands by a fixed forward speed (Table 17).
 Writes ``<out>/summary.json`` (per controller: medians and quartiles of the RL reward, initial
 cost, rollout cost, cost per horizon step, velocity error, CoT; survival with a Wilson interval;
@@ -39,7 +45,7 @@ from dls_quadruped.closed_loop.controllers import (
     ControllerConfig,
     make_controller,
 )
-from dls_quadruped.closed_loop.metrics import summarize
+from dls_quadruped.closed_loop.metrics import compare, summarize
 from dls_quadruped.closed_loop.runner import ClosedLoopTraces, run_closed_loop
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.mpc.baseline import OPTIMISABLE
@@ -73,6 +79,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seconds", type=positive_float, default=15.0, help="episode length [s]")
     p.add_argument("--vx", type=float, default=None, help="fixed forward command [m/s] instead of the simple task")
     p.add_argument("--samples", type=positive_int, default=10000, help="M, samples per robot")
+    p.add_argument("--sampler-seeds", type=positive_int, default=1,
+                   help="independent sampler noise streams per episode for the MPC controllers (robots in parallel)")
     p.add_argument("--horizon", type=positive_int, default=10, help="N")
     p.add_argument("--dt", type=positive_float, default=0.02, help="MPC step [s]")
     p.add_argument("--encoding", default="first-spline", help=f"p-F, each from {list(ENCODING_KINDS)}")
@@ -110,28 +118,47 @@ def commands(episodes: int, seed: int, vx: float | None) -> np.ndarray:
     return np.tile([vx, 0.0, 0.0], (episodes, 1))
 
 
-def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int):
-    """The base task on flat ground, no noise or perturbation, fixed commands, Table-4 reward."""
+def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int, replicas: int = 1):
+    """The base task on flat ground, no noise or perturbation, fixed commands, Table-4 reward; E
+    episodes (one per row of ``cmds``) played ``replicas`` times side by side (robot s E + e: episode e)."""
+    import torch
+
     from dls_quadruped.envs.env import LocomotionEnv
     from dls_quadruped.eval.scenario import EvalOptions
     from dls_quadruped.eval.velocity_tracking import flat_task
 
-    opts = EvalOptions(episodes=len(cmds), seed=seed, num_workers=num_workers, episode_length_s=seconds)
-    return LocomotionEnv(flat_task(cmds, opts), num_envs=len(cmds), seed=seed, verbose=False)
+    e = len(cmds)
+    tiled = np.tile(cmds, (replicas, 1))
+    opts = EvalOptions(episodes=len(tiled), seed=seed, num_workers=num_workers, episode_length_s=seconds)
+    env = LocomotionEnv(flat_task(tiled, opts), num_envs=len(tiled), seed=seed, verbose=False)
+    if replicas > 1:
+        env.reset(seed=seed, episode_keys=torch.arange(len(tiled)) % e)
+    return env
 
 
 def run_controllers(configs: list[ControllerConfig], cmds: np.ndarray, seconds: float, seed: int,
-                    num_workers: int, record_robots: int = 1) -> dict[str, ClosedLoopTraces]:
-    """Each controller in a fresh env (same seed, commands and starts); traces by name."""
+                    num_workers: int, record_robots: int = 1, sampler_seeds: int = 1) -> dict[str, ClosedLoopTraces]:
+    """Each controller in a fresh env (same seed, scheduled episodes); traces by name. MPC controllers
+    play every episode with ``sampler_seeds`` noise streams (``ClosedLoopTraces.replicas``)."""
     out = {}
     for cfg in configs:
-        env = make_env(cmds, seconds, seed, num_workers)
+        replicas = sampler_seeds if cfg.uses_mpc else 1
+        env = make_env(cmds, seconds, seed, num_workers, replicas)
         try:
             controller = make_controller(cfg, env)
             out[cfg.name] = run_closed_loop(env, controller, record_robots=record_robots)
+            out[cfg.name].replicas = replicas
         finally:
             env.close()
     return out
+
+
+def summarize_all(traces: dict[str, ClosedLoopTraces]) -> tuple[dict, dict]:
+    """Per-controller summaries and the paired differences of every pair of controllers (same episodes)."""
+    summaries = {name: summarize(tr, replicas=tr.replicas) for name, tr in traces.items()}
+    names = list(summaries)
+    paired = {f"{a} - {b}": compare(summaries[a], summaries[b]) for i, a in enumerate(names) for b in names[i + 1:]}
+    return summaries, paired
 
 
 def plot(traces: dict[str, ClosedLoopTraces], path: Path, robot: int = 0) -> None:
@@ -172,13 +199,18 @@ def plot(traces: dict[str, ClosedLoopTraces], path: Path, robot: int = 0) -> Non
 
 
 def _metric(s: dict, key: str, thesis: dict) -> str:
-    """'median [q1, q3] (thesis x)' of one metric of a controller's summary."""
+    """'median [95 % CI] (thesis x)' of one metric of a controller's summary (median over episodes of
+    each episode's median)."""
     if key not in s:
         return "-"
     m = s[key]
     digits = 3 if key == "rl_reward" else 1
-    text = f"{m['median']:.{digits}f} [{m['q1']:.{digits}f}, {m['q3']:.{digits}f}]"
+    text = f"{m['median']:.{digits}f} [{m['ci95'][0]:.{digits}f}, {m['ci95'][1]:.{digits}f}]"
     return text + (f" (thesis {thesis[key]})" if key in thesis else "")
+
+
+def _difference(d: dict, digits: int) -> str:
+    return f"{d['mean']:+.{digits}f} [{d['ci95'][0]:+.{digits}f}, {d['ci95'][1]:+.{digits}f}]"
 
 
 def headline(summary: dict) -> str:
@@ -187,13 +219,19 @@ def headline(summary: dict) -> str:
         thesis = THESIS_TABLE14_FIRST_SPLINE.get(name, {})
         sv = s["survival"]
         tm = s["timing"]
-        lines.append(f"[closed_loop] {name}: {s['episodes']} episodes, survival {100 * sv['rate']:.0f} % "
+        seeds = f" x {s['replicas']} sampler seeds" if s.get("replicas", 1) > 1 else ""
+        lines.append(f"[closed_loop] {name}: {s['episodes']} episodes{seeds}, survival {100 * sv['rate']:.0f} % "
                      f"(95 % CI {100 * sv['ci95'][0]:.0f}-{100 * sv['ci95'][1]:.0f})")
-        lines.append(f"  RL reward {_metric(s, 'rl_reward', thesis)}; initial cost {_metric(s, 'initial_cost', thesis)}; "
-                     f"rollout cost {_metric(s, 'rollout_cost', thesis)}")
+        lines.append(f"  medians over episodes [95 % CI]: RL reward {_metric(s, 'rl_reward', thesis)}; "
+                     f"initial cost {_metric(s, 'initial_cost', thesis)}; state-only rollout cost "
+                     f"{_metric(s, 'rollout_cost', thesis)}; full J {_metric(s, 'rollout_cost_full', {})}")
         lines.append(f"  |v_xy - cmd| median {s['vel_error']['median']:.3f} m/s; CoT median {s['cost_of_transport']['median']:.2f}; "
                      f"{tm['robot_seconds_per_second']:.2f} robot-s/s, kernel {100 * tm['kernel_share']:.0f} % of "
                      f"{tm['wall']:.1f} s wall")
+    for pair, diffs in summary.get("paired", {}).items():
+        parts = [f"{k} {_difference(diffs[k], 3 if k in ('rl_reward', 'vel_error', 'survived') else 1)}"
+                 for k in ("rl_reward", "initial_cost", "rollout_cost", "survived") if k in diffs]
+        lines.append(f"[closed_loop] paired, {pair} (mean over episodes [95 % CI]): " + "; ".join(parts))
     return "\n".join(lines)
 
 
@@ -217,19 +255,23 @@ def main(argv: list[str] | None = None) -> dict:
     cmds = commands(args.episodes, args.seed, args.vx)
     t0 = time.perf_counter()
     try:
-        traces = run_controllers(configs, cmds, args.seconds, args.seed, args.num_workers, args.record_robots)
+        traces = run_controllers(configs, cmds, args.seconds, args.seed, args.num_workers, args.record_robots,
+                                 args.sampler_seeds)
     except (ValueError, FileNotFoundError) as err:  # student/MPC mismatch, wrong observation size, bad file
         raise UserError(str(err)) from None
     from dls_quadruped.bench.machine import cpu_model
 
+    summaries, paired = summarize_all(traces)
     summary = {
         "settings": {"controllers": list(args.controllers), "episodes": args.episodes, "seconds": args.seconds,
                      "command": "simple task" if args.vx is None else f"forward {args.vx} m/s",
                      "samples": args.samples, "horizon": args.horizon, "dt": args.dt, "encoding": args.encoding,
                      "optimise": list(args.optimise), "naive_share": args.naive_share, "kernel": args.kernel,
+                     "sampler_seeds": args.sampler_seeds,
                      "threads": args.threads, "seed": args.seed, "policy": str(args.policy), "student": str(args.student),
                      "cpu": cpu_model()},
-        "controllers": {name: summarize(tr) for name, tr in traces.items()},
+        "controllers": summaries,
+        "paired": paired,
         "thesis_table14_first_spline": THESIS_TABLE14_FIRST_SPLINE,
         "wall_s": round(time.perf_counter() - t0, 1),
     }

@@ -49,6 +49,7 @@ class ClosedLoopTraces:
         qpos: (T, R, 19) generalized positions of the first R robots (for the video).
         mpc_fallbacks, student_fallbacks: robot-solves that used a fallback.
         step_dt: [s] policy step; timing: wall-clock profile [s] (see :func:`run_closed_loop`).
+        replicas: S sampler seeds per episode (env s E + e plays episode e; set by whoever built the env).
     """
 
     controller: str
@@ -72,6 +73,7 @@ class ClosedLoopTraces:
     student_fallbacks: int
     step_dt: float
     timing: dict = field(default_factory=dict)
+    replicas: int = 1
 
     @property
     def rollout_state_cost(self) -> np.ndarray:

@@ -142,3 +142,27 @@ def test_cli_writes_summary(tmp_path: Path) -> None:
     assert summary["controllers"]["naive_warm_start"]["episodes"] == 2
     assert len(summary["controllers"]["naive_warm_start"]["horizon_cost"]) == 10
     assert (tmp_path / "closed_loop.png").stat().st_size > 10_000
+
+
+def test_sampler_seeds_play_the_same_episodes_and_pair_controllers(tmp_path: Path) -> None:
+    """--sampler-seeds 2: the MPC controller runs each episode twice side by side (same command, start
+    and schedule, other sampler noise); the policy runs it once; the paired differences cover both."""
+    env = make_env(commands(2, 0, None), 0.5, seed=0, num_workers=0, replicas=2)
+    try:
+        obs = env.get_observations()["policy"]
+        assert torch.equal(obs[2:], obs[:2])  # robots 2, 3 start episodes 0, 1 exactly as robots 0, 1
+        ctrl = make_controller(ControllerConfig("naive_warm_start", sampler=SMALL), env)
+        tr = run_closed_loop(env, ctrl)
+        assert not np.array_equal(tr.base_vel[-1, 2:], tr.base_vel[-1, :2])  # other noise, other trajectory
+        np.testing.assert_array_equal(tr.command[2:], tr.command[:2])
+    finally:
+        env.close()
+    summary = main(["--controllers", "naive_warm_start,rl_baseline", "--episodes", "2", "--seconds", "0.5",
+                    "--samples", "200", "--sampler-seeds", "2", "--num-workers", "0", "--out", str(tmp_path)])
+    c = summary["controllers"]
+    assert (c["naive_warm_start"]["replicas"], c["rl_baseline"]["replicas"]) == (2, 1)
+    assert np.array(c["naive_warm_start"]["per_episode"]["initial_cost"]).shape == (2, 2)
+    d = summary["paired"]["naive_warm_start - rl_baseline"]["initial_cost"]
+    a = np.array(c["naive_warm_start"]["per_episode"]["initial_cost"]).mean(0)
+    b = np.array(c["rl_baseline"]["per_episode"]["initial_cost"])[0]
+    assert d["episodes"] == 2 and d["mean"] == pytest.approx(float((a - b).mean()))
