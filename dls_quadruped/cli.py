@@ -27,7 +27,15 @@ class UserError(Exception):
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """``argparse.ArgumentParser`` whose usage errors are one line (the usage is in ``--help``)."""
+    """``argparse.ArgumentParser`` whose usage errors are one line (the usage is in ``--help``).
+
+    ``prog`` defaults to the module run with ``python -m`` (``dls_quadruped.eval``, not
+    ``__main__.py``), the name :func:`run_cli` reports its errors under.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any):
+        kwargs.setdefault("prog", _prog())
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
         self.exit(USER_ERROR_STATUS, f"{self.prog}: error: {message} (see --help)\n")
@@ -71,9 +79,12 @@ def user_errors() -> tuple[type[BaseException], ...]:
 
 
 def _prog() -> str:
+    """The running command: the module of ``python -m`` (without ``.__main__``) or the script's name."""
     main = sys.modules.get("__main__")
     spec = getattr(main, "__spec__", None)
-    return spec.name if spec is not None else os.path.basename(sys.argv[0])
+    if spec is None:
+        return os.path.basename(sys.argv[0])
+    return spec.name.removesuffix(".__main__")
 
 
 def run_cli(main: Callable[..., Any], *args: Any) -> None:

@@ -21,6 +21,7 @@ from pathlib import Path
 import torch
 
 from dls_quadruped.bench.machine import cpu_model
+from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.closed_loop.__main__ import (
     DEFAULT_POLICY,
     DEFAULT_STUDENT,
@@ -77,7 +78,7 @@ def run(controller: str, robots: int, seconds: float, samples: int, horizon: int
 
 
 def main(argv: list[str] | None = None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robots", type=int, nargs="+", default=[4, 16])
     p.add_argument("--controllers", nargs="+", default=["rl_warm_start", "naive_warm_start"])
     p.add_argument("--seconds", type=float, default=3.0, help="simulated seconds per measurement")
@@ -117,5 +118,5 @@ def main(argv: list[str] | None = None) -> dict:
 
 if __name__ == "__main__":
     tic = time.perf_counter()
-    main()
+    run_cli(main)  # a bad flag or a user error: one line, exit 2; Ctrl-C: one line, exit 130
     print(f"[bench.closed_loop] {time.perf_counter() - tic:.0f} s")

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from dls_quadruped.cli import ArgumentParser, positive_int, run_cli
 from dls_quadruped.control.conventions import (
     NV_MJ,
     mujoco_to_pinocchio,
@@ -88,5 +89,13 @@ def timing(batch: int = 1024, repeats: int = 7) -> None:
         print(f"  {name:48s} {us:6.2f}")
 
 
+def main(argv: list[str] | None = None) -> None:
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batch", type=positive_int, default=1024, help="robots per call (default 1024)")
+    parser.add_argument("--repeats", type=positive_int, default=7, help="timings per row, best kept (default 7)")
+    args = parser.parse_args(argv)
+    timing(args.batch, args.repeats)
+
+
 if __name__ == "__main__":
-    timing()
+    run_cli(main)  # a bad flag: one line, exit 2

@@ -17,7 +17,6 @@ Writes ``results/bench/env_throughput.json`` and prints a markdown table for
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
@@ -29,6 +28,7 @@ import numpy as np
 import torch
 from mujoco.batch import Batch
 
+from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.control.dynamics import LegDynamics
 from dls_quadruped.eval.balance_run import home_state
 from dls_quadruped.robots.aliengo import constants as C
@@ -92,7 +92,7 @@ def full_backend(model: mujoco.MjModel, n: int, seconds: float, workers: int) ->
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[1024, 4096])
     parser.add_argument("--seconds", type=float, default=8.0, help="measurement time per configuration")
     parser.add_argument("--out", type=Path, default=Path("results/bench"))
@@ -131,4 +131,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)  # a bad flag or a user error: one line, exit 2; Ctrl-C: one line, exit 130

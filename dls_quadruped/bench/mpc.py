@@ -31,6 +31,7 @@ from unittest import mock
 import torch
 
 from dls_quadruped.bench.machine import cpu_model
+from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.mpc import (
     Refs,
     SamplerConfig,
@@ -365,7 +366,7 @@ def update_docs(table: str, info: dict, results: list[dict], path: Path) -> None
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="reduced grid (M in 1000, 4000; N = 5; 10 solves)")
     parser.add_argument("--solves", type=int, default=50, help="timed solves per point (default 50)")
     parser.add_argument("--reference-all", action="store_true", help="reference kernel at every N (default N = 10)")
@@ -426,4 +427,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)  # a bad flag or a user error: one line, exit 2; Ctrl-C: one line, exit 130

@@ -25,7 +25,6 @@ the markdown tables of ``docs/benchmarks.md``. Usage::
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
@@ -39,6 +38,7 @@ import mujoco
 import torch
 from rsl_rl.runners import OnPolicyRunner
 
+from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.learning.runner import runner_config
@@ -232,7 +232,7 @@ def markdown(result: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=list(TASKS))
     parser.add_argument("--sizes", type=int, nargs="+", default=[1024, 4096])
     parser.add_argument("--ppo-size", type=int, default=4096, help="N of the PPO iteration (0: skip)")
@@ -270,4 +270,4 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)  # a bad flag or a user error: one line, exit 2; Ctrl-C: one line, exit 130

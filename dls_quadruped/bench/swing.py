@@ -13,7 +13,6 @@ if it stood still, the behaviour before issue 12). Prints and writes JSON (``--o
 
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import replace
 from pathlib import Path
@@ -22,6 +21,7 @@ import mujoco
 import numpy as np
 import torch
 
+from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.control.lowlevel import LowLevelConfig
 from dls_quadruped.mpc.baseline import BaselineConfig, ModelBasedBaseline
 from dls_quadruped.mpc.config import SamplerConfig
@@ -77,7 +77,7 @@ def measure(vx: float = 0.5, seconds: float = 6.0, samples: int = 10_000, bandwi
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--vx", type=float, default=0.5)
     parser.add_argument("--seconds", type=float, default=6.0)
     parser.add_argument("--samples", type=int, default=10_000)
@@ -96,4 +96,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)  # a bad flag or a user error: one line, exit 2; Ctrl-C: one line, exit 130

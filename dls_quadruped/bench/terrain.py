@@ -13,7 +13,6 @@ other processes share the core). Writes ``results/bench/terrain_step.json`` and 
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 from pathlib import Path
@@ -22,6 +21,7 @@ import mujoco
 import numpy as np
 
 from dls_quadruped.bench.machine import cpu_model
+from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.envs.config import dataclass_from_dict, load_task
 from dls_quadruped.robots.aliengo import constants as C
@@ -84,7 +84,7 @@ def markdown(result: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="rough")
     parser.add_argument("--rows", type=int, nargs="+", default=[0, 5])
     parser.add_argument("--steps", type=int, default=3000)
@@ -100,4 +100,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)  # a bad flag or a user error: one line, exit 2; Ctrl-C: one line, exit 130

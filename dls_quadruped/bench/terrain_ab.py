@@ -14,7 +14,6 @@ defaults. Usage::
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import os
 import statistics
@@ -25,6 +24,7 @@ from pathlib import Path
 import torch
 
 import dls_quadruped.envs.managers.scene as scene_module
+from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.envs.env import LocomotionEnv
 
@@ -84,7 +84,7 @@ def measure(n: int, rounds: int, steps: int, baseline) -> dict[str, dict[str, fl
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--baseline-terrain", type=Path, required=True, help="a terrain.py to compare against")
     parser.add_argument("--sizes", type=int, nargs="+", default=[1024, 4096])
     parser.add_argument("--rounds", type=int, default=5)
@@ -109,4 +109,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)  # a bad flag or a user error: one line, exit 2; Ctrl-C: one line, exit 130

@@ -27,7 +27,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--policy", type=Path, required=True, help="exported actor .pt or model_<it>.pt checkpoint")
     p.add_argument("--scenario", default="simple", choices=sorted(SCENARIOS),
-                   help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()))
+                   # argparse %-formats help strings: a literal "50 %" must be "50 %%"
+                   help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()).replace("%", "%%"))
     p.add_argument("--episodes", type=int, default=None,
                    help="episodes per condition (per speed, step height, grid cell; the whole set for simple, "
                         "forward, survival), all in parallel; default: the scenario's small size")

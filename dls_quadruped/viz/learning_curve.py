@@ -13,7 +13,6 @@ terrain-level and forward-speed curricula (``Curriculum/terrain_levels``, ``Curr
 
 from __future__ import annotations
 
-import argparse
 import csv
 from pathlib import Path
 
@@ -22,6 +21,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from dls_quadruped.cli import ArgumentParser, run_cli
 
 COLUMNS = {
     "mean_reward": "Train/mean_reward",
@@ -90,7 +91,7 @@ def plot(rows: list[dict[str, float]], path: Path, title: str, marks: tuple[int,
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("run_dir", type=Path)
     p.add_argument("--csv", type=Path, required=True)
     p.add_argument("--png", type=Path, required=True)
@@ -104,4 +105,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)  # a bad flag, a missing run directory: one line, exit 2
