@@ -22,7 +22,7 @@ from __future__ import annotations
 import ast
 import atexit
 import multiprocessing as mp
-import multiprocessing.util  # noqa: F401  (registers its exit handler before ours, so ours runs first)
+import multiprocessing.util  # registers its exit handler before ours below, so ours runs first
 import os
 import signal
 import sys
@@ -100,7 +100,7 @@ def _close_running() -> None:
     for sim in list(_RUNNING):
         try:
             sim.close()
-        except Exception:  # noqa: BLE001 -- at exit, a failure to close one must not leave the others running
+        except Exception:  # noqa: BLE001, S110 -- at exit, a failure to close one must not leave the others running
             pass
 
 

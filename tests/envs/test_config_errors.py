@@ -33,16 +33,16 @@ CASES = {
     "only_comments": ("# nothing yet\n", ": the file is empty (or only comments)", ["'rewards'"]),
     "list": ("# sections\n- env\n- agent\n", ":2: the top level is a list; expected a mapping of sections", []),
     "scalar": ("base\n", ":1: the top level is a single value (str 'base'); expected a mapping", []),
-    "no_agent": (f"inherit: {BASE}\nagent: null\n", ": no 'agent' section (in the file or what it inherits); "
-                 "a task needs ['env', 'agent']: add it", ["_common.yaml"]),
+    "no_agent": (f"inherit: {BASE}\nagent: null\n", (": no 'agent' section (in the file or what it inherits); "
+                              "a task needs ['env', 'agent']: add it"), ["_common.yaml"]),
     "no_env": (f"inherit: {BASE}\nenv: null\n", ": no 'env' section", ["a task needs ['env', 'agent']"]),
     "no_env_no_agent": ("rewards: {}\n", ": no 'env' and no 'agent' section", ["add them"]),
     "missing_inherit": ("# my task\ninherit: [_base.yaml]\nenv: {}\n",
                         ":2: inherit: '_base.yaml' not found (no file ", ["files next to it: ["]),
-    "inherit_not_a_name": ("inherit: {file: base.yaml}\n", ":1: inherit: expected a file name or a list of file "
-                           "names, got {'file': 'base.yaml'}", []),
-    "unknown_section": (f"inherit: {BASE}\nenv: {{}}\nreward: {{}}\n", ":3: unknown top-level keys ['reward']; "
-                        "allowed: ['inherit', 'env'", []),
+    "inherit_not_a_name": ("inherit: {file: base.yaml}\n", (":1: inherit: expected a file name or a list "
+                                                            "of file names, got {'file': 'base.yaml'}"), []),
+    "unknown_section": (f"inherit: {BASE}\nenv: {{}}\nreward: {{}}\n", (":3: unknown top-level keys "
+                                                                        "['reward']; allowed: ['inherit', 'env'"), []),
 }
 
 
