@@ -1,5 +1,7 @@
 """Table 14 and Figs. 26-27 (thesis 7.3.2): RL warm start vs naive warm start vs RL baseline for the six
 (p, F) encodings, H = 10, dt = 0.02 s, M = 10 000, the MPC optimising the forces only, simple task.
+Δ columns: the RL warm start minus the naive warm start of the same encoding on the same episodes
+(mean over episodes of the per-episode difference, 95 % interval over episodes and sampler seeds).
 
     python experiments/table14_warm_start_encodings.py --scale small
 """
@@ -15,6 +17,7 @@ from experiments.warm_start_common import (
     Cell,
     finish,
     med,
+    paired,
     parse_args,
     pyplot,
     run_cells,
@@ -56,32 +59,46 @@ def cells() -> list[Cell]:
 
 
 def figure(results: dict, path: Path) -> None:
-    """Figs. 26-27: initial cost and rollout cost per encoding, medians with quartile bars."""
+    """Figs. 26-27: initial cost and state-only rollout cost per encoding, medians with 95 % interval bars."""
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     labels = [f"{p}-{F}" for p, F in ENCODINGS]
     for ax, key, title in ((axes[0], "initial_cost", "Fig. 26: initial (state) cost"),
-                           (axes[1], "rollout_cost", "Fig. 27: rollout cost")):
+                           (axes[1], "rollout_cost", "Fig. 27: rollout cost (state-only)")):
         for off, ctrl, color in ((-0.2, "rl_warm_start", "C0"), (0.2, "naive_warm_start", "C1")):
             for i, (p, F) in enumerate(ENCODINGS):
                 s = results.get(f"{ctrl}_{p}-{F}", {})
                 m = s.get(key)
                 if not m or m.get("n", 0) == 0:
                     continue
-                ax.errorbar(i + off, m["median"], yerr=[[m["median"] - m["q1"]], [m["q3"] - m["median"]]], fmt="o",
+                lo, hi = m.get("ci95", [m["q1"], m["q3"]])
+                ax.errorbar(i + off, m["median"], yerr=[[m["median"] - lo], [hi - m["median"]]], fmt="o",
                             color=color, capsize=3, label=ctrl if i == 0 else None)
         ax.set_xticks(range(len(labels)), labels, rotation=30)
         ax.set_yscale("log")
-        ax.set_title(title + " (median, IQR)")
+        ax.set_title(title + " (median, 95 % CI)", fontsize=9)
         ax.legend(fontsize=8)
     save(fig, path)
 
 
-def columns(c: Cell, s: dict) -> dict:
-    won = s.get("warm_start_won") or {}
-    return {"RL reward": med(s["rl_reward"], 3), "Initial cost": med(s["initial_cost"]),
-            "Rollout cost": med(s.get("rollout_cost")), "Survival": survival(s), "|v_xy - cmd|": med(s["vel_error"], 3),
-            "student won": f"{100 * won.get('0', 0.0):.0f} %" if c.naive_share else ""}
+def columns_with(results: dict):
+    """The table's columns of a cell; an RL warm start's paired differences are against the naive warm
+    start with the same encoding (same episodes), the mixed row's against the pure RL warm start."""
+
+    def columns(c: Cell, s: dict) -> dict:
+        won = s.get("warm_start_won") or {}
+        ref = None
+        if c.controller == "rl_warm_start":
+            ref = "rl_warm_start_first-spline" if c.naive_share else f"naive_warm_start_{c.row['p']}-{c.row['F']}"
+        return {"RL reward": med(s["rl_reward"], 3), "Initial cost": med(s["initial_cost"]),
+                "Rollout cost (state)": med(s.get("rollout_cost")), "Rollout J (full)": med(s.get("rollout_cost_full")),
+                "Survival": survival(s), "|v_xy - cmd|": med(s["vel_error"], 3),
+                "Δ initial (paired)": paired(results, c.name, ref, "initial_cost") if ref else "",
+                "Δ rollout state (paired)": paired(results, c.name, ref, "rollout_cost") if ref else "",
+                "Δ reward (paired)": paired(results, c.name, ref, "rl_reward", 3) if ref else "",
+                "student won": f"{100 * won.get('0', 0.0):.0f} %" if c.naive_share else ""}
+
+    return columns
 
 
 def thesis(c: Cell) -> dict:
@@ -93,9 +110,10 @@ def main() -> None:
     args = parse_args(__doc__, "table14_warm_start")
     todo = cells()
     results = run_cells(todo, args)
-    cols = ["Controller", "p", "F", "RL reward", "Initial cost", "Rollout cost", "Survival", "|v_xy - cmd|",
-            "student won", "thesis RL reward", "thesis initial", "thesis rollout"]
-    finish(args, todo, results, tabulate(todo, results, columns, thesis), cols,
+    cols = ["Controller", "p", "F", "RL reward", "Initial cost", "Rollout cost (state)", "Rollout J (full)", "Survival",
+            "|v_xy - cmd|", "Δ initial (paired)", "Δ rollout state (paired)", "Δ reward (paired)", "student won",
+            "thesis RL reward", "thesis initial", "thesis rollout"]
+    finish(args, todo, results, tabulate(todo, results, columns_with(results), thesis), cols,
            "Table 14 (M = 10 000, H = 10, dt = 0.02 s, F only)", figure, "fig26_27.png")
 
 

@@ -16,6 +16,7 @@ from experiments.warm_start_common import (
     Cell,
     finish,
     med,
+    paired,
     parse_args,
     pyplot,
     run_cells,
@@ -53,17 +54,26 @@ def figure(results: dict, path: Path) -> None:
             ax.plot(range(1, h + 1), [m["median"] for m in hc], "o-", color=f"C{i}", label=f"dt {dt:g}, H {h}")
         ax.set_yscale("log")
         ax.set_xlabel("horizon step k")
-        ax.set_title(f"Fig. 28: {ctrl}, chosen sample's cost per step (median)", fontsize=9)
+        ax.set_title(f"Fig. 28: {ctrl}, chosen sample's state cost per step (median)", fontsize=9)
         ax.legend(fontsize=7)
     axes[0].set_ylabel("cost of step k")
     save(fig, path)
 
 
-def columns(c: Cell, s: dict) -> dict:
-    hc = s.get("horizon_cost") or []
-    ratio = f"{hc[-1]['median'] / hc[0]['median']:.1f}" if hc and hc[0]["median"] else "-"
-    return {"RL reward": med(s["rl_reward"], 3), "Initial cost": med(s["initial_cost"]),
-            "Rollout cost": med(s.get("rollout_cost")), "Survival": survival(s), "last/first step cost": ratio}
+def columns_with(results: dict):
+    """The table's columns; an RL warm start's paired difference is against the naive warm start of the
+    same (dt, H) on the same episodes."""
+
+    def columns(c: Cell, s: dict) -> dict:
+        hc = s.get("horizon_cost") or []
+        ratio = f"{hc[-1]['median'] / hc[0]['median']:.1f}" if hc and hc[0]["median"] else "-"
+        ref = c.name.replace("rl_warm_start", "naive_warm_start") if c.controller == "rl_warm_start" else None
+        return {"RL reward": med(s["rl_reward"], 3), "Initial cost": med(s["initial_cost"]),
+                "Δ initial vs naive (paired)": paired(results, c.name, ref, "initial_cost") if ref else "",
+                "Rollout cost (state)": med(s.get("rollout_cost")), "Rollout J (full)": med(s.get("rollout_cost_full")),
+                "Survival": survival(s), "last/first step cost": ratio}
+
+    return columns
 
 
 def thesis(c: Cell) -> dict:
@@ -75,9 +85,10 @@ def main() -> None:
     args = parse_args(__doc__, "table15_horizon")
     todo = cells()
     results = run_cells(todo, args)
-    cols = ["Controller", "dt [s]", "H", "Time H. [s]", "RL reward", "Initial cost", "Rollout cost", "Survival",
-            "last/first step cost", "thesis RL reward", "thesis initial"]
-    finish(args, todo, results, tabulate(todo, results, columns, thesis), cols,
+    cols = ["Controller", "dt [s]", "H", "Time H. [s]", "RL reward", "Initial cost", "Δ initial vs naive (paired)",
+            "Rollout cost (state)", "Rollout J (full)", "Survival", "last/first step cost", "thesis RL reward",
+            "thesis initial"]
+    finish(args, todo, results, tabulate(todo, results, columns_with(results), thesis), cols,
            "Table 15 (first-spline, M = 10 000, F only)", figure, "fig28.png")
 
 

@@ -1,5 +1,6 @@
 """Table 16 and Fig. 29 (thesis 7.3.4): number of samples M in {4 000, 10 000, 25 000}, first-spline,
-H = 10, dt = 0.02 s, forces only, simple task; the change of each median against M = 10 000.
+H = 10, dt = 0.02 s, forces only, simple task; Δ: the change against M = 10 000 on the same episodes,
+sum_e (x_e - x_e^10000) / sum_e x_e^10000 over per-episode medians (seed-averaged), with its 95 % interval.
 
     python experiments/table16_samples.py --scale small
 """
@@ -15,6 +16,7 @@ from experiments.warm_start_common import (
     Cell,
     finish,
     med,
+    paired,
     parse_args,
     pyplot,
     run_cells,
@@ -36,15 +38,8 @@ def cells() -> list[Cell]:
             for ctrl in ("rl_warm_start", "naive_warm_start") for m in SAMPLES]
 
 
-def _delta(s: dict, ref: dict, key: str) -> str:
-    try:
-        return f"{100 * (s[key]['median'] / ref[key]['median'] - 1):+.1f} %"
-    except (KeyError, TypeError, ZeroDivisionError):
-        return "-"
-
-
 def figure(results: dict, path: Path) -> None:
-    """Fig. 29: initial cost vs M (median, IQR)."""
+    """Fig. 29: initial cost vs M (median, 95 % CI)."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 4))
     for off, ctrl, color in ((-0.03, "rl_warm_start", "C0"), (0.03, "naive_warm_start", "C1")):
@@ -54,12 +49,13 @@ def figure(results: dict, path: Path) -> None:
             ic = s.get("initial_cost")
             if not ic or not ic.get("n"):
                 continue
-            xs.append(m * (1 + off)), ms.append(ic["median"]), lo.append(ic["median"] - ic["q1"]), hi.append(ic["q3"] - ic["median"])
+            a, b = ic.get("ci95", [ic["q1"], ic["q3"]])
+            xs.append(m * (1 + off)), ms.append(ic["median"]), lo.append(ic["median"] - a), hi.append(b - ic["median"])
         if xs:
             ax.errorbar(xs, ms, yerr=[lo, hi], fmt="o-", color=color, capsize=3, label=ctrl)
     ax.set_xscale("log")
     ax.set_xlabel("samples M")
-    ax.set_ylabel("initial cost (median, IQR)")
+    ax.set_ylabel("initial cost (median, 95 % CI)")
     ax.set_title("Fig. 29: initial cost vs number of samples", fontsize=9)
     ax.legend(fontsize=8)
     save(fig, path)
@@ -71,18 +67,22 @@ def main() -> None:
     results = run_cells(todo, args)
 
     def columns(c: Cell, s: dict) -> dict:
-        ref = results.get(f"{c.controller}_M10000", {})
-        return {"RL reward": med(s["rl_reward"], 3), "Δ reward": _delta(s, ref, "rl_reward"),
-                "Initial cost": med(s["initial_cost"]), "Δ initial": _delta(s, ref, "initial_cost"),
-                "Rollout cost": med(s.get("rollout_cost")), "Δ rollout": _delta(s, ref, "rollout_cost"),
-                "Survival": survival(s)}
+        ref = f"{c.controller}_M10000"
+
+        def delta(key: str) -> str:
+            return "" if c.name == ref else paired(results, c.name, ref, key, relative=True)
+
+        return {"RL reward": med(s["rl_reward"], 3), "Δ reward": delta("rl_reward"),
+                "Initial cost": med(s["initial_cost"]), "Δ initial": delta("initial_cost"),
+                "Rollout cost (state)": med(s.get("rollout_cost")), "Δ rollout": delta("rollout_cost"),
+                "Rollout J (full)": med(s.get("rollout_cost_full")), "Survival": survival(s)}
 
     def thesis(c: Cell) -> dict:
         th = THESIS.get((c.controller, c.row["M"]), (None, None, None))
         return {"thesis RL reward": th[0] or "-", "thesis initial": th[1] or "-", "thesis rollout": th[2] or "-"}
 
-    cols = ["Controller", "M", "RL reward", "Δ reward", "Initial cost", "Δ initial", "Rollout cost", "Δ rollout",
-            "Survival", "thesis RL reward", "thesis initial", "thesis rollout"]
+    cols = ["Controller", "M", "RL reward", "Δ reward", "Initial cost", "Δ initial", "Rollout cost (state)", "Δ rollout",
+            "Rollout J (full)", "Survival", "thesis RL reward", "thesis initial", "thesis rollout"]
     finish(args, todo, results, tabulate(todo, results, columns, thesis), cols,
            "Table 16 (first-spline, H = 10, dt = 0.02 s, F only; Δ vs M = 10 000)", figure, "fig29.png")
 

@@ -20,6 +20,7 @@ from experiments.warm_start_common import (
     pyplot,
     run_cells,
     save,
+    survival,
 )
 
 SPEEDS = (0.1, 0.5, 1.5)
@@ -91,7 +92,7 @@ def main() -> None:
                 continue
             row[f"RLR {v:g}"] = f"{s['rl_reward']['median']:.3f} ({th[0][i]})"
             row[f"IC {v:g}"] = f"{med(s['initial_cost'])} ({th[1][i]})"
-            row[f"Surv {v:g}"] = f"{100 * s['survival']['rate']:.0f} % of {s['survival']['n']} ({th[2][i]} %)"
+            row[f"Surv {v:g}"] = f"{survival(s)} ({th[2][i]} %)"
         rows.append(row)
     cols = ["Controller", "Gait opt."] + [f"{k} {v:g}" for k in ("RLR", "IC", "Surv") for v in SPEEDS]
     finish(args, todo, results, rows, cols, "Table 17 (ours (thesis); RLR/IC medians; first-spline, M = 10 000)",

@@ -6,9 +6,15 @@ task or a fixed forward speed, and summarised as the thesis does (medians with f
 quartiles, 7.3.1; survival with a Wilson interval). Every cell is cached in
 ``<out>/cells/<name>.json``: an interrupted script continues with the cells it has not finished.
 
-Scales (episodes x seconds per cell): ``small`` 4 x 5 s (minutes on 2 cores; medians of ~1 000
-pooled steps, a pipeline check more than a measurement), ``medium`` 16 x 15 s, ``thesis``
-100 x 15 s (7.3.1: 100 trajectories per configuration).
+Scales (episodes x seconds per cell): ``small`` 4 x 5 s (minutes on 2 cores; a pipeline check more
+than a measurement), ``medium`` 16 x 15 s, ``thesis`` 100 x 15 s (7.3.1: 100 trajectories per
+configuration). Every MPC cell plays each episode with ``--sampler-seeds`` (default 3) independent
+sampler noise streams side by side in one batched env; the RL baseline is deterministic and plays
+each episode once. Every cell of a script sees the same scheduled episodes (same seed, commands and
+starts, ``envs/schedule.py``), so cells are compared by paired differences per episode. Statistics
+are per episode first (``closed_loop/metrics.py``): medians across episodes and seeds with a 95 %
+interval of the median; the rollout cost is the state-only one (``rollout_cost``), the full J the
+sampler minimised beside it (``rollout_cost_full``).
 
 Students: ``rl_warm_start`` needs a student distilled for the cell's encoding, horizon and dt: the
 committed ``docs/policies/base_student_first_spline_h10.pt`` for first-spline, H = 10, dt = 0.02 s,
@@ -74,6 +80,8 @@ def parse_args(description: str, name: str) -> argparse.Namespace:
     p.add_argument("--threads", type=int, default=1, help="torch / MPC kernel threads")
     p.add_argument("--num-workers", type=int, default=0, help="simulator processes (0: in-process, the closed loop's fastest)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--sampler-seeds", type=int, default=3,
+                   help="sampler noise streams per episode for the MPC cells (robots in parallel)")
     p.add_argument("--only", nargs="*", default=None, help="run only these cells")
     args = p.parse_args()
     args.episodes = args.episodes or SCALES[args.scale]["episodes"]
@@ -115,8 +123,8 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
                                optimise=cell.optimise, naive_share=cell.naive_share, seed=args.seed)
         t0 = time.monotonic()
         traces = run_controllers([cfg], commands(args.episodes, args.seed, cell.vx), args.seconds, args.seed,
-                                 args.num_workers)[cell.controller]
-        summary = summarize(traces)
+                                 args.num_workers, sampler_seeds=args.sampler_seeds)[cell.controller]
+        summary = summarize(traces, replicas=traces.replicas)
         summary.update({"cell": cell.name, "student": str(student) if student else None, "row": cell.row,
                         "sampler": cell.sampler, "optimise": list(cell.optimise), "vx": cell.vx,
                         "naive_share": cell.naive_share,
@@ -131,15 +139,35 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
 
 
 def med(m: dict | None, digits: int = 1) -> str:
-    """'median [q1, q3]' of a median_iqr dict."""
+    """'median [95 % CI]' of an ``episode_summary`` dict (median over episodes and seeds of each
+    episode's median; the interval of that median over episodes and seeds)."""
     if not m or m.get("n", 0) == 0 or m.get("median") is None or not np.isfinite(m["median"]):
         return "-"
-    return f"{m['median']:.{digits}f} [{m['q1']:.{digits}f}, {m['q3']:.{digits}f}]"
+    lo, hi = m.get("ci95", [m.get("q1"), m.get("q3")])
+    return f"{m['median']:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
+def paired(results: dict, a: str, b: str, key: str, digits: int = 1, relative: bool = False) -> str:
+    """Paired difference of cells ``a`` - ``b`` on the same episodes: 'mean [95 % CI]' (or the relative
+    difference sum d / sum b in %), '-' if either cell is missing or was skipped."""
+    from dls_quadruped.eval.metrics import paired_difference
+
+    sa, sb = results.get(a) or {}, results.get(b) or {}
+    if "per_episode" not in sa or "per_episode" not in sb or key not in sa["per_episode"] or key not in sb["per_episode"]:
+        return "-"
+    d = paired_difference(np.array(sa["per_episode"][key]), np.array(sb["per_episode"][key]))
+    if relative:
+        return f"{100 * d['relative']:+.1f} % [{100 * d['relative_ci95'][0]:+.1f}, {100 * d['relative_ci95'][1]:+.1f}]"
+    return f"{d['mean']:+.{digits}f} [{d['ci95'][0]:+.{digits}f}, {d['ci95'][1]:+.{digits}f}]"
 
 
 def survival(s: dict) -> str:
+    """'rate [95 % CI] (n=episodes x seeds)': the interval from the two-level bootstrap over episodes and
+    seeds where there are seeds (robots of one episode are not independent), else Wilson's."""
     v = s["survival"]
-    return f"{100 * v['rate']:.0f} % [{100 * v['ci95'][0]:.0f}, {100 * v['ci95'][1]:.0f}] (n={v['n']})"
+    lo, hi = v.get("ci95_bootstrap", v["ci95"]) if s.get("replicas", 1) > 1 else v["ci95"]
+    n = f"{s['episodes']}x{s['replicas']}" if s.get("replicas", 1) > 1 else f"{v['n']}"
+    return f"{100 * v['rate']:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] (n={n})"
 
 
 def write_config(args: argparse.Namespace, cells: list[Cell], extra: dict | None = None) -> None:
@@ -150,7 +178,9 @@ def write_config(args: argparse.Namespace, cells: list[Cell], extra: dict | None
         commit = "unknown"
     from dls_quadruped.bench.machine import cpu_model
 
+    wall = sum(r.get("seconds_wall", 0.0) for r in (extra or {}).pop("results", {}).values())
     write_json({"scale": args.scale, "episodes_per_cell": args.episodes, "seconds": args.seconds, "seed": args.seed,
+                "sampler_seeds": args.sampler_seeds, "cells_wall_s": round(wall, 1),
                 "threads": args.threads, "git_commit": commit, "cpu": cpu_model(), "policy": str(args.policy),
                 "students": str(args.students), "cells": [c.name for c in cells], **(extra or {})},
                args.out / "config.json")
@@ -175,8 +205,9 @@ def finish(args: argparse.Namespace, cells: list[Cell], results: dict, rows: lis
            title: str, figure, figure_name: str) -> None:
     """Write table.md/.csv (titled with the scale), results.json, the figure and config.json; print the table."""
     write_table(rows, columns, args.out / "table", f"{title} ({args.scale}: {args.episodes} episodes x "
-                f"{args.seconds:g} s per cell; median [q1, q3] over every step)")
+                f"{args.seconds:g} s per cell, {args.sampler_seeds} sampler seeds per MPC episode; median over "
+                f"episodes and seeds of each episode's median [95 % CI]; rollout cost: state-only, full J beside it)")
     write_json(results, args.out / "results.json", indent=1)
     figure(results, args.out / figure_name)
-    write_config(args, cells)
+    write_config(args, cells, {"results": results})
     print((args.out / "table.md").read_text())

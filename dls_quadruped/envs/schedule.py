@@ -28,6 +28,7 @@ import torch
 
 from dls_quadruped.core.hashing import hash32
 
+
 def stream_id(name: str) -> int:
     """Stable 32-bit id of a stream name (crc32: the same in every process and Python version)."""
     return zlib.crc32(name.encode())
@@ -117,7 +118,7 @@ class EpisodeSchedule:
             ValueError: saved for another number of envs.
         """
         if tuple(state["episode"].shape) != (self.num_envs,):
-            raise ValueError(f"schedule state is for {tuple(state['episode'].shape)[0]} envs, this env has {self.num_envs}")
+            raise ValueError(f"schedule state is for {state['episode'].numel()} envs, this env has {self.num_envs}")
         self.seed = int(state["seed"])
         self.keys = state["keys"].to(self.device, torch.long).clone()
         self.episode = state["episode"].to(self.device, torch.long).clone()

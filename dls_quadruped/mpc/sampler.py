@@ -24,7 +24,12 @@ import torch
 
 from dls_quadruped.mpc import warm_start
 from dls_quadruped.mpc.config import SamplerConfig
-from dls_quadruped.mpc.cost import Refs, initial_cost, input_step_costs, rollout_step_costs
+from dls_quadruped.mpc.cost import (
+    Refs,
+    initial_cost,
+    input_step_costs,
+    rollout_step_costs,
+)
 from dls_quadruped.mpc.encodings import encoded_dim
 from dls_quadruped.mpc.kernel import (
     KernelInputs,

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import torch
 
+from dls_quadruped.core.hashing import hash32
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
-from dls_quadruped.core.hashing import hash32
 from dls_quadruped.envs.schedule import EpisodeSchedule
 from dls_quadruped.eval.policy import load_policy
 

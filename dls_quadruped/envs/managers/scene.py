@@ -44,7 +44,6 @@ class SceneManager:
         dev = env.device
         self.scan_pattern = scan_pattern(self.scan_cfg, dev)
         n = env.num_envs
-        rows, cols = self.terrain.num_rows, self.terrain.num_cols
         self.tile_origins = torch.as_tensor(self.terrain.tile_origins_w, dtype=torch.float32, device=dev)
         self.terrain_types = torch.zeros(n, dtype=torch.long, device=dev)
         self.terrain_levels = torch.zeros(n, dtype=torch.long, device=dev)
