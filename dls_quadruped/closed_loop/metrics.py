@@ -23,6 +23,7 @@ import numpy as np
 
 from dls_quadruped.closed_loop.runner import ClosedLoopTraces
 from dls_quadruped.eval import metrics as M
+from dls_quadruped.mpc.cost import STATE_TERMS
 from dls_quadruped.robots.aliengo import constants as C
 
 SETTLE_S = 2.0
@@ -119,6 +120,10 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
             "mpc_fallbacks": traces.mpc_fallbacks,
             "student_fallbacks": traces.student_fallbacks,
         })
+    # which part of the initial cost is height, sway, roll...: each term's per-episode median, across episodes
+    out["initial_cost_terms"] = {name: M.episode_summary(_units(per_episode_median(traces.initial_cost_terms[..., i]),
+                                                                 replicas))
+                                 for i, name in enumerate(STATE_TERMS)}
     out["timing"] = dict(traces.timing)
     return out
 

@@ -24,7 +24,7 @@ from dls_quadruped.envs.mdp.kernels import motor_power
 from dls_quadruped.eval.rollout import base_velocity
 from dls_quadruped.mpc.baseline import BaselineConfig, heuristic_footholds_h, mpc_inputs
 from dls_quadruped.mpc.config import SamplerConfig
-from dls_quadruped.mpc.cost import initial_cost
+from dls_quadruped.mpc.cost import STATE_TERMS, initial_cost, state_cost_terms
 from dls_quadruped.mpc.srbd import robot_srbd_model
 
 
@@ -37,6 +37,8 @@ class ClosedLoopTraces:
         command: (E, 3) (v_x, v_y [m/s], omega_z [rad/s]) of each episode.
         reward: (T, E) per-step reward (no dt factor), NaN after the episode ended.
         initial_cost: (T, E) state cost of the state at the start of the step, NaN after the end.
+        initial_cost_terms: (T, E, 9) its terms (``mpc.cost.STATE_TERMS`` order: z, vx, vy, vz, roll,
+            pitch, roll rate, pitch rate, yaw rate), summing to ``initial_cost``.
         vel_error: (T, E) |v_xy - cmd_xy| [m/s] after the step (base frame), NaN after the end.
         power: (T, E) [W] motor power (numerator of eq. 4.3.7); speed: (T, E) [m/s] horizontal base speed.
         base_vel: (T, E, 3) measured (v_x, v_y, omega_z), base frame.
@@ -56,6 +58,7 @@ class ClosedLoopTraces:
     command: np.ndarray
     reward: np.ndarray
     initial_cost: np.ndarray
+    initial_cost_terms: np.ndarray
     vel_error: np.ndarray
     power: np.ndarray
     speed: np.ndarray
@@ -102,9 +105,16 @@ class InitialCostProbe:
         self.model = robot_srbd_model()
 
     def __call__(self, state, cmd: torch.Tensor) -> torch.Tensor:
+        """(B,) initial cost."""
         p_h = heuristic_footholds_h(state, cmd, self.baseline)
         srbd, refs, _ = mpc_inputs(state, cmd, p_h, self.baseline.com_height, self.sampler, self.model)
         return initial_cost(srbd.as_vector(), refs, self.sampler.weights)
+
+    def terms(self, state, cmd: torch.Tensor) -> torch.Tensor:
+        """(B, 9) the initial cost by term (``mpc.cost.STATE_TERMS``); sums to :meth:`__call__`'s value."""
+        p_h = heuristic_footholds_h(state, cmd, self.baseline)
+        srbd, refs, _ = mpc_inputs(state, cmd, p_h, self.baseline.com_height, self.sampler, self.model)
+        return state_cost_terms(srbd.as_vector(), refs.state_vector(), self.sampler.weights)
 
 
 def run_closed_loop(env, controller: Controller, num_steps: int | None = None, record_robots: int = 1) -> ClosedLoopTraces:
@@ -124,6 +134,7 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     nan = np.nan
     reward = np.full((steps, n), nan, np.float32)
     init = np.full((steps, n), nan, np.float32)
+    init_terms = np.full((steps, n, len(STATE_TERMS)), nan, np.float32)
     vel_err = np.full((steps, n), nan, np.float32)
     power = np.full((steps, n), nan, np.float32)
     speed = np.full((steps, n), nan, np.float32)
@@ -147,7 +158,9 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     with torch.inference_mode():
         for k in range(steps):
             tic = time.perf_counter()
-            init[k] = np.where(alive.numpy(), cpu(probe(env.state, cpu(env.command_manager.command))).numpy(), nan)
+            terms = cpu(probe.terms(env.state, cpu(env.command_manager.command))).numpy()
+            init_terms[k] = np.where(alive.numpy()[:, None], terms, nan)
+            init[k] = np.where(alive.numpy(), terms.sum(-1), nan)
             t_probe += time.perf_counter() - tic
             tic = time.perf_counter()
             if controller.cfg.uses_mpc:
@@ -196,7 +209,8 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
               "robot_seconds_per_second": n * steps * env.step_dt / wall if wall > 0 else float("nan"),
               "num_threads": torch.get_num_threads()}
     return ClosedLoopTraces(
-        controller=controller.name, command=command, reward=reward, initial_cost=init, vel_error=vel_err,
+        controller=controller.name, command=command, reward=reward, initial_cost=init, initial_cost_terms=init_terms,
+        vel_error=vel_err,
         power=power, speed=speed, base_vel=base_vel, rollout_cost=roll_cost, rollout_input_cost=roll_input,
         mpc_initial_cost=mpc_init, step_costs=step_costs, step_input_costs=step_input, winner=winner, fell=fell.numpy(), length=length.numpy(), qpos=qpos,
         mpc_fallbacks=mpc_fallbacks, student_fallbacks=student_fallbacks, step_dt=float(env.step_dt), timing=timing)

@@ -73,6 +73,19 @@ def state_cost(x: torch.Tensor, x_ref: torch.Tensor, weights: CostWeights) -> to
     return ((x - x_ref) ** 2 * _diag(weights.q_diag(), x)).sum(-1)
 
 
+STATE_TERMS = {"z": 2, "vx": 3, "vy": 4, "vz": 5, "roll": 6, "pitch": 7, "roll_rate": 9, "pitch_rate": 10,
+               "yaw_rate": 11}
+"""Costed state entries (Table 9) by name -> index in x; every other entry has weight 0."""
+
+
+def state_cost_terms(x: torch.Tensor, x_ref: torch.Tensor, weights: CostWeights) -> torch.Tensor:
+    """(..., 9) the state cost split by term, in ``STATE_TERMS`` order: Q_ii (x_i - x_ref,i)^2; sums to
+    :func:`state_cost`. Which part of a cost is height, sway or roll (e.g. Table 14's discussion)."""
+    idx = list(STATE_TERMS.values())
+    q = _diag(weights.q_diag(), x)[idx]
+    return (x[..., idx] - x_ref[..., idx]) ** 2 * q
+
+
 def input_cost(u: torch.Tensor, u_ref: torch.Tensor, weights: CostWeights) -> torch.Tensor:
     """(u - u_ref)^T R (u - u_ref) with diagonal R; u = [p_td (12), F (12)]: (..., 24). Returns (...)."""
     return ((u - u_ref) ** 2 * _diag(weights.r_diag(), u)).sum(-1)

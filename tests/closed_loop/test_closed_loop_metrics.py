@@ -31,8 +31,10 @@ def test_initial_cost_of_known_states() -> None:
     stand = torch.zeros(1, 3)
     # level base at the height target, at rest, commanded to stand: nothing to pay
     assert float(probe(_state(C.BASE_HEIGHT_TARGET), stand)) == pytest.approx(0.0, abs=1e-6)
-    # 1 cm too high: Q_z (0.01)^2 = 111 500 x 1e-4 = 11.15 (the CoM moves with the base)
+    # 1 cm too high: Q_z (0.01)^2 = 111 500 x 1e-4 = 11.15 (the CoM moves with the base), all of it the z term
     assert float(probe(_state(C.BASE_HEIGHT_TARGET + 0.01), stand)) == pytest.approx(11.15, rel=1e-4)
+    terms = probe.terms(_state(C.BASE_HEIGHT_TARGET + 0.01), stand)[0]
+    assert float(terms[0]) == pytest.approx(11.15, rel=1e-4) and float(terms[1:].abs().max()) < 1e-6
     # commanded 0.5 m/s forward while standing still: Q_vx 0.5^2 = 5 000 x 0.25 = 1 250
     assert float(probe(_state(C.BASE_HEIGHT_TARGET), torch.tensor([[0.5, 0.0, 0.0]]))) == pytest.approx(1250.0, rel=1e-5)
     # the command is in the heading frame: facing +y (yaw 90 deg) and moving at 0.5 m/s along +y is on target
@@ -42,6 +44,9 @@ def test_initial_cost_of_known_states() -> None:
     # velocity omega x c_b that costs 5 000 (|omega x c_b|^2) ~ 5e-3 more)
     spin = _state(C.BASE_HEIGHT_TARGET, ang_b=(0.0, 0.0, 0.3))
     assert float(probe(spin, torch.tensor([[0.0, 0.0, 0.5]]))) == pytest.approx(8.0, abs=0.02)
+    by_term = probe.terms(spin, torch.tensor([[0.0, 0.0, 0.5]]))[0]
+    assert float(by_term[8]) == pytest.approx(8.0, rel=1e-4)  # the yaw-rate term
+    assert float(by_term.sum()) == pytest.approx(float(probe(spin, torch.tensor([[0.0, 0.0, 0.5]]))), rel=1e-5)
 
 
 def _traces(reward: np.ndarray, power: np.ndarray, speed: np.ndarray, fell: np.ndarray) -> ClosedLoopTraces:
@@ -49,7 +54,8 @@ def _traces(reward: np.ndarray, power: np.ndarray, speed: np.ndarray, fell: np.n
     nan = np.full((t, e), np.nan, np.float32)
     solves = np.full((t, 1, e), np.nan, np.float32)
     return ClosedLoopTraces(
-        controller="x", command=np.zeros((e, 3)), reward=reward, initial_cost=nan, vel_error=nan, power=power,
+        controller="x", command=np.zeros((e, 3)), reward=reward, initial_cost=nan,
+        initial_cost_terms=np.full((t, e, 9), np.nan), vel_error=nan, power=power,
         speed=speed, base_vel=np.zeros((t, e, 3)), rollout_cost=solves, rollout_input_cost=solves,
         mpc_initial_cost=solves, step_costs=np.full((t, 1, e, 10), np.nan),
         step_input_costs=np.full((t, 1, e, 10), np.nan), winner=np.full((t, 1, e), -1), fell=fell,
