@@ -5,7 +5,8 @@ raw actions at the states actually visited over the next H actions spaced dt = k
 encoded with P (:func:`student.encode_labels`). Every env step, the expert (and, in DAgger, the
 student) is called once on the whole batch; :class:`SlidingWindows` keeps the last (H-1)k+1
 steps of every env in a ring and emits each window as soon as it is complete. A reset (time-out
-or fall) restarts the env's count, so a window never spans two episodes.
+or fall) restarts the env's count, so a window never spans two episodes. :func:`collect_slots`
+does the same for several students at once, each driving its own slice of the robots.
 
 Applied action (Algorithm 4, line 8): ``beta * a_exp + (1 - beta) * first_action(student)``;
 beta = 1 is naive imitation (the expert drives) and skips the student.
@@ -122,32 +123,62 @@ def collect(env, expert: ActionFn, encode: Callable[[torch.Tensor], torch.Tensor
     Returns:
         {"datapoints", "env_steps", "seconds", "resets"}.
     """
+    info = collect_slots(env, expert, [encode], count, cfg.horizon, stride, lambda _, o, lab: sink(o, lab),
+                         beta_value, student, obs_group, progress, flush_every)
+    return {**info, "datapoints": info["datapoints"][0]}
+
+
+@torch.no_grad()
+def collect_slots(env, expert: ActionFn, encoders: list[Callable[[torch.Tensor], torch.Tensor]], count: int,
+                  horizon: int, stride: int, sink: Callable[[int, torch.Tensor, torch.Tensor], None],
+                  beta_value: float = 1.0, student: ActionFn | None = None, obs_group: str = "policy",
+                  progress: Progress | None = None, flush_every: int = 8192) -> dict:
+    """Like :func:`collect` for S students at once: the robots are S equal contiguous slots, slot s
+    (robots ``[s B/S, (s+1) B/S)``) is driven by student s's share of ``student`` and its windows are
+    encoded with ``encoders[s]`` and handed to ``sink(s, obs, labels)`` until it has ``count``.
+
+    Args:
+        student: (B, obs_dim) -> (B, 28) first actions of every slot's student on its own robots.
+
+    Returns:
+        {"datapoints" (per slot), "env_steps", "seconds", "resets"}.
+    """
     if beta_value < 1.0 and student is None:
         raise ValueError("a student is needed when beta < 1")
+    slots = len(encoders)
+    if env.num_envs % slots:
+        raise ValueError(f"{env.num_envs} robots do not split into {slots} equal slots")
+    per = env.num_envs // slots
     obs = env.get_observations()[obs_group]
-    windows = SlidingWindows(env.num_envs, obs.shape[1], env.num_actions, cfg.horizon, stride, obs.device)
-    done_count, steps, resets = 0, 0, 0
-    pending_obs: list[torch.Tensor] = []
-    pending_lab: list[torch.Tensor] = []
-    pending = 0
+    windows = SlidingWindows(env.num_envs, obs.shape[1], env.num_actions, horizon, stride, obs.device)
+    done = [0] * slots
+    pending: list[list[tuple[torch.Tensor, torch.Tensor]]] = [[] for _ in range(slots)]
+    steps, resets = 0, 0
     t0 = time.monotonic()
-    while done_count < count:
+
+    def flush(s: int) -> None:
+        if pending[s]:
+            sink(s, torch.cat([p[0] for p in pending[s]]), torch.cat([p[1] for p in pending[s]]))
+            pending[s] = []
+
+    while min(done) < count:
         a_exp = expert(obs)
         if beta_value >= 1.0:
             applied = a_exp
         else:
             applied = beta_value * a_exp + (1.0 - beta_value) * student(obs)  # Algorithm 4, line 8
-        _, start_obs, acts = windows.push(obs, a_exp)
-        if len(start_obs):
-            take = min(len(start_obs), count - done_count)
-            pending_obs.append(start_obs[:take].clone())
-            pending_lab.append(encode(acts[:take]))
-            pending += take
-            done_count += take
-        if pending >= flush_every or (done_count >= count and pending):
-            sink(torch.cat(pending_obs), torch.cat(pending_lab))
-            pending_obs, pending_lab, pending = [], [], 0
-        if done_count >= count:
+        env_ids, start_obs, acts = windows.push(obs, a_exp)
+        slot_of = torch.div(env_ids, per, rounding_mode="floor")
+        for s in range(slots):
+            if done[s] >= count:
+                continue
+            mine = torch.nonzero(slot_of == s).flatten()[:count - done[s]]
+            if len(mine):
+                pending[s].append((start_obs[mine].clone(), encoders[s](acts[mine])))
+                done[s] += len(mine)
+            if done[s] >= count or sum(len(p[0]) for p in pending[s]) >= flush_every:
+                flush(s)
+        if min(done) >= count:
             break
         obs_td, _, dones, _ = env.step(applied)
         obs = obs_td[obs_group]
@@ -155,5 +186,7 @@ def collect(env, expert: ActionFn, encode: Callable[[torch.Tensor], torch.Tensor
         resets += int(dones.sum())
         steps += 1
         if progress is not None:
-            progress.update(done_count)
-    return {"datapoints": done_count, "env_steps": steps, "seconds": time.monotonic() - t0, "resets": resets}
+            progress.update(min(done))
+    for s in range(slots):
+        flush(s)
+    return {"datapoints": done, "env_steps": steps, "seconds": time.monotonic() - t0, "resets": resets}

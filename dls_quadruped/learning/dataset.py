@@ -163,14 +163,17 @@ class DiskDataset:
         """Every valid row, oldest first (loads them all: for small sets and tests)."""
         return self.rows(self.positions())
 
-    def minibatches(self, batch_size: int, generator: torch.Generator, chunk: int = 65_536
+    def minibatches(self, batch_size: int, generator: torch.Generator, chunk: int = 65_536, limit: int | None = None
                     ) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
-        """One shuffled pass in mini-batches (the last, smaller one included).
+        """One shuffled pass in mini-batches (the last, smaller one included); with ``limit``, a pass
+        over a random subset of ``limit`` rows (the first ``limit`` of the shuffled order).
 
         Rows are read from disk ``chunk`` at a time (sorted positions, so reads are mostly
         sequential), each chunk being a random subset; RAM use is bounded by the chunk.
         """
         order = self.positions()[torch.randperm(len(self), generator=generator).numpy()]
+        if limit is not None:
+            order = order[:limit]
         for c in range(0, len(order), chunk):
             part = np.sort(order[c:c + chunk])
             obs, labels = self.rows(part)

@@ -35,6 +35,7 @@ from dls_quadruped.learning.dataset import DatasetError
 from dls_quadruped.learning.distill_config import (
     ALGORITHMS,
     DEFAULT_CONFIG,
+    NAIVE_SCHEDULES,
     SELECTORS,
     load_distill_config,
 )
@@ -61,9 +62,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--datapoints-per-epoch", type=positive_int, default=None)
     p.add_argument("--dataset-cap", type=positive_int, default=None)
     p.add_argument("--batch-size", type=positive_int, default=None)
+    p.add_argument("--naive-schedule", choices=NAIVE_SCHEDULES, default=None,
+                   help="naive: full (every epoch on all data) or dagger_steps (DAgger's gradient steps)")
     p.add_argument("--num-envs", type=positive_int, default=None)
     p.add_argument("--num-workers", type=non_negative_int, default=None, help="simulator processes (0: in-process)")
     p.add_argument("--test-datapoints", type=positive_int, default=None)
+    p.add_argument("--test-episodes", type=positive_int, default=None,
+                   help="whole expert episodes the test windows are cut from")
     p.add_argument("--sp-episodes", type=positive_int, default=None)
     p.add_argument("--sp-every", type=non_negative_int, default=None, help="SP every k epochs (0: last only)")
     p.add_argument("--seed", type=int, default=None)
@@ -96,11 +101,11 @@ def overrides_from_args(args: argparse.Namespace) -> dict:
     put(None, "algorithm", args.algo)
     put("selector", "kind", args.selector)
     put("selector", "alpha", args.alpha)
-    for key in ("epochs", "datapoints_per_epoch", "dataset_cap", "batch_size", "seed"):
+    for key in ("epochs", "datapoints_per_epoch", "dataset_cap", "batch_size", "seed", "naive_schedule"):
         put("train", key, getattr(args, key))
     put("collect", "num_envs", args.num_envs)
     put("collect", "num_workers", args.num_workers)
-    for key in ("test_datapoints", "sp_episodes", "sp_every"):
+    for key in ("test_datapoints", "test_episodes", "sp_episodes", "sp_every"):
         put("evaluate", key, getattr(args, key))
     return over
 

@@ -34,6 +34,7 @@ from dls_quadruped.mpc.config import ENCODING_KINDS, EncodingConfig
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "tasks" / "agents" / "distill.yaml"
 ALGORITHMS = ("naive", "dagger")
 SELECTORS = ("exponential", "indicator")
+NAIVE_SCHEDULES = ("full", "dagger_steps")
 TOP_KEYS = ("task", "expert", "algorithm", "encoding", "selector", "train", "collect", "evaluate", "student")
 DT_TOLERANCE = 1e-6
 
@@ -90,7 +91,9 @@ class SelectorSection:
 class TrainSection:
     """Table 7: epochs, datapoints collected per epoch, dataset cap (FIFO), Adadelta learning rate
     decayed by ``lr_decay`` per epoch, mini-batch size; ``passes``: passes over the dataset per
-    epoch; ``seed``: torch seed of the student and the collection."""
+    epoch; ``seed``: torch seed of the student and the collection; ``naive_schedule`` (naive only):
+    ``full`` trains every epoch on the whole dataset (Algorithm 3), ``dagger_steps`` trains epoch i
+    on a random min(size, (i + 1) datapoints_per_epoch) of it, the gradient steps DAgger makes."""
 
     epochs: int = field(default=30, metadata={"min": 1})
     datapoints_per_epoch: int = field(default=80_000, metadata={"min": 1})
@@ -100,6 +103,11 @@ class TrainSection:
     lr_decay: float = field(default=0.7, metadata={"gt": 0.0})
     passes: int = field(default=1, metadata={"min": 1})
     seed: int = 0
+    naive_schedule: str = "full"
+
+    def __post_init__(self) -> None:
+        if self.naive_schedule not in NAIVE_SCHEDULES:
+            raise ValueError(f"unknown naive_schedule {self.naive_schedule!r}; allowed: {list(NAIVE_SCHEDULES)}")
 
 
 @dataclass(frozen=True)
@@ -112,11 +120,13 @@ class CollectSection:
 
 @dataclass(frozen=True)
 class EvaluateSection:
-    """test_datapoints: held-out expert datapoints (collected with ``test_seed``); sp_episodes:
+    """test_datapoints: held-out expert datapoints, windows cut from ``test_episodes`` whole
+    episodes the expert plays (schedule seed ``test_seed``, ``learning.distill_test_set``); sp_episodes:
     15 s episodes per SP evaluation (rounded up to whole batches of num_envs, seeds ``sp_seed`` +
     batch); sp_every: SP every k epochs (0: only after the last epoch)."""
 
     test_datapoints: int = field(default=50_000, metadata={"min": 1})
+    test_episodes: int = field(default=128, metadata={"min": 1})
     test_seed: int = 1000
     sp_episodes: int = field(default=128, metadata={"min": 1})
     sp_seed: int = 2000

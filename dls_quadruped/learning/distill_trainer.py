@@ -12,7 +12,8 @@ Per epoch i (0-based):
 * dagger: collect ``datapoints_per_epoch`` with beta(i) = selector(i) (epoch 0: beta = 1, the
   expert drives), append to the dataset (FIFO at the cap);
 * naive: at epoch 0 only, collect min(cap, epochs x datapoints_per_epoch) with the expert driving;
-* train ``passes`` shuffled passes over the dataset (Adadelta, MSE, mini-batch), then decay the
+* train ``passes`` shuffled passes over the dataset (Adadelta, MSE, mini-batch; naive with
+  ``naive_schedule: dagger_steps``: over a random subset of DAgger's epoch-i size), then decay the
   learning rate by ``lr_decay``;
 * test MSE on the held-out set, SP (every ``sp_every`` epochs and after the last), TensorBoard
   scalars, a checkpoint (atomic) with everything needed to continue.
@@ -41,6 +42,11 @@ from dls_quadruped.learning.distill_metrics import (
     simulation_performance,
     survival,
 )
+from dls_quadruped.learning.distill_test_set import (
+    cut_windows,
+    record_expert_episodes,
+    window_starts,
+)
 from dls_quadruped.learning.student import (
     Student,
     encode_labels,
@@ -49,6 +55,21 @@ from dls_quadruped.learning.student import (
 )
 
 CHECKPOINT = "checkpoint.pt"
+
+
+def collection_seed(seed: int, epoch: int) -> int:
+    """Schedule seed the collection restarts from after an evaluation at ``epoch`` (its own episodes,
+    not the SP ones continued, and not those of an earlier epoch)."""
+    return 100_000 * (seed + 1) + epoch
+
+
+def rows_per_pass(cfg: DistillConfig, epoch: int, size: int) -> int | None:
+    """Rows of one training pass at ``epoch`` (0-based) over a dataset of ``size``: None (all) except
+    naive with ``dagger_steps``, which trains on min(size, cap, (epoch + 1) datapoints_per_epoch) rows,
+    the size DAgger's dataset has at that epoch (so both make the same gradient steps)."""
+    if cfg.algorithm != "naive" or cfg.train.naive_schedule == "full":
+        return None
+    return min(size, cfg.train.dataset_cap, (epoch + 1) * cfg.train.datapoints_per_epoch)
 
 
 class DistillTrainer:
@@ -123,15 +144,25 @@ class DistillTrainer:
         return info
 
     def collect_test_set(self) -> None:
-        """Held-out expert datapoints (expert drives, torch seed ``test_seed``); tops up a partial set."""
-        missing = self.cfg.evaluate.test_datapoints - self.test_set.total_written
-        if missing <= 0:
+        """Held-out datapoints cut from whole expert episodes (``distill_test_set``: ``test_episodes``
+        episodes of schedule seed ``test_seed``, window starts spread over every phase of them);
+        then the env restarts its collection schedule (seed ``train.seed``)."""
+        ev = self.cfg.evaluate
+        if self.test_set.total_written >= ev.test_datapoints:
             return
+        if self.test_set.total_written:  # only a crash inside the single append leaves a partial set
+            raise RuntimeError(f"{self.test_set.path} holds a partial test set; delete it to cut it again")
         rng = torch.get_rng_state()
-        torch.manual_seed(self.cfg.evaluate.test_seed + self.test_set.total_written)
-        self.env.reset()
-        self._collect(self.test_set, missing, 1.0, "test set", update_normaliser=False)
+        t0 = time.monotonic()
+        record = record_expert_episodes(self.env, self.expert, ev.test_seed, ev.test_episodes)
+        span = (self.enc.horizon - 1) * self.stride + 1
+        episode, start = window_starts(record.length, span, ev.test_datapoints, seed=ev.test_seed)
+        obs, acts = cut_windows(record, episode, start, self.enc.horizon, self.stride)
+        self.test_set.append(obs, self._labels(acts))
+        self.print(f"[distill] test set: {ev.test_datapoints} windows from {ev.test_episodes} expert episodes "
+                   f"({int(record.length.sum())} steps), {time.monotonic() - t0:.0f} s", flush=True)
         torch.set_rng_state(rng)
+        self.env.reset(seed=collection_seed(self.cfg.train.seed, -1))
 
     # ------------------------------------------------------------------ SP
     def _sp_seeds(self) -> list[int]:
@@ -144,7 +175,7 @@ class DistillTrainer:
             return episode_returns(self.env, policy, self._sp_seeds())
         finally:
             torch.set_rng_state(rng)
-            self.env.reset()
+            self.env.reset(seed=collection_seed(self.cfg.train.seed, self.epoch))
 
     def reference_returns(self) -> None:
         """Expert and untrained-student returns on the SP episodes (once per run)."""
@@ -171,12 +202,13 @@ class DistillTrainer:
     def train_pass(self) -> dict:
         """``passes`` shuffled passes of mini-batch MSE steps; returns mean loss and timing."""
         losses, steps, t0 = 0.0, 0, time.monotonic()
-        total = self.cfg.train.passes * math.ceil(len(self.dataset) / self.cfg.train.batch_size)
+        limit = rows_per_pass(self.cfg, self.epoch, len(self.dataset))
+        total = self.cfg.train.passes * math.ceil((limit or len(self.dataset)) / self.cfg.train.batch_size)
         progress = Progress(f"epoch {self.epoch + 1}/{self.cfg.train.epochs} training", total, "steps",
                             printer=self.print)
         self.student.train()
         for _ in range(self.cfg.train.passes):
-            for obs, labels in self.dataset.minibatches(self.cfg.train.batch_size, self.gen):
+            for obs, labels in self.dataset.minibatches(self.cfg.train.batch_size, self.gen, limit=limit):
                 loss = torch.nn.functional.mse_loss(self.student.net(obs), labels)
                 self.optimizer.zero_grad(set_to_none=True)
                 loss.backward()

@@ -16,6 +16,8 @@ class ScriptedEnv:
 
     num_actions = 28
     step_dt = 0.02
+    max_episode_length = 750
+    device = "cpu"
 
     def __init__(self, lengths: list[int]):
         self.num_envs = len(lengths)
@@ -32,7 +34,7 @@ class ScriptedEnv:
     def get_observations(self) -> TensorDict:
         return self._obs()
 
-    def reset(self):
+    def reset(self, seed=None, episode_keys=None):
         self.t_ep.zero_()
         return self._obs(), {}
 
@@ -57,6 +59,8 @@ class LinearEnv:
     num_actions = 28
     step_dt = 0.02
     max_episode_length_s = 15.0
+    max_episode_length = 750
+    device = "cpu"
 
     def __init__(self, num_envs: int, A: torch.Tensor, B: torch.Tensor, seed: int = 0):
         self.num_envs, self.A, self.B = num_envs, A, B
@@ -66,7 +70,7 @@ class LinearEnv:
     def get_observations(self) -> TensorDict:
         return TensorDict({"policy": self.s.clone()}, batch_size=[self.num_envs])
 
-    def reset(self):
+    def reset(self, seed=None, episode_keys=None):
         self.s = torch.randn(self.num_envs, self.A.shape[0], generator=self.gen)
         return self.get_observations(), {}
 

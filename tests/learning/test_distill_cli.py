@@ -29,7 +29,7 @@ def tiny_task(tmp_path) -> Path:
 
 def tiny_args(task: Path, run_dir: Path, *extra: str) -> list[str]:
     return ["--task", str(task), "--num-envs", "2", "--epochs", "1", "--datapoints-per-epoch", "40",
-            "--test-datapoints", "16", "--sp-episodes", "2", "--horizon", "5", "--dt", "0.02",
+            "--test-datapoints", "16", "--test-episodes", "2", "--sp-episodes", "2", "--horizon", "5", "--dt", "0.02",
             "--run-dir", str(run_dir), *extra]
 
 

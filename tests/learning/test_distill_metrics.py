@@ -10,7 +10,10 @@ from dls_quadruped.learning.dataset import DiskDataset
 from dls_quadruped.learning.distill_bench import table7_steps
 from dls_quadruped.learning.distill_metrics import (
     held_out_mse,
+    mse_over_seeds,
     simulation_performance,
+    sp_difference,
+    sp_over_seeds,
     survival,
 )
 
@@ -48,3 +51,52 @@ def test_table7_gradient_step_count():
     assert table7_steps(epochs=3, per_epoch=100, cap=250, batch=64) == 10
     # Table 7: sum over 30 epochs of ceil(min(800k, 80k (i + 1)) / 64)
     assert table7_steps() == sum(-(-min(800_000, 80_000 * (i + 1)) // 64) for i in range(30)) == 318_750
+
+
+def test_sp_over_seeds_by_hand():
+    """Expert 1 and r_0 0 in every episode; seed k returns c_k in every episode, so SP_k = c_k and
+    nothing varies over episodes: the point is the mean 0.6, each seed's own interval is its point,
+    and the combined interval is [min, max] of the seeds (a resample of all three seeds equal to the
+    smallest has probability 1/27 = 3.7 % > 2.5 %, so the 2.5 % percentile is that smallest mean)."""
+    c = np.array([0.4, 0.6, 0.8])
+    r = np.repeat(c[:, None], 5, axis=1)
+    out = sp_over_seeds(r, np.ones(5), np.zeros(5))
+    assert out["sp"] == pytest.approx(0.6) and out["seeds"] == 3 and out["episodes"] == 5
+    assert [p["sp"] for p in out["per_seed"]] == pytest.approx(c.tolist())
+    assert out["per_seed"][0]["ci95"] == pytest.approx([0.4, 0.4])
+    assert out["ci95"] == pytest.approx([0.4, 0.8])
+    one = sp_over_seeds(r[:1], np.ones(5), np.zeros(5))  # one seed: the seed level adds nothing
+    assert one["ci95"] == pytest.approx([0.4, 0.4])
+
+
+def test_sp_over_seeds_holds_the_episode_spread_too():
+    """Identical seeds, episodes that differ: the combined interval is the per-seed episode bootstrap's
+    width (not zero), so a table with one seed per row understated nothing but the seed spread."""
+    rng = np.random.default_rng(1)
+    exp, r0 = 30 + rng.normal(0, 1, 40), rng.normal(0, 1, 40)
+    stud = np.tile(exp - 3 + rng.normal(0, 3, 40), (3, 1))
+    out = sp_over_seeds(stud, exp, r0)
+    single = simulation_performance(stud[0], exp, r0)
+    assert out["sp"] == pytest.approx(single["sp"])
+    assert out["ci95"][1] - out["ci95"][0] == pytest.approx(single["ci95"][1] - single["ci95"][0], rel=0.3)
+    with pytest.raises(ValueError, match="returns must be"):
+        sp_over_seeds(stud, exp[:3], r0)
+
+
+def test_sp_difference_of_paired_settings():
+    """Episodes vary, seeds do not, and b is a plus 1 (0.1 SP) in every episode: resampling the episodes
+    *jointly* gives -0.1 every time (a zero-width interval); unpaired it would not."""
+    exp, r0 = np.full(6, 10.0), np.zeros(6)
+    a = np.tile([2.0, 6, 9, 3, 5, 7], (2, 1))
+    out = sp_difference(a, a + 1.0, exp, r0, r0)
+    assert out["difference"] == pytest.approx(-0.1) and out["ci95"] == pytest.approx([-0.1, -0.1])
+    seeds_differ = sp_difference(a + np.array([[0.0], [2.0]]), a, exp, r0, r0)  # a's two seeds 0.2 SP apart
+    assert seeds_differ["difference"] == pytest.approx(0.1) and seeds_differ["ci95"] == pytest.approx([0.0, 0.2])
+
+
+def test_mse_over_seeds_by_hand():
+    """Two seeds, episodes of 1 and 3 windows with per-window errors summing to (2, 6) and (4, 4):
+    MSE_0 = 8 / 4 = 2, MSE_1 = 8 / 4 = 2, mean 2 (windows, not episodes, are weighted equally)."""
+    out = mse_over_seeds(np.array([[2.0, 6.0], [4.0, 4.0]]), np.array([1.0, 3.0]))
+    assert out["mse"] == pytest.approx(2.0) and out["per_seed"] == pytest.approx([2.0, 2.0])
+    assert out["windows"] == 4 and out["ci95"][0] <= 2.0 <= out["ci95"][1]

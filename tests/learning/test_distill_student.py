@@ -111,7 +111,7 @@ def test_student_learns_a_linear_expert_to_near_zero_mse(tmp_path, one_thread):
         "algorithm": "naive", "encoding": {"p": "first", "F": "spline", "horizon": 5, "dt": 0.04},
         "train": {"epochs": 6, "datapoints_per_epoch": 1000, "dataset_cap": 6000, "batch_size": 64, "passes": 3,
                   "lr_decay": 0.9},
-        "evaluate": {"test_datapoints": 500}, "student": {"hidden_dims": [64, 64]}})
+        "evaluate": {"test_datapoints": 500, "test_episodes": 4}, "student": {"hidden_dims": [64, 64]}})
     trainer = DistillTrainer(cfg, env, lambda s: s @ K.T, tmp_path, [64, 64], "elu", printer=lambda *a, **k: None)
     trainer.open_datasets(resume=False)
     trainer.collect_test_set()
@@ -125,4 +125,4 @@ def test_student_learns_a_linear_expert_to_near_zero_mse(tmp_path, one_thread):
         trainer.epoch += 1
     with torch.no_grad():
         mse = torch.nn.functional.mse_loss(trainer.student.net(obs), labels).item()
-    assert mse < 1e-3 * labels.var().item(), (mse, labels.var().item())  # an untrained net: ~1x
+    assert mse < 2e-3 * labels.var().item(), (mse, labels.var().item())  # an untrained net: ~1x
