@@ -5,7 +5,9 @@ experts, found by task name as ``docs/policies/<task>_actor.pt`` (``--policy-dir
 policy is skipped with a printed note. Per policy, the scenario's own JSON + PNG go to
 ``<out>/<task>/<scenario>.{json,png}`` (a result whose policy file has not changed, same sha256,
 scale and seed, is not evaluated again); the script then writes ``results.json`` (every policy's
-result without its per-episode lists), ``table.csv`` / ``table.md`` (our numbers beside the
+result without its per-episode lists), ``table.csv`` / ``table.md``, ``paired.md`` / ``paired.csv`` (each
+expert minus base on the same scheduled episodes: survival, reward, episode length, CoT where the
+scenario records them per episode, with 95 % intervals) (our numbers beside the
 thesis's words), the comparison figure and ``config.json`` (scale, episodes, git commit,
 uncommitted files, policy paths and sha256, what was skipped). Default ``--out``:
 ``results/experiments/<script>``; the small-scale files are copied to ``docs/experiments/<script>/``.
@@ -123,13 +125,55 @@ def without_episodes(res: dict) -> dict:
     return {k: v for k, v in res.items() if k not in ("per_episode", "diagrams", "events")}
 
 
+PAIRED_METRICS = {"survived": "survival [share]", "reward": "mean reward per step", "length_s": "episode length [s]",
+                  "cot": "cost of transport"}
+"""Per-episode values compared between experts, when a scenario records them."""
+
+
+def paired_vs(results: dict, reference: str = "base") -> list[dict]:
+    """Every expert minus ``reference`` on the same scheduled episodes (same seed, same commands and
+    episode schedule, ``envs/schedule.py``): for each per-episode metric the scenario recorded, the mean
+    of the per-episode differences with its 95 % bootstrap interval over episodes. Results whose
+    episodes differ (another command list) are not paired and left out."""
+    import numpy as np
+
+    from dls_quadruped.eval.metrics import paired_difference
+
+    ref = (results.get(reference) or {}).get("per_episode")
+    if not ref:
+        return []
+
+    def values(pe: dict, key: str):
+        if key == "survived":
+            return None if "fell" not in pe else 1.0 - np.array(pe["fell"], dtype=float)
+        return None if key not in pe else np.array([np.nan if v is None else v for v in pe[key]], dtype=float)
+
+    rows = []
+    for task, res in results.items():
+        pe = res.get("per_episode")
+        if task == reference or not pe or pe.get("command") != ref.get("command"):
+            continue
+        for key, label in PAIRED_METRICS.items():
+            a, b = values(pe, key), values(ref, key)
+            if a is None or b is None or a.shape != b.shape or a.ndim != 1:
+                continue
+            d = paired_difference(a, b)
+            rows.append({"policy": f"{task} - {reference}", "metric": label, "mean difference": round(d["mean"], 4),
+                         "95 % CI": f"[{d['ci95'][0]:.4f}, {d['ci95'][1]:.4f}]", "episodes": d["episodes"]})
+    return rows
+
+
 def finish(name: str, scenario: str, args: argparse.Namespace, results: dict, info: dict, rows: list[dict],
            columns: list[str], title: str, figure: Callable[[dict, Path], None], figure_name: str) -> None:
     """Write table, results, figure and config of one experiment."""
     args.out.mkdir(parents=True, exist_ok=True)
     write_table(rows, columns, args.out / "table", title)
-    write_json({"scenario": scenario, "rows": rows, "results": {t: without_episodes(r) for t, r in results.items()}},
-               args.out / "results.json")
+    paired = paired_vs(results)
+    if paired:
+        write_table(paired, list(paired[0]), args.out / "paired",
+                    f"{title}: paired differences on the same episodes (mean over episodes [95 % CI])")
+    write_json({"scenario": scenario, "rows": rows, "paired_vs_base": paired,
+                "results": {t: without_episodes(r) for t, r in results.items()}}, args.out / "results.json")
     if results:
         figure(results, args.out / figure_name)
     write_json({"experiment": name, "scenario": scenario, "scale": args.scale, "scale_settings": SCALES[args.scale],

@@ -170,7 +170,8 @@ def summarize(traces: Traces, settle_s: float = SETTLE_S, pairs: np.ndarray | No
                      "terms": "Table 4 base column (tasks/_base_rewards.yaml), weights per second, no dt"}
     res["per_episode"] = {"command": cmd.round(5).tolist(), "mean_velocity": np.round(mean_vel, 5).tolist(),
                           "fell": traces.fell.astype(bool).tolist(),
-                          "length_s": (traces.length * traces.step_dt).round(3).tolist()}
+                          "length_s": (traces.length * traces.step_dt).round(3).tolist(),
+                          "reward": np.round(per_episode_reward, 5).tolist()}
     return res
 
 
