@@ -97,7 +97,7 @@ def evaluate_policies(scenario: str, args: argparse.Namespace) -> tuple[dict[str
         out = args.out / task
         done = out / f"{scenario}.json"
         key = {"sha256": digest, "scale": args.scale, "episodes": episodes, "seed": args.seed,
-               "episode_length_s": length}
+               "episode_length_s": length, "protocol": PROTOCOL}
         if done.is_file():
             old = json.loads(done.read_text())
             if old.get("experiment_key") == key:
@@ -125,6 +125,9 @@ def without_episodes(res: dict) -> dict:
     return {k: v for k, v in res.items() if k not in ("per_episode", "diagrams", "events")}
 
 
+PROTOCOL = "episode-schedule-1"
+"""Evaluation protocol of a cached result: results from before the episode schedule (envs/schedule.py),
+whose pushes and noise after a fall depended on the other robots, are evaluated again."""
 PAIRED_METRICS = {"survived": "survival [share]", "reward": "mean reward per step", "length_s": "episode length [s]",
                   "cot": "cost of transport"}
 """Per-episode values compared between experts, when a scenario records them."""
