@@ -1,21 +1,30 @@
 """Shared machinery of the distillation experiments (thesis 7.2: Tables 11-13, Fig. 24-25).
 
-Every experiment is a list of named runs (overrides of ``tasks/agents/distill.yaml``). Runs are
-trained one after the other in one collection env, without SP; then SP is measured for every
-student (and every per-epoch snapshot a figure needs) *at once*: one big env holds
-``sp_episodes`` robots per policy, so the 750 steps of a 15 s episode are paid three times in all
-(expert, untrained students, trained students) instead of three times per run. Policy p drives
-robots [p E, (p+1) E); expert and untrained student are run on the same robots and seeds, so SP
-(eq. 7.2.2) compares the same episodes.
+Every experiment is a list of named runs (overrides of ``tasks/agents/distill.yaml``), each trained
+with ``seeds`` training seeds (3 at every scale). The seeds of a run train *together*
+(``learning.distill_batched``): one collection env of seeds x ``collect.num_envs`` robots, student
+k driving its own slice (episode keys k x num_envs + i of one collection schedule, restarted at the
+start of every run, so a run does not depend on the runs before it), one stacked MLP and one
+optimiser. A run may reuse the datasets of an earlier one (``Run.data_from``: the naive variants of
+Table 11 train on the naive run's expert-driven data, so only the schedule differs).
+
+Then everything is evaluated in one batched env (:func:`evaluate`), each policy on its own slot of
+``sp_episodes`` robots, every slot playing the *same* scheduled episodes (keys 0 .. E-1 of the SP
+seed): the expert once, one untrained student per encoding (r_0 of eq. 7.2.2: seed 0's
+initialisation of that encoding), every seed's trained student (and every epoch's, for Fig. 24);
+one more slot is the expert on held-out keys, recorded whole, from which the MSE test set is cut
+(``learning.distill_test_set``: windows spread over every phase of 15 s episodes, the same test
+states for every run of every script: start steps drawn for the largest span of all, H = 15 at
+dt = 0.04 s). SP and MSE are given per seed and over seeds with a two-level bootstrap interval
+(seeds and episodes, ``distill_metrics.sp_over_seeds`` / ``mse_over_seeds``).
 
 Scales: ``small`` fits a 2-core machine in minutes (5 epochs x 3000 datapoints: too few for the
-students to converge, it checks the pipeline); ``medium`` (10 x 10 000) in about three minutes
-per run; ``thesis`` uses Table 7 and 7.2.1 sizes
-(80 000 datapoints per epoch, cap 800 000, 50 000 test datapoints, 50 000 SP episodes).
-Outputs under ``--out`` (default ``results/experiments/<name>``): ``runs/<run>/metrics.json``,
+students to converge); ``medium`` 10 x 10 000; ``thesis`` uses Table 7 and 7.2.1 sizes (80 000
+datapoints per epoch, cap 800 000, 50 000 test datapoints; SP on 512 episodes, not the thesis's
+50 000). Outputs under ``--out`` (default ``results/experiments/<name>``): ``runs/<run>/metrics.json``,
 ``results.json``, ``table.csv``, ``table.md``, the figure, and ``config.json`` (scale, git commit,
-expert hash, every run's resolved settings). A finished run (its ``metrics.json`` exists) is not
-trained again.
+expert hash, every run's resolved settings and seconds, the evaluation's seconds). A finished run
+(its ``result.pt`` exists) is not trained again.
 """
 
 from __future__ import annotations
@@ -30,40 +39,59 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.learning.dataset import DiskDataset
 from dls_quadruped.learning.distill import distill_task, load_expert
+from dls_quadruped.learning.distill_batched import SeedGroupTrainer, gradient_steps
 from dls_quadruped.learning.distill_config import load_distill_config
 from dls_quadruped.learning.distill_metrics import (
-    episode_returns,
-    simulation_performance,
+    mse_over_seeds,
+    slot_returns,
+    sp_over_seeds,
     survival,
 )
-from dls_quadruped.learning.distill_trainer import DistillTrainer
-from dls_quadruped.learning.student import Student
+from dls_quadruped.learning.distill_test_set import cut_windows, window_starts
+from dls_quadruped.learning.student import Student, encode_labels
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = "base"
 """Env task of every experiment (the expert's; tests swap in a tiny one)."""
+HIDDEN, ACTIVATION = [512, 256, 128], "elu"
 SCALES = {
-    "small": {"train": {"epochs": 5, "datapoints_per_epoch": 3000, "dataset_cap": 800_000},
-              "collect": {"num_envs": 64}, "evaluate": {"test_datapoints": 1000, "sp_episodes": 16}},
-    "medium": {"train": {"epochs": 10, "datapoints_per_epoch": 10_000, "dataset_cap": 800_000},
-               "collect": {"num_envs": 64}, "evaluate": {"test_datapoints": 2000, "sp_episodes": 32}},
-    "thesis": {"train": {"epochs": 30, "datapoints_per_epoch": 80_000, "dataset_cap": 800_000},
-               "collect": {"num_envs": 128}, "evaluate": {"test_datapoints": 50_000, "sp_episodes": 50_000}},
+    "small": {"seeds": 3, "train": {"epochs": 5, "datapoints_per_epoch": 3000, "dataset_cap": 800_000},
+              "collect": {"num_envs": 64},
+              "evaluate": {"test_datapoints": 1000, "test_episodes": 16, "sp_episodes": 16}},
+    "medium": {"seeds": 3, "train": {"epochs": 10, "datapoints_per_epoch": 10_000, "dataset_cap": 800_000},
+               "collect": {"num_envs": 64},
+               "evaluate": {"test_datapoints": 2000, "test_episodes": 32, "sp_episodes": 32}},
+    "thesis": {"seeds": 3, "train": {"epochs": 30, "datapoints_per_epoch": 80_000, "dataset_cap": 800_000},
+               "collect": {"num_envs": 128},
+               "evaluate": {"test_datapoints": 50_000, "test_episodes": 128, "sp_episodes": 512}},
 }
+SP_SEED = 2000
+"""Schedule seed of the evaluation env: SP episodes are keys 0 .. E-1."""
+TEST_KEY = 1_000_000
+"""The MSE test set's episodes are keys TEST_KEY + 0 .. E_test-1 of the SP seed (never played by an SP slot)."""
+TEST_SPAN = 29
+"""Window starts of the test set leave room for the largest span of any run, (15 - 1) x 2 + 1 steps."""
+STEP_DT = 0.02
+"""[s] env step of the distillation task (checked against the env by ``EncodingSection.stride``)."""
+MAX_ROBOTS = 2048
+"""Robots per evaluation env; more slots than fit go to further envs (same keys: same episodes)."""
 
 
 @dataclass
 class Run:
-    """One student to train: a name and overrides of the distillation config (merged on the scale's)."""
+    """One setting to train with every seed: a name and overrides of the distillation config."""
 
     name: str
     overrides: dict
-    snapshots: bool = False  # keep every epoch's student for SP over training
+    snapshots: bool = False  # keep (and evaluate) every epoch's students
     row: dict = field(default_factory=dict)  # table columns (encoding, batch, ...)
+    data_from: str | None = None  # train on this earlier run's datasets instead of collecting
 
 
 def merge(base: dict, over: dict) -> dict:
@@ -102,113 +130,229 @@ def _uncommitted() -> list[str]:
     return [line.strip() for line in out.splitlines() if line.strip()]
 
 
+def scale_config(scale: str) -> dict:
+    """The scale's config overrides (without ``seeds``)."""
+    return {k: v for k, v in SCALES[scale].items() if k != "seeds"}
+
+
+def run_config(r: Run, args: argparse.Namespace):
+    return load_distill_config(overrides=merge(merge(scale_config(args.scale), {"expert": args.expert, "task": str(TASK)}),
+                                               r.overrides))
+
+
+def _datasets(run_dir: Path, seeds: list[int]) -> list[DiskDataset] | None:
+    paths = [run_dir / f"seed_{s}" / "dataset" for s in seeds]
+    return [DiskDataset.open(p) for p in paths] if all(p.is_dir() for p in paths) else None
+
+
+def _drop_datasets(run_dir: Path) -> None:
+    for d in run_dir.glob("seed_*"):
+        shutil.rmtree(d)
+
+
 def train_runs(runs: list[Run], args: argparse.Namespace) -> dict[str, dict]:
-    """Train every run (skipping finished ones); returns {name: {"history", "students": [state dicts]}}."""
+    """Train every run with every seed (skipping finished runs); returns {name: result} with
+    ``students[k][j]`` the state dict of seed k at snapshot j (j = 0: the last epoch, or every
+    epoch 1 .. E with ``snapshots``)."""
     from dls_quadruped.envs.env import LocomotionEnv
 
     scale = SCALES[args.scale]
+    seeds = list(range(scale["seeds"]))
     expert = load_expert(args.expert)
-    sha = hashlib.sha256(Path(args.expert).read_bytes()).hexdigest()
     out: dict[str, dict] = {}
-    todo = [r for r in runs if not (args.out / "runs" / r.name / "result.pt").is_file()]
+    done = {r.name for r in runs if (args.out / "runs" / r.name / "result.pt").is_file()}
+    todo = [r for r in runs if r.name not in done]
+    for r in todo:  # a dependant needs its source's datasets: retrain the source if they are gone
+        if r.data_from and r.data_from in done and _datasets(args.out / "runs" / r.data_from, seeds) is None:
+            done.discard(r.data_from)
+    todo = [r for r in runs if r.name not in done]
     for r in runs:
-        if r not in todo:
+        if r.name in done:
             out[r.name] = torch.load(args.out / "runs" / r.name / "result.pt", weights_only=False)
     if not todo:
         return out
-    num_envs = scale["collect"]["num_envs"]
-    env = LocomotionEnv(distill_task(TASK, None), num_envs=num_envs, verbose=False)
+    needed_later = {r.data_from for r in todo if r.data_from}
+    env = LocomotionEnv(distill_task(TASK, None), num_envs=len(seeds) * scale["collect"]["num_envs"], verbose=False)
     try:
         for k, r in enumerate(todo):
-            cfg = load_distill_config(overrides=merge(merge(scale, {"expert": args.expert, "task": str(TASK)}), r.overrides))
+            cfg = run_config(r, args)
             run_dir = args.out / "runs" / r.name
             if run_dir.exists():
                 shutil.rmtree(run_dir)  # an unfinished run starts over (its datasets were for it alone)
             run_dir.mkdir(parents=True)
             t0 = time.monotonic()
-            print(f"[{args.out.name}] run {k + 1}/{len(todo)} {r.name}", flush=True)
-            trainer = DistillTrainer(cfg, env, expert, run_dir, [512, 256, 128], "elu",
-                                     expert_info={"path": args.expert, "sha256": sha}, sp=False,
-                                     printer=lambda *a, **kw: None)
-            trainer.open_datasets(resume=False)
-            trainer.collect_test_set()
-            students = [copy.deepcopy(trainer.untrained.state_dict())]
+            shared = _datasets(args.out / "runs" / r.data_from, seeds) if r.data_from else None
+            print(f"[{args.out.name}] run {k + 1}/{len(todo)} {r.name}: seeds {seeds} together"
+                  + (f", on {r.data_from}'s data" if shared else ""), flush=True)
+            trainer = SeedGroupTrainer(cfg, seeds, env, expert, run_dir, HIDDEN, ACTIVATION, datasets=shared,
+                                       printer=lambda *a, **kw: None)
+            trainer.start()
+            students = []
             while trainer.epoch < cfg.train.epochs:
                 trainer.run_epoch()
                 if r.snapshots or trainer.epoch == cfg.train.epochs:
-                    students.append(copy.deepcopy(trainer.student.state_dict()))
-            result = {"history": trainer.history, "students": students, "config": cfg.to_dict(),
-                      "snapshot_epochs": list(range(cfg.train.epochs + 1)) if r.snapshots else [0, cfg.train.epochs],
+                    students.append(trainer.state_dicts())
+            result = {"history": trainer.history, "students": [list(x) for x in zip(*students)],
+                      "config": cfg.to_dict(), "seeds": seeds, "gradient_steps": gradient_steps(cfg),
+                      "snapshot_epochs": list(range(1, cfg.train.epochs + 1)) if r.snapshots else [cfg.train.epochs],
                       "seconds": time.monotonic() - t0}
             torch.save(result, run_dir / "result.pt")
             write_json({k: v for k, v in result.items() if k != "students"}, run_dir / "metrics.json")
-            if not args.keep_datasets:
-                shutil.rmtree(run_dir / "dataset")
+            if not args.keep_datasets and r.name not in needed_later:
+                _drop_datasets(run_dir)
             h = trainer.history[-1]
-            print(f"[{args.out.name}]   test MSE {h['test_mse']:.4f}, dataset {h['dataset_size']}, "
-                  f"{result['seconds']:.0f} s", flush=True)
+            print(f"[{args.out.name}]   train loss {np.mean(h['train_loss']):.4f} (mean of seeds), dataset "
+                  f"{h['dataset_size']} per seed, {result['seconds']:.0f} s", flush=True)
             out[r.name] = result
     finally:
         env.close()
+        if not args.keep_datasets:
+            for name in needed_later:
+                _drop_datasets(args.out / "runs" / name)
     return out
 
 
 def _student(state: dict, cfg: dict) -> Student:
-    from dls_quadruped.mpc.config import EncodingConfig
-
-    e = cfg["encoding"]
-    s = Student(259, EncodingConfig(e["p"], e["F"], e["horizon"], e["constrained_fit"]), [512, 256, 128], "elu")
+    s = Student(259, net_encoding(cfg), HIDDEN, ACTIVATION)
     s.load_state_dict(state)
     return s.eval()
 
 
-def batched_sp(trained: dict[str, dict], args: argparse.Namespace, seed: int = 2000) -> dict[str, list[dict]]:
-    """SP of every trained snapshot of every run, all policies in one env; {run: [SP per snapshot]}.
+def _enc_key(cfg: dict) -> tuple:
+    e = cfg["encoding"]
+    return (e["p"], e["F"], e["horizon"], e["constrained_fit"])
 
-    Three passes over the same robots and seed (eq. 7.2.2's "same conditions"): the expert on every
-    robot, each slot's *untrained* student (snapshot 0 of its run, r_0), then each slot's snapshot.
+
+def untrained_returns(ev: dict, cfg: dict) -> list[float]:
+    """The (E,) returns of the untrained student (r_0) of ``cfg``'s encoding in an :func:`evaluate` result."""
+    return ev["returns"]["untrained"][" ".join(map(str, _enc_key(cfg)))]
+
+
+def _untrained(key: tuple) -> Student:
+    """r_0 of an encoding: seed 0's initialisation (fresh normaliser)."""
+    from dls_quadruped.mpc.config import EncodingConfig
+
+    torch.manual_seed(0)
+    return Student(259, EncodingConfig(*key), HIDDEN, ACTIVATION).eval()
+
+
+def _first_action(net):
+    return lambda obs: net.first_action(obs)
+
+
+def _test_mse(trained: dict, record, args: argparse.Namespace) -> dict[str, list[dict]]:
+    """{run: [mse_over_seeds per snapshot]} on windows cut from ``record`` at the same starts for all."""
+    count = SCALES[args.scale]["evaluate"]["test_datapoints"]
+    episode, start = window_starts(record.length, TEST_SPAN, count, seed=SP_SEED)
+    n_ep = len(record.length)
+    per_episode = torch.bincount(episode, minlength=n_ep).double()
+    out: dict[str, list[dict]] = {}
+    for name, res in trained.items():
+        cfg = res["config"]
+        stride = round(cfg["encoding"]["dt"] / STEP_DT)
+        horizon = cfg["encoding"]["horizon"]
+        if (horizon - 1) * stride + 1 > TEST_SPAN:
+            raise ValueError(f"{name}: span {(horizon - 1) * stride + 1} > TEST_SPAN {TEST_SPAN}")
+        obs, acts = cut_windows(record, episode, start, horizon, stride)
+        rows = []
+        for j in range(len(res["snapshot_epochs"])):
+            sq = torch.zeros(len(res["seeds"]), n_ep, dtype=torch.float64)
+            for k in range(len(res["seeds"])):
+                net = _student(res["students"][k][j], cfg)
+                labels = encode_labels(acts, net_encoding(cfg))
+                with torch.no_grad():
+                    err = (net.net(obs) - labels).square().mean(-1).double()  # (N,) per window, over outputs
+                sq[k].index_add_(0, episode, err)
+            m = mse_over_seeds(sq.numpy(), per_episode.numpy(), seed=j)
+            m["epoch"] = res["snapshot_epochs"][j]
+            rows.append(m)
+        out[name] = rows
+    return out
+
+
+def net_encoding(cfg: dict):
+    from dls_quadruped.mpc.config import EncodingConfig
+
+    e = cfg["encoding"]
+    return EncodingConfig(e["p"], e["F"], e["horizon"], e["constrained_fit"])
+
+
+def evaluate(trained: dict[str, dict], args: argparse.Namespace) -> dict:
+    """SP and test MSE of every seed and snapshot of every run, all in batched envs on the same episodes.
+
+    Returns:
+        {"sp": {run: [sp_over_seeds + survival per snapshot]}, "mse": {run: [mse_over_seeds per
+        snapshot]}, "returns": {"expert": (E,), "untrained": {encoding: (E,)}, run: [(K, E) per snapshot]},
+        "seconds"}.
     """
     from dls_quadruped.envs.env import LocomotionEnv
 
+    t0 = time.monotonic()
     per = SCALES[args.scale]["evaluate"]["sp_episodes"]
-    slots = [(name, i) for name, res in trained.items() for i in range(1, len(res["students"]))]
-    max_envs = 1024  # robots per batch of episodes; more policies than fit go in several batches
-    per_batch = max(1, max_envs // per)
-    results: dict[str, list[dict]] = {name: [] for name in trained}
+    n_test = SCALES[args.scale]["evaluate"]["test_episodes"]
+    if n_test > per:
+        raise ValueError(f"test_episodes {n_test} > sp_episodes {per}: the test slot has sp_episodes robots")
     expert = load_expert(args.expert)
-    for b in range(0, len(slots), per_batch):
-        group = slots[b:b + per_batch]
-        n = len(group) * per
-        env = LocomotionEnv(distill_task(TASK, None), num_envs=n, verbose=False)
+    encodings = sorted({_enc_key(res["config"]) for res in trained.values()})
+    students = [(name, k, j) for name, res in trained.items() for k in range(len(res["seeds"]))
+                for j in range(len(res["snapshot_epochs"]))]
+    # slot 0: expert on the SP episodes, 1: expert on the test episodes, then r_0 per encoding
+    refs: list[tuple[str, object]] = [("expert", expert), ("test", expert)]
+    refs += [(f"untrained {e}", _untrained(e)) for e in encodings]
+    cap = MAX_ROBOTS // per
+    batches = [students[:max(1, cap - len(refs))]]
+    rest = students[len(batches[0]):]
+    batches += [rest[i:i + cap] for i in range(0, len(rest), cap)]
+    ret: dict[tuple, np.ndarray] = {}
+    surv: dict[tuple, np.ndarray] = {}
+    record = None
+    for b, group in enumerate(batches):
+        slots = (refs if b == 0 else []) + [((name, k, j), _student(trained[name]["students"][k][j],
+                                                                    trained[name]["config"])) for name, k, j in group]
+        keys = torch.arange(per).repeat(len(slots))
+        if b == 0:
+            keys[per:2 * per] += TEST_KEY
+        env = LocomotionEnv(distill_task(TASK, None), num_envs=len(slots) * per, verbose=False)
         try:
-            nets = [_student(trained[name]["students"][i], trained[name]["config"]) for name, i in group]
-            untrained = [_student(trained[name]["students"][0], trained[name]["config"]) for name, _ in group]
-
-            def mixed(policies):
-                def act(obs: torch.Tensor) -> torch.Tensor:
-                    return torch.cat([net.first_action(obs[j * per:(j + 1) * per]) for j, net in enumerate(policies)])
-                return act
-
-            t0 = time.monotonic()
-            print(f"[{args.out.name}] SP: {len(group)} policies x {per} episodes of "
-                  f"{env.max_episode_length_s:g} s ({n} robots): expert, untrained, trained", flush=True)
-            r_exp = episode_returns(env, expert, [seed])
-            r_0 = episode_returns(env, mixed(untrained), [seed])
-            r_pol = episode_returns(env, mixed(nets), [seed])
-            print(f"[{args.out.name}] SP batch done in {time.monotonic() - t0:.0f} s", flush=True)
+            t1 = time.monotonic()
+            print(f"[{args.out.name}] evaluation {b + 1}/{len(batches)}: {len(slots)} policies x {per} episodes of "
+                  f"{env.max_episode_length_s:g} s ({env.num_envs} robots)", flush=True)
+            res = slot_returns(env, [_first_action(p) if isinstance(p, Student) else p for _, p in slots], SP_SEED,
+                               keys, record=1 if b == 0 else None)
+            print(f"[{args.out.name}] evaluation {b + 1} done in {time.monotonic() - t1:.0f} s", flush=True)
         finally:
             env.close()
-        for j, (name, i) in enumerate(group):
-            sl = slice(j * per, (j + 1) * per)
-            sp = simulation_performance(r_pol["return"][sl], r_exp["return"][sl], r_0["return"][sl], seed=j)
-            sp["survival"] = survival(r_pol["survived"][sl])
-            sp["survival_expert"] = survival(r_exp["survived"][sl])
-            sp["survival_untrained"] = survival(r_0["survived"][sl])
-            sp["epoch"] = trained[name]["snapshot_epochs"][i]
-            results[name].append(sp)
-    for rows in results.values():
-        rows.sort(key=lambda r: r["epoch"])
-    return results
+        if b == 0:
+            record = res["record"]
+        for i, (key, _) in enumerate(slots):
+            ret[key], surv[key] = res["return"][i], res["survived"][i]
+    record.obs, record.actions, record.length = (x[:n_test] for x in (record.obs, record.actions, record.length))
+    r_exp = ret["expert"]
+    sp_out: dict[str, list[dict]] = {}
+    returns: dict = {"expert": r_exp.tolist(), "untrained": {}}
+    for e in encodings:
+        returns["untrained"][" ".join(map(str, e))] = ret[f"untrained {e}"].tolist()
+    for name, res in trained.items():
+        r_0 = ret[f"untrained {_enc_key(res['config'])}"]
+        rows, raw = [], []
+        for j, epoch in enumerate(res["snapshot_epochs"]):
+            r = np.stack([ret[(name, k, j)] for k in range(len(res["seeds"]))])
+            s_all = np.stack([surv[(name, k, j)] for k in range(len(res["seeds"]))])
+            sp = sp_over_seeds(r, r_exp, r_0, seed=j)
+            sp["survival"] = survival(s_all.flatten())  # K x E episodes (the E are shared by the seeds)
+            sp["survival_per_seed"] = [float(x) for x in s_all.mean(1)]
+            sp["survival_expert"] = survival(surv["expert"])
+            sp["survival_untrained"] = survival(surv[f"untrained {_enc_key(res['config'])}"])
+            sp["epoch"] = epoch
+            rows.append(sp)
+            raw.append(r.tolist())
+        sp_out[name] = rows
+        returns[name] = raw
+    mse = _test_mse(trained, record, args)
+    return {"sp": sp_out, "mse": mse, "returns": returns, "seconds": time.monotonic() - t0,
+            "test_set": {"episodes": n_test, "steps": int(record.length.sum()), "windows":
+                         SCALES[args.scale]["evaluate"]["test_datapoints"], "span": TEST_SPAN,
+                         "schedule_seed": SP_SEED, "keys": f"{TEST_KEY} + 0..{n_test - 1}"}}
 
 
 def write_table(rows: list[dict], columns: list[str], path_base: Path, title: str) -> None:
@@ -232,18 +376,30 @@ def sp_cell(sp: dict) -> str:
     return f"{100 * sp['sp']:.1f} % [{100 * sp['ci95'][0]:.1f}, {100 * sp['ci95'][1]:.1f}]"
 
 
-def summary_row(trained: dict, sp: dict, name: str) -> dict:
+def seeds_cell(values: list[float], percent: bool = True) -> str:
+    return " / ".join(f"{100 * v:.1f}" if percent else f"{v:.3f}" for v in values)
+
+
+def mse_cell(m: dict) -> str:
+    return f"{m['mse']:.3f} [{m['ci95'][0]:.3f}, {m['ci95'][1]:.3f}]"
+
+
+def summary_row(trained: dict, ev: dict, name: str) -> dict:
+    """The columns every table shares, for the last snapshot of ``name``."""
     h = trained[name]["history"][-1]
-    final = sp[name][-1]
-    return {"MSE": f"{h['test_mse']:.4f}", "SP [95 % CI]": sp_cell(final), "survival": pct(final["survival"]["rate"]),
-            "SP episodes": final["episodes"], "test datapoints": trained[name]["config"]["evaluate"]["test_datapoints"],
-            "train datapoints": h["dataset_size"], "epochs": h["epoch"]}
+    sp, mse = ev["sp"][name][-1], ev["mse"][name][-1]
+    return {"MSE [95 % CI]": mse_cell(mse), "MSE per seed": seeds_cell(mse["per_seed"], percent=False),
+            "SP [95 % CI]": sp_cell(sp), "SP per seed [%]": seeds_cell([p["sp"] for p in sp["per_seed"]]),
+            "survival": pct(sp["survival"]["rate"]), "seeds": sp["seeds"], "SP episodes": sp["episodes"],
+            "test windows": mse["windows"], "train datapoints": h["dataset_size"], "epochs": h["epoch"],
+            "gradient steps": trained[name]["gradient_steps"]}
 
 
 def write_config(args: argparse.Namespace, runs: list[Run], trained: dict, extra: dict | None = None) -> None:
     write_json({"scale": args.scale, "scale_settings": SCALES[args.scale], "git_commit": _git_commit(),
                 "uncommitted_at_end": _uncommitted(),
                 "expert": args.expert, "expert_sha256": hashlib.sha256(Path(args.expert).read_bytes()).hexdigest(),
-                "runs": {r.name: {"overrides": r.overrides, "resolved": trained[r.name]["config"],
+                "runs": {r.name: {"overrides": r.overrides, "data_from": r.data_from,
+                                  "resolved": trained[r.name]["config"], "seeds": trained[r.name]["seeds"],
                                   "train_seconds": trained[r.name]["seconds"]} for r in runs if r.name in trained},
                 **(extra or {})}, args.out / "config.json")

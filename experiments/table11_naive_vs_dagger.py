@@ -1,5 +1,10 @@
 """Table 11 (thesis 7.2.2): naive imitation vs DAgger, discrete-discrete and first-spline, H = 5,
-dt = 0.02 s, mini-batch 64, beta = 0.6^i (20 epochs at thesis scale).
+dt = 0.02 s, mini-batch 64, beta = 0.6^i (20 epochs at thesis scale), 3 training seeds per row.
+
+Two more naive rows per encoding train on the naive row's own data (same seeds, same datapoints)
+with another schedule, so that the difference from DAgger is the data and not the schedule:
+``naive, DAgger's steps`` (epoch i trains on a random (i + 1) x datapoints_per_epoch of the data:
+DAgger's gradient steps and learning rate per step) and ``naive, no lr decay`` (lr 1.0 throughout).
 
     python experiments/table11_naive_vs_dagger.py --scale small     # minutes on 2 cores
     python experiments/table11_naive_vs_dagger.py --scale thesis
@@ -12,13 +17,18 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import time
+
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.learning.distill_metrics import sp_difference
 from experiments.distill_common import (
     Run,
-    batched_sp,
+    evaluate,
     parse_args,
+    sp_cell,
     summary_row,
     train_runs,
+    untrained_returns,
     write_config,
     write_table,
 )
@@ -29,12 +39,21 @@ THESIS = {  # Table 11: (MSE, SP)
 }
 
 
+SCHEDULES = {"Table 7": {}, "DAgger's steps": {"naive_schedule": "dagger_steps"}, "no lr decay": {"lr_decay": 1.0}}
+
+
 def runs(scale: str) -> list[Run]:
     train = {"batch_size": 64, **({"epochs": 20} if scale == "thesis" else {})}
-    return [Run(f"{algo}_{p}-{F}", {"algorithm": algo, "encoding": {"p": p, "F": F, "horizon": 5, "dt": 0.02},
-                                    "selector": {"kind": "exponential", "alpha": 0.6}, "train": train},
-                row={"Algorithm": algo, "Encoding (p, F)": f"{p}, {F}"})
-            for algo, p, F in THESIS]
+    out = []
+    for algo, p, F in THESIS:
+        enc = {"encoding": {"p": p, "F": F, "horizon": 5, "dt": 0.02}, "selector": {"kind": "exponential", "alpha": 0.6}}
+        schedules = SCHEDULES if algo == "naive" else {"Table 7": {}}
+        for sched, over in schedules.items():
+            suffix = {"Table 7": "", "DAgger's steps": "-dagger-steps", "no lr decay": "-no-decay"}[sched]
+            out.append(Run(f"{algo}{suffix}_{p}-{F}", {"algorithm": algo, **enc, "train": {**train, **over}},
+                           row={"Algorithm": algo, "schedule": sched, "Encoding (p, F)": f"{p}, {F}"},
+                           data_from=f"naive_{p}-{F}" if suffix else None))
+    return out
 
 
 def figure(rows: list[dict], path: Path) -> None:
@@ -43,15 +62,17 @@ def figure(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    labels = [f"{r['Algorithm']}\n{r['Encoding (p, F)']}" for r in rows]
+    fig, ax = plt.subplots(figsize=(10, 4))
+    labels = [f"{r['Algorithm']}\n{r['schedule']}\n{r['Encoding (p, F)']}" for r in rows]
     ours = [r["_sp"] * 100 for r in rows]
     err = [[100 * (r["_sp"] - r["_ci"][0]) for r in rows], [100 * (r["_ci"][1] - r["_sp"]) for r in rows]]
     thesis = [float(r["thesis SP"].rstrip(" %")) for r in rows]
     x = range(len(rows))
-    ax.bar([i - 0.2 for i in x], ours, 0.4, yerr=err, label="ours (95 % CI)")
+    ax.bar([i - 0.2 for i in x], ours, 0.4, yerr=err, label="ours, 3 seeds (95 % CI over seeds and episodes)")
     ax.bar([i + 0.2 for i in x], thesis, 0.4, label="thesis")
-    ax.set_xticks(list(x), labels)
+    for i, r in zip(x, rows):
+        ax.plot([i - 0.2] * len(r["_per_seed"]), [100 * v for v in r["_per_seed"]], "k.", ms=4)
+    ax.set_xticks(list(x), labels, fontsize=7)
     ax.set_ylabel("SP [%]")
     ax.axhline(100, color="k", lw=0.8, ls="--")
     ax.legend()
@@ -61,24 +82,37 @@ def figure(rows: list[dict], path: Path) -> None:
 
 
 def main() -> None:
+    t0 = time.monotonic()
     args = parse_args(__doc__, "table11_naive_vs_dagger")
     rs = [r for r in runs(args.scale) if args.only is None or r.name in args.only]
     trained = train_runs(rs, args)
-    sp = batched_sp(trained, args)
-    rows = []
+    t_train = time.monotonic() - t0
+    ev = evaluate(trained, args)
+    rets = ev["returns"]
+    rows, diffs = [], {}
     for r in rs:
-        row = {**r.row, **summary_row(trained, sp, r.name)}
+        row = {**r.row, **summary_row(trained, ev, r.name)}
         key = (r.row["Algorithm"], *r.row["Encoding (p, F)"].split(", "))
         row["thesis MSE"], row["thesis SP"] = THESIS[key]
-        row["_sp"], row["_ci"] = sp[r.name][-1]["sp"], sp[r.name][-1]["ci95"]
+        dagger = f"dagger_{key[1]}-{key[2]}"
+        if r.row["Algorithm"] == "naive" and dagger in trained:
+            r0 = untrained_returns(ev, trained[r.name]["config"])
+            d = sp_difference(rets[r.name][-1], rets[dagger][-1], rets["expert"], r0, r0)
+            diffs[r.name] = d
+            row["SP - DAgger's [95 % CI]"] = sp_cell({"sp": d["difference"], "ci95": d["ci95"]})
+        row["_sp"], row["_ci"] = ev["sp"][r.name][-1]["sp"], ev["sp"][r.name][-1]["ci95"]
+        row["_per_seed"] = [p["sp"] for p in ev["sp"][r.name][-1]["per_seed"]]
         rows.append(row)
-    cols = ["Algorithm", "Encoding (p, F)", "MSE", "SP [95 % CI]", "survival", "thesis MSE", "thesis SP",
-            "SP episodes", "test datapoints", "train datapoints", "epochs"]
+    cols = ["Algorithm", "schedule", "Encoding (p, F)", "MSE [95 % CI]", "SP [95 % CI]", "SP - DAgger's [95 % CI]",
+            "SP per seed [%]", "MSE per seed", "survival", "thesis MSE", "thesis SP", "seeds", "SP episodes",
+            "test windows", "train datapoints", "gradient steps", "epochs"]
     write_table(rows, cols, args.out / "table", f"Table 11, scale {args.scale}: naive IL vs DAgger (H = 5, dt = 0.02 s)")
-    write_json({"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows], "sp": sp},
+    write_json({"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows], "sp": ev["sp"],
+                "mse": ev["mse"], "sp_difference_vs_dagger": diffs, "returns": rets, "test_set": ev["test_set"]},
                args.out / "results.json")
     figure(rows, args.out / "table11.png")
-    write_config(args, rs, trained)
+    write_config(args, rs, trained, {"seconds": {"total": time.monotonic() - t0, "training_part": t_train,
+                                                 "evaluation": ev["seconds"]}})
     print((args.out / "table.md").read_text())
 
 

@@ -1,5 +1,5 @@
 """Table 12 (thesis 7.2.3): DAgger mini-batch size 64 ... 1024, discrete-discrete, H = 5, dt = 0.02 s;
-dataset size and epochs fixed, so a larger batch makes fewer gradient steps.
+dataset size and epochs fixed, so a larger batch makes fewer gradient steps; 3 training seeds per row.
 
     python experiments/table12_batch_size.py --scale small
 """
@@ -11,10 +11,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import time
+
 from dls_quadruped.core.json_io import write_json
 from experiments.distill_common import (
     Run,
-    batched_sp,
+    evaluate,
     parse_args,
     summary_row,
     train_runs,
@@ -42,13 +44,14 @@ def figure(rows: list[dict], path: Path) -> None:
     x = [r["batch"] for r in rows]
     a.errorbar(x, [100 * r["_sp"] for r in rows], yerr=[[100 * (r["_sp"] - r["_ci"][0]) for r in rows],
                                                          [100 * (r["_ci"][1] - r["_sp"]) for r in rows]],
-               fmt="o-", label="ours (95 % CI)")
+               fmt="o-", label="ours, 3 seeds (95 % CI)")
     a.plot(x, [float(THESIS[v][1].rstrip(" %")) for v in x], "s--", label="thesis")
     a.set_xscale("log", base=2)
     a.set_xlabel("mini-batch")
     a.set_ylabel("SP [%]")
     a.legend()
-    b.plot(x, [float(r["MSE"]) for r in rows], "o-", label="ours")
+    b.errorbar(x, [r["_mse"] for r in rows], yerr=[[r["_mse"] - r["_mse_ci"][0] for r in rows],
+                                                   [r["_mse_ci"][1] - r["_mse"] for r in rows]], fmt="o-", label="ours")
     b.plot(x, [THESIS[v][0] for v in x], "s--", label="thesis")
     b.set_xscale("log", base=2)
     b.set_xlabel("mini-batch")
@@ -60,25 +63,28 @@ def figure(rows: list[dict], path: Path) -> None:
 
 
 def main() -> None:
+    t0 = time.monotonic()
     args = parse_args(__doc__, "table12_batch_size")
     rs = [r for r in runs() if args.only is None or r.name in args.only]
     trained = train_runs(rs, args)
-    sp = batched_sp(trained, args)
+    t_train = time.monotonic() - t0
+    ev = evaluate(trained, args)
     rows = []
     for r in rs:
-        row = {**r.row, **summary_row(trained, sp, r.name)}
-        row["gradient steps"] = sum(h["train"]["steps"] for h in trained[r.name]["history"])
+        row = {**r.row, **summary_row(trained, ev, r.name)}
         row["thesis MSE"], row["thesis SP"] = THESIS[r.row["batch"]]
-        row["_sp"], row["_ci"] = sp[r.name][-1]["sp"], sp[r.name][-1]["ci95"]
+        row["_sp"], row["_ci"] = ev["sp"][r.name][-1]["sp"], ev["sp"][r.name][-1]["ci95"]
+        row["_mse"], row["_mse_ci"] = ev["mse"][r.name][-1]["mse"], ev["mse"][r.name][-1]["ci95"]
         rows.append(row)
-    cols = ["batch", "gradient steps", "MSE", "SP [95 % CI]", "survival", "thesis MSE", "thesis SP", "SP episodes",
-            "test datapoints", "train datapoints", "epochs"]
+    cols = ["batch", "gradient steps", "MSE [95 % CI]", "SP [95 % CI]", "SP per seed [%]", "MSE per seed", "survival",
+            "thesis MSE", "thesis SP", "seeds", "SP episodes", "test windows", "train datapoints", "epochs"]
     write_table(rows, cols, args.out / "table", f"Table 12, scale {args.scale}: DAgger mini-batch size "
                 "(discrete-discrete, H = 5, dt = 0.02 s)")
-    write_json({"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows], "sp": sp},
-               args.out / "results.json")
+    write_json({"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows], "sp": ev["sp"],
+                "mse": ev["mse"], "returns": ev["returns"], "test_set": ev["test_set"]}, args.out / "results.json")
     figure(rows, args.out / "table12.png")
-    write_config(args, rs, trained)
+    write_config(args, rs, trained, {"seconds": {"total": time.monotonic() - t0, "training_part": t_train,
+                                                 "evaluation": ev["seconds"]}})
     print((args.out / "table.md").read_text())
 
 

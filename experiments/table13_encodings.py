@@ -1,5 +1,6 @@
 """Table 13 and Fig. 25 (thesis 7.2.3): DAgger with every encoding (p, F) x dt x H, 36 rows;
-Fig. 25 (a) SP vs H and dt for discrete-discrete, (b) SP per encoding at H = 10, dt = 0.02 s.
+Fig. 25 (a) SP vs H and dt for discrete-discrete, (b) SP per encoding at H = 10, dt = 0.02 s;
+3 training seeds per row, every row on the same data budget, test states and SP episodes.
 
     python experiments/table13_encodings.py --scale small
 """
@@ -11,12 +12,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import time
+
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.mpc.config import EncodingConfig
 from dls_quadruped.mpc.encodings import encoded_dim
 from experiments.distill_common import (
     Run,
-    batched_sp,
+    evaluate,
     parse_args,
     summary_row,
     train_runs,
@@ -78,7 +81,7 @@ def figure(rows: list[dict], path: Path) -> None:
     x = range(len(sel))
     b.bar([i - 0.2 for i in x], [100 * r["_sp"] for r in sel], 0.4,
           yerr=[[100 * (r["_sp"] - r["_ci"][0]) for r in sel], [100 * (r["_ci"][1] - r["_sp"]) for r in sel]],
-          label="ours (95 % CI)")
+          label="ours, 3 seeds (95 % CI)")
     b.bar([i + 0.2 for i in x], [r["thesis SP"] for r in sel], 0.4, label="thesis")
     b.set_xticks(list(x), [f"{r['p']}\n{r['F']}" for r in sel], fontsize=8)
     b.set_title("(b) H = 10, dt = 0.02 s")
@@ -91,23 +94,27 @@ def figure(rows: list[dict], path: Path) -> None:
 
 
 def main() -> None:
+    t0 = time.monotonic()
     args = parse_args(__doc__, "table13_encodings")
     rs = [r for r in runs() if args.only is None or r.name in args.only]
     trained = train_runs(rs, args)
-    sp = batched_sp(trained, args)
+    t_train = time.monotonic() - t0
+    ev = evaluate(trained, args)
     rows = []
     for r in rs:
-        row = {**r.row, **summary_row(trained, sp, r.name)}
+        row = {**r.row, **summary_row(trained, ev, r.name)}
         row["thesis MSE"], row["thesis SP"] = THESIS[r.row["N°"] - 1]
-        row["_sp"], row["_ci"] = sp[r.name][-1]["sp"], sp[r.name][-1]["ci95"]
+        row["_sp"], row["_ci"] = ev["sp"][r.name][-1]["sp"], ev["sp"][r.name][-1]["ci95"]
         rows.append(row)
-    cols = ["N°", "p", "F", "dt", "H", "Time H.", "Dim.", "MSE", "SP [95 % CI]", "survival", "thesis MSE",
-            "thesis SP", "SP episodes", "test datapoints", "train datapoints", "epochs"]
+    cols = ["N°", "p", "F", "dt", "H", "Time H.", "Dim.", "MSE [95 % CI]", "SP [95 % CI]", "SP per seed [%]",
+            "MSE per seed", "survival", "thesis MSE", "thesis SP", "seeds", "SP episodes", "test windows",
+            "train datapoints", "epochs"]
     write_table(rows, cols, args.out / "table", f"Table 13, scale {args.scale}: DAgger, every encoding x dt x H")
-    write_json({"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows], "sp": sp},
-               args.out / "results.json")
+    write_json({"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows], "sp": ev["sp"],
+                "mse": ev["mse"], "returns": ev["returns"], "test_set": ev["test_set"]}, args.out / "results.json")
     figure(rows, args.out / "fig25.png")
-    write_config(args, rs, trained)
+    write_config(args, rs, trained, {"seconds": {"total": time.monotonic() - t0, "training_part": t_train,
+                                                 "evaluation": ev["seconds"]}})
     print((args.out / "table.md").read_text())
 
 

@@ -132,13 +132,18 @@ def collect(env, expert: ActionFn, encode: Callable[[torch.Tensor], torch.Tensor
 def collect_slots(env, expert: ActionFn, encoders: list[Callable[[torch.Tensor], torch.Tensor]], count: int,
                   horizon: int, stride: int, sink: Callable[[int, torch.Tensor, torch.Tensor], None],
                   beta_value: float = 1.0, student: ActionFn | None = None, obs_group: str = "policy",
-                  progress: Progress | None = None, flush_every: int = 8192) -> dict:
+                  progress: Progress | None = None, flush_every: int = 8192,
+                  windows: SlidingWindows | None = None) -> dict:
     """Like :func:`collect` for S students at once: the robots are S equal contiguous slots, slot s
     (robots ``[s B/S, (s+1) B/S)``) is driven by student s's share of ``student`` and its windows are
     encoded with ``encoders[s]`` and handed to ``sink(s, obs, labels)`` until it has ``count``.
 
     Args:
         student: (B, obs_dim) -> (B, 28) first actions of every slot's student on its own robots.
+        windows: the ring of the previous call on this env, to go on where it stopped (its last step
+            is the env's current observation, already pushed): no (H-1) k steps of warm-up per call.
+            A window that spans two calls starts at a state reached under the previous call's
+            applied action; its labels are the expert's actions at the states visited, as always.
 
     Returns:
         {"datapoints" (per slot), "env_steps", "seconds", "resets"}.
@@ -150,7 +155,9 @@ def collect_slots(env, expert: ActionFn, encoders: list[Callable[[torch.Tensor],
         raise ValueError(f"{env.num_envs} robots do not split into {slots} equal slots")
     per = env.num_envs // slots
     obs = env.get_observations()[obs_group]
-    windows = SlidingWindows(env.num_envs, obs.shape[1], env.num_actions, horizon, stride, obs.device)
+    continued = windows is not None and windows.t > 0
+    if windows is None:
+        windows = SlidingWindows(env.num_envs, obs.shape[1], env.num_actions, horizon, stride, obs.device)
     done = [0] * slots
     pending: list[list[tuple[torch.Tensor, torch.Tensor]]] = [[] for _ in range(slots)]
     steps, resets = 0, 0
@@ -167,7 +174,12 @@ def collect_slots(env, expert: ActionFn, encoders: list[Callable[[torch.Tensor],
             applied = a_exp
         else:
             applied = beta_value * a_exp + (1.0 - beta_value) * student(obs)  # Algorithm 4, line 8
-        env_ids, start_obs, acts = windows.push(obs, a_exp)
+        if continued:  # this observation was pushed (and its windows taken) by the previous call
+            continued = False
+            env_ids = torch.zeros(0, dtype=torch.long)
+            start_obs, acts = obs[:0], torch.zeros(0, horizon, env.num_actions)
+        else:
+            env_ids, start_obs, acts = windows.push(obs, a_exp)
         slot_of = torch.div(env_ids, per, rounding_mode="floor")
         for s in range(slots):
             if done[s] >= count:

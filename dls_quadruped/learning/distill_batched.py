@@ -26,7 +26,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from dls_quadruped.learning.collect import beta, collect_slots
+from dls_quadruped.learning.collect import SlidingWindows, beta, collect_slots
 from dls_quadruped.learning.dataset import DiskDataset
 from dls_quadruped.learning.distill_config import DistillConfig
 from dls_quadruped.learning.distill_trainer import rows_per_pass
@@ -123,9 +123,11 @@ class SeedGroupTrainer:
         self.datasets = datasets
         self.epoch = 0
         self.history: list[dict] = []
+        self.windows: SlidingWindows | None = None  # carried from epoch to epoch: no warm-up per epoch
 
     def start(self) -> None:
         """Restart the collection schedule: seed k's robots play keys k x robots_per_slot + i."""
+        self.windows = None
         if not self.collects:
             return
         keys = torch.cat([s * self.per_slot + torch.arange(self.per_slot) for s in self.seeds]).to(self.env.device)
@@ -151,10 +153,14 @@ class SeedGroupTrainer:
 
         for s in self.students:
             s.eval()
+        if self.windows is None:
+            obs = self.env.get_observations()["policy"]
+            self.windows = SlidingWindows(self.env.num_envs, obs.shape[1], self.env.num_actions, self.enc.horizon,
+                                          self.stride, obs.device)
         with torch.no_grad():
             info = collect_slots(self.env, self.expert, [lambda a: encode_labels(a, self.enc)] * len(self.seeds),
                                  count, self.enc.horizon, self.stride, sink, beta_value=b,
-                                 student=self._student_actions if b < 1.0 else None)
+                                 student=self._student_actions if b < 1.0 else None, windows=self.windows)
         info["beta"] = b
         return info
 

@@ -1,6 +1,7 @@
 """The distillation experiment scripts run end to end on a tiny scale and write their tables.
 
-The tiny task ends episodes after 0.5 s; one run per script (``--only``), one epoch, 2 robots.
+The tiny task ends episodes after 1 s; one run per script (``--only``), two epochs, two seeds of
+2 robots each.
 """
 
 from __future__ import annotations
@@ -21,14 +22,14 @@ from experiments import (
     table13_encodings,
 )
 
-TINY_SCALE = {"train": {"epochs": 2, "datapoints_per_epoch": 30, "dataset_cap": 1000},
-              "collect": {"num_envs": 2}, "evaluate": {"test_datapoints": 10, "sp_episodes": 2}}
+TINY_SCALE = {"seeds": 2, "train": {"epochs": 2, "datapoints_per_epoch": 30, "dataset_cap": 1000},
+              "collect": {"num_envs": 2}, "evaluate": {"test_datapoints": 10, "test_episodes": 2, "sp_episodes": 2}}
 
 
 @pytest.fixture
 def tiny(tmp_path, monkeypatch):
     task = tmp_path / "tiny.yaml"
-    task.write_text(yaml.safe_dump({"inherit": str(TASKS_DIR / "base.yaml"), "env": {"episode_length_s": 0.5},
+    task.write_text(yaml.safe_dump({"inherit": str(TASKS_DIR / "base.yaml"), "env": {"episode_length_s": 1.0},
                                     "scene": {"num_workers": 0}}))
     monkeypatch.setattr(distill_common, "TASK", str(task))
     monkeypatch.setitem(distill_common.SCALES, "small", TINY_SCALE)
@@ -51,10 +52,11 @@ def test_table11_writes_our_numbers_beside_the_thesis(tiny, monkeypatch):
     rows = read_csv(out / "table.csv")
     assert len(rows) == 1 and rows[0]["Algorithm"] == "naive" and rows[0]["thesis SP"] == "55.62 %"
     assert rows[0]["SP episodes"] == "2" and rows[0]["train datapoints"] == "60"  # naive: 2 epochs x 30 at once
+    assert rows[0]["seeds"] == "2" and len(rows[0]["SP per seed [%]"].split(" / ")) == 2
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["runs"]["naive_first-spline"]["resolved"]["algorithm"] == "naive"
     assert (out / "table11.png").stat().st_size > 0 and "Table 11" in (out / "table.md").read_text()
-    assert not (out / "runs" / "naive_first-spline" / "dataset").exists()  # datasets are not kept by default
+    assert not list((out / "runs" / "naive_first-spline").glob("seed_*"))  # datasets are not kept by default
     # a finished run is not trained again
     mtime = (out / "runs" / "naive_first-spline" / "result.pt").stat().st_mtime
     run_script(monkeypatch, table11_naive_vs_dagger, out, "naive_first-spline")

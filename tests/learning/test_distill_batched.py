@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from dls_quadruped.learning.collect import collect_slots
+from dls_quadruped.learning.collect import SlidingWindows, collect_slots
 from dls_quadruped.learning.dataset import DiskDataset
 from dls_quadruped.learning.distill_batched import (
     SeedGroupTrainer,
@@ -105,3 +105,19 @@ def test_slots_get_their_own_robots_windows():
         torch.testing.assert_close(labels[:, 0], first)
     torch.testing.assert_close(env.applied[0], 0.5 * tag_expert(torch.stack(
         [torch.arange(4.0), torch.zeros(4), torch.zeros(4)], 1)))
+
+
+def test_a_continued_collection_is_one_long_one():
+    """Two calls of 8 datapoints on one ring (4 robots: two steps of windows each) give the windows of
+    one call of 16: the second call does not push the step the first one ended on again."""
+    def run(counts):
+        env = ScriptedEnv([9, 9, 30, 30])
+        ring = SlidingWindows(4, 3, 28, horizon=3, stride=2)
+        got = []
+        for c in counts:
+            collect_slots(env, tag_expert, [lambda a: a[..., 0]], c, horizon=3, stride=2,
+                          sink=lambda s, o, lab: got.append(lab), windows=ring)
+        return torch.cat(got)
+
+    torch.testing.assert_close(run([8, 8]), run([16]))
+    assert len(run([8, 8])) == 16
