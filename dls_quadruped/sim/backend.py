@@ -244,13 +244,23 @@ class VecSim:
 
     # ------------------------------------------------------------------ plumbing
     def _init_commands(self) -> None:
-        """Default references: standing on all four legs, weight shared, feet where they are."""
+        """Default references for every robot (:meth:`_standing_references`) and the home reset pose."""
+        self._standing_references(slice(None))
+        self.buf.command["reset_qpos"][:] = torch.from_numpy(self.model.key_qpos[0])
+
+    def _standing_references(self, rows: slice | torch.Tensor) -> None:
+        """References of ``rows``: standing on all four legs (f = 0, d = 1), the weight shared, no foothold.
+
+        Also what a reset robot holds until its first ``set_references``: the state published at the
+        reset reads the duty (``contact_cmd = phase < d``), so a robot must not start its episode with
+        the last duty of its previous one.
+        """
         c = self.buf.command
-        c["freq"][:] = 0.0
-        c["duty"][:] = 1.0
-        c["F_w"][:] = 0.0
-        c["F_w"][..., 2] = self.total_weight() / 4.0
-        c["reset_qpos"][:] = torch.from_numpy(self.model.key_qpos[0])
+        c["freq"][rows] = 0.0
+        c["duty"][rows] = 1.0
+        c["p_td_w"][rows] = 0.0
+        c["F_w"][rows] = 0.0
+        c["F_w"][rows, :, 2] = self.total_weight() / 4.0
 
     def total_weight(self) -> float:
         """m g of the robot in this model [N]."""
@@ -411,6 +421,7 @@ class VecSim:
         c["reset_qvel"][ids] = qvel
         c["reset_phase"][ids] = self._check_rows("phase", phase, n, (4,))
         c["wrench_w"][ids] = 0.0
+        self._standing_references(ids)
         self._dispatch("reset", ids)
         return self._refresh_state()
 
