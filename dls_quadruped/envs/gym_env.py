@@ -1,0 +1,270 @@
+"""gymnasium views of ``LocomotionEnv``: every task registered, a ``VectorEnv`` and a one-robot ``Env``.
+
+    import gymnasium
+    import dls_quadruped.envs.gym_env  # registers dls_quadruped/Base-v0, Rough-v0, Speed-v0, Climb-v0, ...
+
+    envs = gymnasium.make_vec("dls_quadruped/Rough-v0", num_envs=1024, device="cpu", seed=0)
+    obs, info = envs.reset(seed=0)                    # {"policy": (1024, 259) tensor}
+    obs, reward, terminated, truncated, info = envs.step(actions)   # actions: (1024, 28)
+
+A thin adapter: ``LocomotionEnv`` simulates, resets, rewards and observes; this file only translates
+its ``(obs, reward, dones, extras)`` into gymnasium's five values and keeps the episode sums.
+
+Arrays: torch tensors on the env's device, in and out (the env is torch end to end, and on a GPU a
+numpy view would copy every observation to the host and every action back). For numpy, wrap with
+gymnasium's own converter: ``gymnasium.wrappers.vector.ArrayConversion(envs, env_xp=torch,
+target_xp=numpy)`` (needs ``array-api-compat``, installed with this package). The one-robot
+``gymnasium.Env`` view returns numpy, as single-environment code expects.
+
+Autoreset: ``AutoresetMode.SAME_STEP``, as the env does it: a robot whose episode ends is reset
+inside that ``step``; the returned observation is its new episode's first, ``terminated`` /
+``truncated`` say how the old one ended (a fall / the time limit), and
+``info["final_obs"]`` (a dict of (N, D) tensors, rows valid where ``info["_final_obs"]``) holds the
+old episode's last observation, for bootstrapping a truncated episode. It is computed just before
+the reset without consuming any random number, so the episode schedule is the native env's.
+
+``info``: ``"time_outs"`` (N,) bool (= truncated, rsl-rl's name), ``"log"`` (the env's episode
+means, curriculum values), and where an episode ended, ``"episode"`` = {"r": return, "l": length
+[steps], "t": wall time [s]} with mask ``"_episode"``, as ``gymnasium.wrappers.vector.
+RecordEpisodeStatistics`` writes it (with ``episode_statistics=False`` that wrapper can write it
+instead; it refuses to overwrite the key).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+from typing import Any, ClassVar
+
+import gymnasium
+import numpy as np
+import torch
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
+
+from dls_quadruped.envs.config import TaskConfig, available_tasks, load_task
+from dls_quadruped.envs.gym_spaces import action_space, observation_space
+
+NAMESPACE = "dls_quadruped"
+
+
+def task_id(task: str) -> str:
+    """gymnasium id of a task file name: ``climb_finetune`` -> ``dls_quadruped/ClimbFinetune-v0``."""
+    name = "".join(part.capitalize() for part in re.split(r"[_-]", task))
+    return f"{NAMESPACE}/{name}-v0"
+
+
+def _task_config(task: str | Path | TaskConfig, num_workers: int | None, overrides: dict | None) -> TaskConfig | str:
+    if isinstance(task, TaskConfig):
+        if num_workers is not None or overrides:
+            raise ValueError("num_workers and overrides apply to a task name or file, not to a loaded TaskConfig")
+        return task
+    extra = dict(overrides or {})
+    if num_workers is not None:
+        extra["scene"] = {**extra.get("scene", {}), "num_workers": num_workers}
+    return load_task(task, overrides=extra or None)
+
+
+class LocomotionVectorEnv(gymnasium.vector.VectorEnv):
+    """``num_envs`` robots of one task as a gymnasium ``VectorEnv`` (module docstring).
+
+    Args:
+        num_envs: robots N (``gymnasium.make_vec``'s argument; None: the task's ``env.num_envs``).
+        task: task name, YAML path or loaded ``TaskConfig``.
+        device: torch device of every tensor in and out.
+        seed: the env's seed (overrides ``env.seed``); ``reset(seed=...)`` restarts it.
+        num_workers: simulator worker processes (overrides ``scene.num_workers``; 0: in-process).
+        overrides: dict deep-merged onto the task (as ``load_task``'s).
+        final_obs: compute ``info["final_obs"]`` (one extra observation pass on steps with a reset).
+        episode_statistics: write ``info["episode"]`` (off to use ``RecordEpisodeStatistics``).
+        env: an existing ``LocomotionEnv`` to view instead of building one (the other arguments
+            except the last three are then ignored).
+
+    Attributes:
+        env: the ``LocomotionEnv``.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int | None = None, task: str | Path | TaskConfig = "base", device: str = "cpu",
+                 seed: int | None = None, num_workers: int | None = None, overrides: dict | None = None,
+                 final_obs: bool = True, episode_statistics: bool = True, env=None):
+        if env is None:
+            from dls_quadruped.envs.env import LocomotionEnv
+
+            env = LocomotionEnv(_task_config(task, num_workers, overrides), num_envs=num_envs, device=device,
+                                seed=seed, verbose=False)
+        self.env = env
+        self.num_envs = env.num_envs
+        self.device = env.device
+        self.single_observation_space = observation_space(env)
+        self.single_action_space = action_space(env.action_manager.cfg)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.episode_statistics = episode_statistics
+        self._returns = torch.zeros(self.num_envs, dtype=torch.float64, device=self.device)  # float64: as numpy's sum
+        self._lengths = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
+        self._start_s = torch.full((self.num_envs,), time.perf_counter(), dtype=torch.float64)
+        self._final_obs: dict[str, torch.Tensor] | None = None
+        self._stepping = False
+        if final_obs:
+            self._observe_before_resets()
+
+    # ------------------------------------------------------------------ final observation
+    def _observe_before_resets(self) -> None:
+        """Wrap the env's ``_reset_idx`` (on this instance only) to observe the robots before a reset in step."""
+        reset_idx = self.env._reset_idx
+
+        def observe_then_reset(env_ids: torch.Tensor, *args: Any, **kwargs: Any) -> None:
+            if self._stepping:
+                self._final_obs = self._observe_without_drawing()
+            reset_idx(env_ids, *args, **kwargs)
+
+        self.env._reset_idx = observe_then_reset
+
+    def _observe_without_drawing(self) -> dict[str, torch.Tensor]:
+        """Every group's observation now, leaving the episode schedule's counters and torch's RNG as they were
+        (noise is drawn from the schedule: a second draw would shift every later one)."""
+        schedule = self.env.schedule.state_dict()
+        devices = [self.device] if self.device.type == "cuda" else []
+        with torch.random.fork_rng(devices=devices):
+            obs = self.env.observation_manager.compute()
+        self.env.schedule.load_state_dict(schedule)
+        return {group: value.clone() for group, value in obs.items()}
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """Start a new episode on every robot.
+
+        Args:
+            seed: restart the env's episode schedule with this seed (the same seed, the same
+                episodes: commands, terrain tiles, events, observation noise).
+            options: ``{"episode_keys": (N,) ints}`` (with a seed): robot i plays the episodes of key
+                ``episode_keys[i]`` (``LocomotionEnv.reset``); nothing else.
+        """
+        super().reset(seed=seed)
+        options = dict(options or {})
+        keys = options.pop("episode_keys", None)
+        if options:
+            raise ValueError(f"unknown reset options {sorted(options)}; allowed: ['episode_keys'] (with a seed)")
+        if keys is not None:
+            keys = torch.as_tensor(keys)
+        obs, _ = self.env.reset(seed=seed, episode_keys=keys) if seed is not None or keys is not None \
+            else self.env.reset()
+        self._returns.zero_()
+        self._lengths.zero_()
+        self._start_s.fill_(time.perf_counter())
+        return dict(obs.items()), {}
+
+    def step(self, actions: torch.Tensor | np.ndarray
+             ) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
+        """One policy step of every robot.
+
+        Args:
+            actions: (N, 28) raw latent actions (tensor or array; validated by ``LocomotionEnv.check_actions``).
+
+        Returns:
+            obs {group: (N, D)}, reward (N,) float32, terminated (N,) bool, truncated (N,) bool, info.
+        """
+        self._final_obs = None
+        self._stepping = True
+        try:
+            obs, reward, dones, extras = self.env.step(actions)
+        finally:
+            self._stepping = False
+        dones = dones.bool()
+        truncated = extras["time_outs"].bool()
+        terminated = dones & ~truncated
+        self._returns += reward.double()
+        self._lengths += 1
+        info: dict[str, Any] = {"time_outs": truncated.clone(), "log": dict(extras.get("log", {}))}
+        if dones.any():
+            now = time.perf_counter()
+            if self.episode_statistics:
+                zero = torch.zeros((), dtype=torch.float64, device=self.device)
+                info["episode"] = {"r": torch.where(dones, self._returns, zero),
+                                   "l": torch.where(dones, self._lengths, 0),
+                                   "t": torch.where(dones, (now - self._start_s).to(self.device), zero)}
+                info["_episode"] = dones.clone()
+            if self._final_obs is not None:
+                info["final_obs"], info["_final_obs"] = self._final_obs, dones.clone()
+            self._returns[dones] = 0.0
+            self._lengths[dones] = 0
+            self._start_s[dones.cpu()] = now
+        return dict(obs.items()), reward, terminated, truncated, info
+
+    def close_extras(self, **kwargs: Any) -> None:
+        """Stop the simulator (its worker processes)."""
+        self.env.close()
+
+
+class LocomotionGymEnv(gymnasium.Env):
+    """One robot of a task as a gymnasium ``Env``, numpy in and out (passes ``check_env``).
+
+    A view of a one-robot :class:`LocomotionVectorEnv` (same arguments, without ``num_envs``). When an
+    episode ends, ``step`` returns its last observation; the env has already started the next
+    episode, which the following ``reset()`` (without a seed) hands out instead of resetting again.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": []}
+
+    def __init__(self, task: str | Path | TaskConfig = "base", device: str = "cpu", seed: int | None = None,
+                 num_workers: int | None = None, overrides: dict | None = None):
+        self.vec = LocomotionVectorEnv(1, task, device, seed, num_workers, overrides)
+        self.observation_space = self.vec.single_observation_space
+        self.action_space = self.vec.single_action_space
+        self._next_obs: dict[str, torch.Tensor] | None = None
+
+    @staticmethod
+    def _first(obs: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
+        return {group: value[0].detach().cpu().numpy().copy() for group, value in obs.items()}
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        super().reset(seed=seed)
+        if seed is None and not options and self._next_obs is not None:  # started when the last episode ended
+            obs = self._next_obs
+        else:
+            obs, _ = self.vec.reset(seed=seed, options=options)
+        self._next_obs = None
+        return self._first(obs), {}
+
+    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        """Args: action (28,) raw latent action. Returns obs, reward, terminated, truncated, info
+        (``"time_out"``; at an episode's end ``"episode"`` {"r", "l", "t"})."""
+        action = torch.as_tensor(np.asarray(action, dtype=np.float32))
+        if action.shape != self.action_space.shape:
+            raise ValueError(f"action must have shape {self.action_space.shape}, got {tuple(action.shape)}")
+        obs, reward, terminated, truncated, info = self.vec.step(action[None])
+        out: dict[str, Any] = {"time_out": bool(truncated[0])}
+        if "final_obs" in info:  # the episode ended: hand out its last observation, keep the new one
+            self._next_obs, obs = obs, info["final_obs"]
+        if "episode" in info:
+            out["episode"] = {"r": float(info["episode"]["r"][0]), "l": int(info["episode"]["l"][0]),
+                              "t": float(info["episode"]["t"][0])}
+        return self._first(obs), float(reward[0]), bool(terminated[0]), bool(truncated[0]), out
+
+    def close(self) -> None:
+        self.vec.close()
+
+
+def register_tasks() -> list[str]:
+    """Register every task of ``tasks/`` (not the ``_`` fragments) with gymnasium; returns the ids.
+
+    ``make_vec(id, num_envs=N, **kwargs)`` builds a :class:`LocomotionVectorEnv`, ``make(id, **kwargs)``
+    a :class:`LocomotionGymEnv`; kwargs are their constructor arguments. Idempotent.
+    """
+    ids = []
+    for task in available_tasks():
+        env_id = task_id(task)
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point=f"{__name__}:LocomotionGymEnv",
+                               vector_entry_point=f"{__name__}:LocomotionVectorEnv", kwargs={"task": task},
+                               disable_env_checker=True)  # check_env is run by the tests instead
+        ids.append(env_id)
+    return ids
+
+
+TASK_IDS = register_tasks()
