@@ -18,6 +18,10 @@ setup(
         "numpy>=1.26",
         "matplotlib>=3.8",
         "pyyaml>=6.0",
+        # progress bars with an ETA on a terminal (dls_quadruped/core/progress.py): well kept, no bar written by hand
+        "tqdm>=4.60",
+        # gymnasium's ArrayConversion wrapper (numpy view of the torch gymnasium env, docs/gymnasium.md) needs it
+        "array-api-compat>=1.11",
     ],
     # onnxruntime: the tests run the exported ONNX policies and compare them with the TorchScript ones
     extras_require={"dev": ["pytest>=8", "ruff>=0.5", "onnx>=1.16", "onnxscript>=0.1", "onnxruntime>=1.18"]},

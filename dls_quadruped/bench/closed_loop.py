@@ -31,6 +31,7 @@ from dls_quadruped.closed_loop.__main__ import (
 from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
 from dls_quadruped.closed_loop.runner import run_closed_loop
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.core.progress import progress
 from dls_quadruped.mpc.config import SamplerConfig
 
 
@@ -89,6 +90,8 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--out", type=Path, default=Path("results/bench"))
     args = p.parse_args(argv)
     rows = []
+    bar = progress(total=len(args.threads) * len(args.num_workers) * len(args.robots) * len(args.controllers),
+                   desc="configurations", unit="config")
     for threads in args.threads:
         torch.set_num_threads(threads)
         kernel = kernel_alone(args.samples, args.horizon)
@@ -101,6 +104,8 @@ def main(argv: list[str] | None = None) -> dict:
                     print(f"[bench.closed_loop] {ctrl} B={robots} threads={threads} workers={workers}: "
                           f"{r['robot_seconds_per_second']:.2f} robot-s/s, kernel {100 * r['share']['kernel']:.0f} %, "
                           f"kernel alone (B=1) {1e3 * kernel:.2f} ms", flush=True)
+                    bar.update(1)
+    bar.close()
     import os
 
     res = {"cpu": cpu_model(), "load_avg_at_end": os.getloadavg(), "torch": torch.__version__, "rows": rows}

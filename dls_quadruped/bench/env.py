@@ -30,6 +30,7 @@ from mujoco.batch import Batch
 
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.control.dynamics import LegDynamics
+from dls_quadruped.core.progress import progress
 from dls_quadruped.eval.balance_run import home_state
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.backend import SimConfig, VecSim
@@ -100,7 +101,7 @@ def main() -> None:
     model = mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))
     cores = os.cpu_count() or 1
     rows = []
-    for n in args.sizes:
+    for n in progress(args.sizes, desc="robot counts", unit="size"):
         raw = raw_physics(model, n, args.seconds)
         raw_noself = raw_physics(without_self_collision(model), n, args.seconds)
         loop = loop_physics(model, n, args.seconds)

@@ -32,6 +32,7 @@ import torch
 
 from dls_quadruped.bench.machine import cpu_model
 from dls_quadruped.cli import ArgumentParser, run_cli
+from dls_quadruped.core.progress import progress
 from dls_quadruped.mpc import (
     Refs,
     SamplerConfig,
@@ -129,7 +130,7 @@ def time_cpp_builds(num_samples: int, horizon: int, solves: int, threads: int, w
     threads_before = torch.get_num_threads()
     torch.set_num_threads(threads)
     with mock.patch.object(cpp_kernel, "cpp_costs", timed_kernel):
-        for i in range(warmup + solves):
+        for i in progress(range(warmup + solves), desc=f"solves, {threads} threads", unit="solve", leave=False):
             for v, lib in libs.items():
                 mpc, default, external = runs[v]
                 with mock.patch.object(cpp_kernel, "load", lambda variant="native", lib=lib: lib):

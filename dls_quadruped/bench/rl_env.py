@@ -39,6 +39,7 @@ import torch
 from rsl_rl.runners import OnPolicyRunner
 
 from dls_quadruped.cli import ArgumentParser, run_cli
+from dls_quadruped.core.progress import progress
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.learning.runner import runner_config
@@ -177,6 +178,7 @@ def machine_info() -> dict[str, Any]:
 def run(tasks: list[str], sizes: list[int], ppo_size: int | None, ppo_task: str, steps: int, warmup: int,
         split_size: int | None) -> dict[str, Any]:
     rows, ppo = [], None
+    bar = progress(total=len(tasks) * len(sizes), desc="task x robot count", unit="config")
     for task in tasks:
         for n in sizes:
             cfg = load_task(task)
@@ -200,6 +202,8 @@ def run(tasks: list[str], sizes: list[int], ppo_size: int | None, ppo_task: str,
                 rows.append(row)
             finally:
                 env.close()
+            bar.update(1)
+    bar.close()
     splits = {}
     if split_size:
         for task in tasks:

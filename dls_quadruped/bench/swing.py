@@ -23,6 +23,7 @@ import torch
 
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.control.lowlevel import LowLevelConfig
+from dls_quadruped.core.progress import progress
 from dls_quadruped.mpc.baseline import BaselineConfig, ModelBasedBaseline
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.robots.aliengo import constants as C
@@ -50,7 +51,8 @@ def measure(vx: float = 0.5, seconds: float = 6.0, samples: int = 10_000, bandwi
         controller = sim._shard.controller  # in-process shard (num_workers=0): read its swing reference
         state = sim.reset(torch.arange(1), **home_state(1, seed, 0.0))
         was_swing = np.zeros(4, dtype=bool)
-        for k in range(round(seconds / cfg.sampler.mpc_period)):
+        for k in progress(range(round(seconds / cfg.sampler.mpc_period)), desc=f"v_x {vx:g} m/s", unit="MPC step",
+                          leave=False):
             result, _ = ctrl.step(state, cmd)
             sim.set_references(result.f, result.d, result.foot_target_w, result.force_w)
             for _ in range(decimation):

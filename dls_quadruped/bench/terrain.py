@@ -23,6 +23,7 @@ import numpy as np
 from dls_quadruped.bench.machine import cpu_model
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.core.progress import progress
 from dls_quadruped.envs.config import dataclass_from_dict, load_task
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.terrain import TerrainConfig, build_scene
@@ -57,10 +58,12 @@ def run(task: str, rows: list[int], steps: int) -> dict:
     model, terrain = build_scene(cfg)
     plane = mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))
     result = {"task": task, "ngeom": int(model.ngeom), "plane": step_cost(plane, 0.0, 0.0, 0.0, steps), "tiles": []}
-    for row in rows:
-        for col, kind in enumerate(cfg.types):
-            x, y, z = terrain.tile_origins_w[min(row, terrain.num_rows - 1), col]
-            result["tiles"].append({"type": kind, "row": row, **step_cost(model, x, y, z, steps)})
+    with progress(total=len(rows) * len(cfg.types), desc=f"{task} tiles", unit="tile") as bar:
+        for row in rows:
+            for col, kind in enumerate(cfg.types):
+                x, y, z = terrain.tile_origins_w[min(row, terrain.num_rows - 1), col]
+                result["tiles"].append({"type": kind, "row": row, **step_cost(model, x, y, z, steps)})
+                bar.update(1)
     return result
 
 

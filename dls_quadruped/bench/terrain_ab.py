@@ -26,6 +26,7 @@ import torch
 import dls_quadruped.envs.managers.scene as scene_module
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.core.progress import progress
 from dls_quadruped.envs.env import LocomotionEnv
 
 
@@ -69,7 +70,7 @@ def measure(n: int, rounds: int, steps: int, baseline) -> dict[str, dict[str, fl
             env.reset()
             for _ in range(steps):  # warm-up
                 env.step(torch.randn(n, 28, generator=gen))
-        for _ in range(rounds):
+        for _ in progress(range(rounds), desc=f"N={n} rounds", unit="round", leave=False):
             for name, env in envs.items():
                 t0 = time.perf_counter()
                 for _ in range(steps):

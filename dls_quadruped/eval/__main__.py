@@ -18,6 +18,7 @@ from pathlib import Path
 
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.core.progress import label
 from dls_quadruped.eval.policy import check_policy_file
 from dls_quadruped.eval.scenario import EvalOptions
 from dls_quadruped.eval.scenarios import SCENARIOS
@@ -78,7 +79,8 @@ def main(argv: list[str] | None = None) -> dict:
     opts = EvalOptions(episodes=args.episodes or scenario.default_episodes, seed=args.seed, num_workers=args.num_workers,
                        episode_length_s=args.episode_length_s, device=args.device)
     t0 = time.perf_counter()
-    res = scenario.evaluate(args.policy, opts)
+    with label(f"eval {scenario.name}"):  # every rollout's bar (a line every ~15 s in a log) says whose it is
+        res = scenario.evaluate(args.policy, opts)
     res["wall_s"] = round(time.perf_counter() - t0, 1)
     out = args.out or Path("results/eval") / args.policy.stem
     out.mkdir(parents=True, exist_ok=True)

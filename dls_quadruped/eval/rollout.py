@@ -16,6 +16,8 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
+from dls_quadruped.core.progress import progress
+
 Policy = Callable[[TensorDict], torch.Tensor]
 """Observation groups (B, D) -> raw actions (B, A)."""
 VelocityFn = Callable[[object], torch.Tensor]
@@ -73,7 +75,7 @@ def run_episodes(env, policy: Policy, num_steps: int | None = None, velocity: Ve
     fell = torch.zeros(n, dtype=torch.bool)
     length = torch.full((n,), steps, dtype=torch.long)
     obs = env.get_observations()
-    with torch.inference_mode():
+    with torch.inference_mode(), progress(total=steps, desc=f"{n} episodes", unit="step", leave=False) as bar:
         for k in range(steps):
             obs, rew, dones, extras = env.step(policy(obs))
             done = dones.bool().cpu()
@@ -86,6 +88,8 @@ def run_episodes(env, policy: Policy, num_steps: int | None = None, velocity: Ve
             fell |= ended & ~time_out
             length[ended] = k + 1
             alive &= ~done
+            bar.set_postfix_str(f"{100.0 * float(alive.float().mean()):.0f} % still up", refresh=False)
+            bar.update(1)
     return Traces(command=command, velocity=vel, valid=valid, reward=reward, fell=fell.numpy(),
                   length=length.numpy(), step_dt=float(env.step_dt))
 
@@ -128,7 +132,7 @@ def record_episodes(env, policy: Policy, probes: dict[str, Probe], num_steps: in
     fell = torch.zeros(n, dtype=torch.bool)
     length = torch.full((n,), steps, dtype=torch.long)
     obs = env.get_observations()
-    with torch.inference_mode():
+    with torch.inference_mode(), progress(total=steps, desc=f"{n} episodes", unit="step", leave=False) as bar:
         for k in range(steps):
             obs, _, dones, extras = env.step(policy(obs))
             done = dones.bool().cpu()
@@ -143,5 +147,7 @@ def record_episodes(env, policy: Policy, probes: dict[str, Probe], num_steps: in
             fell |= ended & ~time_out
             length[ended] = k + 1
             alive &= ~done
+            bar.set_postfix_str(f"{100.0 * float(alive.float().mean()):.0f} % still up", refresh=False)
+            bar.update(1)
     return Recording(command=command, probes=rec, valid=valid, fell=fell.numpy(), length=length.numpy(),
                      step_dt=float(env.step_dt))
