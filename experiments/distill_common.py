@@ -130,6 +130,14 @@ def _uncommitted() -> list[str]:
     return [line.strip() for line in out.splitlines() if line.strip()]
 
 
+def select(runs: list[Run], only: list[str] | None) -> list[Run]:
+    """The runs named in ``only`` (all if None), with the runs whose data they train on, in order."""
+    if only is None:
+        return list(runs)
+    names = set(only) | {r.data_from for r in runs if r.name in only and r.data_from}
+    return [r for r in runs if r.name in names]
+
+
 def scale_config(scale: str) -> dict:
     """The scale's config overrides (without ``seeds``)."""
     return {k: v for k, v in SCALES[scale].items() if k != "seeds"}
@@ -162,6 +170,9 @@ def train_runs(runs: list[Run], args: argparse.Namespace) -> dict[str, dict]:
     out: dict[str, dict] = {}
     done = {r.name for r in runs if (args.out / "runs" / r.name / "result.pt").is_file()}
     todo = [r for r in runs if r.name not in done]
+    missing = {r.data_from for r in todo if r.data_from} - {r.name for r in runs}
+    if missing:
+        raise ValueError(f"runs {sorted(missing)} give data to others but are not in the list (use select())")
     for r in todo:  # a dependant needs its source's datasets: retrain the source if they are gone
         if r.data_from and r.data_from in done and _datasets(args.out / "runs" / r.data_from, seeds) is None:
             done.discard(r.data_from)

@@ -22,6 +22,7 @@ from experiments.distill_common import (
     mse_cell,
     parse_args,
     seeds_cell,
+    select,
     sp_cell,
     train_runs,
     write_config,
@@ -75,7 +76,7 @@ def figure(ev: dict, path: Path) -> None:
 def main() -> None:
     t0 = time.monotonic()
     args = parse_args(__doc__, "fig24_selector")
-    rs = [r for r in runs() if args.only is None or r.name in args.only]
+    rs = select(runs(), args.only)
     trained = train_runs(rs, args)
     t_train = time.monotonic() - t0
     ev = evaluate(trained, args)

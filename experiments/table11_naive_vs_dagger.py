@@ -25,6 +25,7 @@ from experiments.distill_common import (
     Run,
     evaluate,
     parse_args,
+    select,
     sp_cell,
     summary_row,
     train_runs,
@@ -84,7 +85,7 @@ def figure(rows: list[dict], path: Path) -> None:
 def main() -> None:
     t0 = time.monotonic()
     args = parse_args(__doc__, "table11_naive_vs_dagger")
-    rs = [r for r in runs(args.scale) if args.only is None or r.name in args.only]
+    rs = select(runs(args.scale), args.only)
     trained = train_runs(rs, args)
     t_train = time.monotonic() - t0
     ev = evaluate(trained, args)

@@ -21,6 +21,7 @@ from experiments.distill_common import (
     Run,
     evaluate,
     parse_args,
+    select,
     summary_row,
     train_runs,
     write_config,
@@ -96,7 +97,7 @@ def figure(rows: list[dict], path: Path) -> None:
 def main() -> None:
     t0 = time.monotonic()
     args = parse_args(__doc__, "table13_encodings")
-    rs = [r for r in runs() if args.only is None or r.name in args.only]
+    rs = select(runs(), args.only)
     trained = train_runs(rs, args)
     t_train = time.monotonic() - t0
     ev = evaluate(trained, args)

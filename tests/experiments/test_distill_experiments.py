@@ -61,6 +61,12 @@ def test_table11_writes_our_numbers_beside_the_thesis(tiny, monkeypatch):
     mtime = (out / "runs" / "naive_first-spline" / "result.pt").stat().st_mtime
     run_script(monkeypatch, table11_naive_vs_dagger, out, "naive_first-spline")
     assert (out / "runs" / "naive_first-spline" / "result.pt").stat().st_mtime == mtime
+    # a naive variant trains on the naive run's data (retrained: its datasets were not kept)
+    run_script(monkeypatch, table11_naive_vs_dagger, out, "naive-dagger-steps_first-spline")
+    variant = {r["schedule"]: r for r in read_csv(out / "table.csv")}["DAgger's steps"]
+    assert variant["train datapoints"] == "60" and variant["gradient steps"] == str(1 + 1)  # ceil(30/64) + ceil(60/64)
+    assert json.loads((out / "config.json").read_text())["runs"]["naive-dagger-steps_first-spline"]["data_from"] \
+        == "naive_first-spline"
 
 
 @pytest.mark.slow
@@ -77,8 +83,13 @@ def test_table12_and_table13_rows(tiny, monkeypatch):
     run_script(monkeypatch, table12_batch_size, tiny / "t12", "batch_512")
     row = read_csv(tiny / "t12" / "table.csv")[0]
     assert row["batch"] == "512" and row["gradient steps"] == "2"  # 30 then 60 rows: one step per pass
-    run_script(monkeypatch, table13_encodings, tiny / "t13", "12_first-spline_dt0.02_H10")
-    row = read_csv(tiny / "t13" / "table.csv")[0]
-    assert (row["N°"], row["Dim."], row["thesis SP"]) == ("12", "64", "98.7")
+    monkeypatch.setattr(sys, "argv", [table13_encodings.__file__, "--scale", "small", "--out", str(tiny / "t13"),
+                                      "--only", "10_spline-spline_dt0.02_H10", "16_spline-spline_dt0.02_H15"])
+    table13_encodings.main()
+    rows = read_csv(tiny / "t13" / "table.csv")
+    assert [(r["N°"], r["Dim."], r["thesis SP"]) for r in rows] == [("10", "88", "97.43"), ("16", "88", "95.6")]
+    # rows 10 and 16 once printed one MSE: the same test states, but each row's own labels and students
+    assert rows[0]["MSE per seed"] != rows[1]["MSE per seed"]
+    assert rows[0]["test windows"] == rows[1]["test windows"] == "10"
     assert len(table13_encodings.runs()) == 36
     assert [r.row["Dim."] for r in table13_encodings.runs()][:6] == [108, 96, 100, 88, 76, 64]
