@@ -162,10 +162,12 @@ def paired(results: dict, a: str, b: str, key: str, digits: int = 1, relative: b
 
 
 def survival(s: dict) -> str:
-    """'rate [95 % CI] (n=episodes x seeds)': the interval from the two-level bootstrap over episodes and
-    seeds where there are seeds (robots of one episode are not independent), else Wilson's."""
+    """'rate [95 % CI] (n=episodes x seeds)': with seeds, Wilson's interval with the episodes as the trials
+    (the copies of one episode are not independent), else Wilson's over the episodes."""
+    from dls_quadruped.eval.metrics import wilson_interval
+
     v = s["survival"]
-    lo, hi = v.get("ci95_bootstrap", v["ci95"]) if s.get("replicas", 1) > 1 else v["ci95"]
+    lo, hi = wilson_interval(v["rate"] * s["episodes"], s["episodes"]) if s.get("replicas", 1) > 1 else v["ci95"]
     n = f"{s['episodes']}x{s['replicas']}" if s.get("replicas", 1) > 1 else f"{v['n']}"
     return f"{100 * v['rate']:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] (n={n})"
 

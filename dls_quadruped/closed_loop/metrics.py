@@ -94,7 +94,10 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
         "replicas": replicas,
         "survival": {"rate": survived / n if n else float("nan"), "survived": survived, "n": n,
                      "ci95": list(M.wilson_interval(survived, n)),
-                     "ci95_bootstrap": M.bootstrap_ci(units["survived"], np.nanmean)},
+                     "ci95_bootstrap": M.bootstrap_ci(units["survived"], np.nanmean),
+                     # copies of one episode are not independent: Wilson's interval with the E episodes as
+                     # the trials (conservative, and unlike the bootstrap not a point at 0 % or 100 %)
+                     "ci95_episodes": list(M.wilson_interval(survived / n * episodes, episodes)) if n else [np.nan] * 2},
         "rl_reward_episode_mean": M.mean_ci(np.nanmean(traces.reward, axis=0)),
         "per_episode": {k: v.tolist() for k, v in units.items()},
     }

@@ -104,5 +104,8 @@ def test_state_only_rollout_cost_and_sampler_replicas() -> None:
     assert s["rollout_cost"]["median"] == 21.0 and s["rollout_cost_full"]["median"] == 25.0
     np.testing.assert_allclose(s["horizon_cost"][0]["median"], 2.5 - 0.4, rtol=1e-6)
     assert s["per_episode"]["survived"] == [[1.0, 1.0], [0.0, 1.0]] and s["survival"]["rate"] == 0.75
+    from dls_quadruped.eval.metrics import wilson_interval
+
+    assert s["survival"]["ci95_episodes"] == list(wilson_interval(1.5, 2))  # 75 % of 2 independent episodes
     with pytest.raises(ValueError, match="replicas must divide"):
         summarize(tr, replicas=3)
