@@ -91,7 +91,7 @@ def test_action_box_by_hand_and_against_the_clip():
 
 
 def test_observations_stay_in_their_space_with_noise_and_large_actions():
-    envs = LocomotionVectorEnv(6, "rough", overrides=ROUGH_SMALL, seed=3)
+    envs = LocomotionVectorEnv(6, "rough", overrides=ROUGH_SMALL, seed=3, final_obs="all")
     try:
         box = envs.single_observation_space["policy"]
         names = [t.name for t in envs.env.observation_manager.groups["policy"]]
@@ -117,7 +117,7 @@ def test_observations_stay_in_their_space_with_noise_and_large_actions():
 
 def test_the_view_steps_exactly_as_the_native_env():
     native = LocomotionEnv(load_task("rough", overrides=ROUGH_SMALL), num_envs=4, seed=5, verbose=False)
-    view = LocomotionVectorEnv(4, "rough", overrides=ROUGH_SMALL, seed=5)
+    view = LocomotionVectorEnv(4, "rough", overrides=ROUGH_SMALL, seed=5, final_obs="all")
     try:
         gen = torch.Generator().manual_seed(1)
         obs_n, _ = native.reset(seed=5)
@@ -131,7 +131,7 @@ def test_the_view_steps_exactly_as_the_native_env():
             assert torch.equal(dones_n.bool(), term_v | trunc_v)
             assert torch.equal(extras_n["time_outs"].bool(), trunc_v)
             ended += int(dones_n.sum())
-        assert ended > 0  # the final observations were computed on the way, and changed nothing
+        assert ended > 0  # final observations of every fall were computed on the way, and changed nothing
     finally:
         native.close()
         view.close()
@@ -223,5 +223,15 @@ def test_reset_seed_replays_and_bad_options_are_named():
         assert torch.equal(keys["policy"][0], keys["policy"][1])  # one episode key: the same noise and command
         with pytest.raises(ValueError, match=r"unknown reset options \['reset_mask'\]; allowed: \['episode_keys'\]"):
             envs.reset(options={"reset_mask": np.ones(2, bool)})
+        gen = torch.Generator().manual_seed(5)
+        for _ in range(100):  # falls, no time-out: by default no final observation (nothing to bootstrap)
+            _, _, terminated, truncated, info = envs.step(_actions(gen, 2, scale=3.0))
+            assert not truncated.any()
+            if terminated.any():
+                assert "final_obs" not in info and info["_episode"].any()
+                break
+        assert terminated.any()
     finally:
         envs.close()
+    with pytest.raises(ValueError, match=r"final_obs must be one of \['truncated', 'all', 'none'\], got 'yes'"):
+        LocomotionVectorEnv(1, "base", final_obs="yes")
