@@ -107,6 +107,16 @@ def _close_running() -> None:
 atexit.register(_close_running)
 
 
+def _reply(conn: Any, message: tuple) -> bool:
+    """Send ``message`` to the parent; False when it is gone or stopped listening (the worker then ends
+    quietly: e.g. close() after another worker died hangs up before this worker's last answer arrives)."""
+    try:
+        conn.send(message)
+    except (BrokenPipeError, ConnectionResetError, EOFError, OSError):
+        return False
+    return True
+
+
 def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: SimConfig) -> None:
     """Worker process loop: execute commands on one shard until 'close' (or until the parent is gone)."""
     # Ctrl-C in a terminal and a SIGTERM to the process group reach the workers too; the trainer
@@ -116,9 +126,10 @@ def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: 
     torch.set_num_threads(1)
     try:
         shard = Shard(model, buffers, cfg.control, nthread=1)
-        conn.send(("ok", None))
     except Exception as err:  # report construction errors to the parent instead of hanging it
-        conn.send(("error", repr(err)))
+        _reply(conn, ("error", repr(err)))
+        return
+    if not _reply(conn, ("ok", None)):
         return
     while True:
         try:
@@ -126,13 +137,15 @@ def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: 
         except (EOFError, OSError):  # the parent died or closed the pipe: nothing left to serve
             return
         if cmd == "close":
-            conn.send(("ok", None))
+            _reply(conn, ("ok", None))
             return
         try:
             _execute(shard, cmd, arg)
-            conn.send(("ok", None))
+            answer = ("ok", None)
         except Exception as err:
-            conn.send(("error", f"{cmd}: {err!r}"))
+            answer = ("error", f"{cmd}: {err!r}")
+        if not _reply(conn, answer):
+            return
 
 
 def _process_state(pid: int) -> str:
