@@ -101,3 +101,32 @@ def test_the_probe_sees_what_python_dash_m_shows(probed):
                               text=True, timeout=300, check=False, env={**_env(), "COLUMNS": "100"})
         seen = probed["dls_quadruped.eval"][index]
         assert (real.returncode, real.stdout, real.stderr) == (seen["status"], seen["stdout"], seen["stderr"])
+
+
+@pytest.mark.parametrize(("device", "message"), [
+    ("cpux", "argument --device: unknown device 'cpux'; use cpu, cuda or cuda:<index>"),
+    ("mps", "argument --device: unsupported device 'mps'; use cpu, cuda or cuda:<index>"),
+])
+def test_a_device_this_machine_lacks_is_one_line(capsys, device, message):
+    from dls_quadruped.cli import run_cli
+    from dls_quadruped.eval import __main__ as eval_main
+
+    with pytest.raises(SystemExit) as exit_:
+        run_cli(eval_main.main, ["--policy", "p.pt", "--device", device])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert exit_.value.code == 2 and len(lines) == 1 and message in lines[0], lines
+
+
+def test_cuda_is_refused_where_there_is_none(capsys):
+    import torch
+
+    from dls_quadruped.cli import run_cli
+    from dls_quadruped.eval import __main__ as eval_main
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA GPU")
+    with pytest.raises(SystemExit) as exit_:
+        run_cli(eval_main.main, ["--policy", "p.pt", "--device", "cuda"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert exit_.value.code == 2 and len(lines) == 1 and "argument --device: cuda: " in lines[0], lines
+    assert lines[0].endswith("this torch build has no CUDA; use cpu (see --help)")

@@ -16,7 +16,7 @@ import argparse
 import time
 from pathlib import Path
 
-from dls_quadruped.cli import ArgumentParser, run_cli
+from dls_quadruped.cli import ArgumentParser, run_cli, torch_device
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.core.progress import label
 from dls_quadruped.eval.policy import check_policy_file
@@ -36,7 +36,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--num-workers", type=int, default=-1, help="simulator worker processes (-1: one per core)")
     p.add_argument("--episode-length-s", type=float, default=None, help="override the task's episode length [s]")
-    p.add_argument("--device", default="cpu")
+    p.add_argument("--device", type=torch_device, default="cpu", help="cpu, cuda or cuda:<index>")
     p.add_argument("--out", type=Path, default=None, help="output folder (default results/eval/<policy stem>)")
     args = p.parse_args(argv)
     if args.episodes is not None and args.episodes < 1:
