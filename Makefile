@@ -14,7 +14,7 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-closed-loop lint clean
+.PHONY: install test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-closed-loop bench-gym lint clean
 
 $(STAMP): setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -60,6 +60,10 @@ bench-mpc: $(STAMP)
 
 bench-rl: $(STAMP)
 	$(PY) -m dls_quadruped.bench.rl_env --out $(OUT)/bench
+
+# the gymnasium view's cost beside the native env (rough, N = 1024; docs/gymnasium.md "Cost"), not part of `make bench`
+bench-gym: $(STAMP)
+	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.bench.gym_env --out $(OUT)/bench
 
 bench-closed-loop: $(STAMP)
 	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.bench.closed_loop --out $(OUT)/bench
