@@ -127,7 +127,7 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
         summary = summarize(traces, replicas=traces.replicas)
         summary.update({"cell": cell.name, "student": str(student) if student else None, "row": cell.row,
                         "sampler": cell.sampler, "optimise": list(cell.optimise), "vx": cell.vx,
-                        "naive_share": cell.naive_share,
+                        "naive_share": cell.naive_share, "git_commit": _commit(),
                         "seconds_wall": time.monotonic() - t0})
         write_json(summary, path, indent=1)
         out[cell.name] = summary
@@ -172,12 +172,17 @@ def survival(s: dict) -> str:
     return f"{100 * v['rate']:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] (n={n})"
 
 
-def write_config(args: argparse.Namespace, cells: list[Cell], extra: dict | None = None) -> None:
+def _commit() -> str:
+    """The repository's HEAD commit (each cell records the code it ran with), or "unknown"."""
     try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
-                                check=True).stdout.strip()
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
+                              check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
-        commit = "unknown"
+        return "unknown"
+
+
+def write_config(args: argparse.Namespace, cells: list[Cell], extra: dict | None = None) -> None:
+    commit = _commit()
     from dls_quadruped.bench.machine import cpu_model
 
     wall = sum(r.get("seconds_wall", 0.0) for r in (extra or {}).pop("results", {}).values())
