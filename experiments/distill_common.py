@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dls_quadruped.cli import ArgumentParser
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.learning.dataset import DiskDataset
 from dls_quadruped.learning.distill import distill_task, load_expert
@@ -102,7 +103,7 @@ def merge(base: dict, over: dict) -> dict:
 
 
 def parse_args(description: str, name: str) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)  # one-line errors
     p.add_argument("--scale", choices=sorted(SCALES), default="small")
     p.add_argument("--out", type=Path, default=REPO / "results" / "experiments" / name)
     p.add_argument("--expert", default=str(REPO / "docs" / "policies" / "base_actor.pt"))

@@ -31,6 +31,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from dls_quadruped.cli import ArgumentParser
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.scenario import EvalOptions
 from dls_quadruped.eval.scenarios import SCENARIOS
@@ -51,7 +52,7 @@ SCALES: dict[str, dict] = {
 
 
 def parse_args(description: str, name: str, tasks: tuple[str, ...] = TASKS, argv: list[str] | None = None):
-    p = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)  # one-line errors
     p.add_argument("--scale", choices=sorted(SCALES), default="small")
     p.add_argument("--out", type=Path, default=REPO / "results" / "experiments" / name)
     p.add_argument("--policy-dir", type=Path, default=POLICY_DIR, help="folder of <task>_actor.pt")

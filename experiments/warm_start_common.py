@@ -41,6 +41,7 @@ import json
 import numpy as np
 import torch
 
+from dls_quadruped.cli import ArgumentParser
 from dls_quadruped.closed_loop.__main__ import commands, run_controllers
 from dls_quadruped.closed_loop.controllers import ControllerConfig
 from dls_quadruped.closed_loop.metrics import summarize
@@ -69,7 +70,7 @@ class Cell:
 
 
 def parse_args(description: str, name: str) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)  # one-line errors
     p.add_argument("--scale", choices=sorted(SCALES), default="small")
     p.add_argument("--out", type=Path, default=REPO / "results" / "experiments" / name)
     p.add_argument("--students", type=Path, default=REPO / "results" / "experiments" / "students",

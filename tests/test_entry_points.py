@@ -20,12 +20,6 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 BAD_FLAG = "--no-such-flag"
-EXPERIMENTS_XFAIL = pytest.mark.xfail(
-    strict=True, reason="experiments/{rl,distill,warm_start}_common.py build plain argparse parsers (usage + error, "
-                        "4-7 lines); owned by another engineer today, the fix is dls_quadruped.cli.ArgumentParser: "
-                        "remove this mark with it")
-
-
 def _has_main_block(path: Path) -> bool:
     """A top-level ``if __name__ == "__main__":`` in the file's code (not in a docstring)."""
     for node in ast.parse(path.read_text()).body:
@@ -76,8 +70,7 @@ def test_every_known_entry_point_is_found():
     assert "dls_quadruped.cli" not in TARGETS  # its `__main__` is in the docstring only
 
 
-@pytest.mark.parametrize("target", [pytest.param(t, marks=EXPERIMENTS_XFAIL) if t.startswith("experiments/") else t
-                                    for t in TARGETS])
+@pytest.mark.parametrize("target", TARGETS)
 def test_help_and_a_bad_flag(probed, target):
     help_run, bad_run = probed[target]
     assert help_run["status"] == 0, help_run["stderr"]
