@@ -46,6 +46,7 @@ from dls_quadruped.closed_loop.__main__ import commands, run_controllers
 from dls_quadruped.closed_loop.controllers import ControllerConfig
 from dls_quadruped.closed_loop.metrics import summarize
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.core.progress import progress
 from dls_quadruped.mpc.config import SamplerConfig
 from experiments.distill_common import write_table
 from experiments.rl_common import pyplot, save  # noqa: F401 (the tables' plot helpers, shared with the 7.1 scripts)
@@ -104,9 +105,13 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
     torch.set_num_threads(args.threads)
     out: dict[str, dict] = {}
     (args.out / "cells").mkdir(parents=True, exist_ok=True)
+    todo = [c for c in cells if not args.only or c.name in args.only]
+    bar = progress(total=len(todo), desc=args.out.name, unit="cell")
     for k, cell in enumerate(cells):
         if args.only and cell.name not in args.only:
             continue
+        bar.update(1)
+        bar.set_postfix_str(cell.name, refresh=False)
         path = args.out / "cells" / f"{cell.name}.json"
         if path.is_file():
             out[cell.name] = json.loads(path.read_text())
@@ -136,6 +141,7 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
         print(f"[{args.out.name}] {k + 1}/{len(cells)} {cell.name}: reward {s['rl_reward']['median']:.3f}, "
               f"initial cost {s['initial_cost']['median']:.1f}, survival {s['survival']['rate']:.2f}, "
               f"{summary['seconds_wall']:.0f} s", flush=True)
+    bar.close()
     return out
 
 

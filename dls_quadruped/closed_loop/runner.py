@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from dls_quadruped.closed_loop.controllers import Controller
+from dls_quadruped.core.progress import progress
 from dls_quadruped.envs.mdp.kernels import motor_power
 from dls_quadruped.eval.rollout import base_velocity
 from dls_quadruped.mpc.baseline import BaselineConfig, heuristic_footholds_h, mpc_inputs
@@ -155,8 +156,10 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     mpc_fallbacks = student_fallbacks = 0
     obs = env.get_observations()
     wall0 = time.perf_counter()
-    with torch.inference_mode():
+    with torch.inference_mode(), progress(total=steps, desc=f"{controller.name}, {n} robots", unit="step",
+                                          leave=False) as bar:
         for k in range(steps):
+            bar.update(1)
             tic = time.perf_counter()
             terms = cpu(probe.terms(env.state, cpu(env.command_manager.command))).numpy()
             init_terms[k] = np.where(alive.numpy()[:, None], terms, nan)
