@@ -5,7 +5,8 @@ with ``seeds`` training seeds (3 at every scale). The seeds of a run train *toge
 (``learning.distill_batched``): one collection env of seeds x ``collect.num_envs`` robots, student
 k driving its own slice (episode keys k x num_envs + i of one collection schedule, restarted at the
 start of every run, so a run does not depend on the runs before it), one stacked MLP and one
-optimiser. A run may reuse the datasets of an earlier one (``Run.data_from``: the naive variants of
+optimiser; the runs of one ``Run.group`` (Table 13: the six encodings of one dt and H) join them in
+the same env and stack. A run may reuse the datasets of an earlier one (``Run.data_from``: the naive variants of
 Table 11 train on the naive run's expert-driven data, so only the schedule differs).
 
 Then everything is evaluated in one batched env (:func:`evaluate`), each policy on its own slot of
@@ -93,6 +94,7 @@ class Run:
     snapshots: bool = False  # keep (and evaluate) every epoch's students
     row: dict = field(default_factory=dict)  # table columns (encoding, batch, ...)
     data_from: str | None = None  # train on this earlier run's datasets instead of collecting
+    group: str | None = None  # runs of one group (same schedule, H and dt) collect and train together
 
 
 def merge(base: dict, over: dict) -> dict:
@@ -184,40 +186,59 @@ def train_runs(runs: list[Run], args: argparse.Namespace) -> dict[str, dict]:
     if not todo:
         return out
     needed_later = {r.data_from for r in todo if r.data_from}
-    env = LocomotionEnv(distill_task(TASK, None), num_envs=len(seeds) * scale["collect"]["num_envs"], verbose=False)
+    batches: list[list[Run]] = []  # runs trained together: a group's runs, or one run
+    for r in todo:
+        if any(r in b for b in batches):
+            continue
+        batches.append([x for x in todo if x.group == r.group and not x.data_from] if r.group and not r.data_from
+                       else [r])
+    env = None
     try:
-        for k, r in enumerate(todo):
-            cfg = run_config(r, args)
-            run_dir = args.out / "runs" / r.name
-            if run_dir.exists():
-                shutil.rmtree(run_dir)  # an unfinished run starts over (its datasets were for it alone)
-            run_dir.mkdir(parents=True)
+        for k, members in enumerate(batches):
+            cfgs = [run_config(r, args) for r in members]
+            dirs = [args.out / "runs" / r.name for r in members]
+            for d in dirs:
+                if d.exists():
+                    shutil.rmtree(d)  # an unfinished run starts over (its datasets were for it alone)
+                d.mkdir(parents=True)
+            robots = len(members) * len(seeds) * scale["collect"]["num_envs"]
+            if env is None or env.num_envs != robots:
+                if env is not None:
+                    env.close()
+                env = LocomotionEnv(distill_task(TASK, None), num_envs=robots, verbose=False)
             t0 = time.monotonic()
-            shared = _datasets(args.out / "runs" / r.data_from, seeds) if r.data_from else None
-            print(f"[{args.out.name}] run {k + 1}/{len(todo)} {r.name}: seeds {seeds} together"
-                  + (f", on {r.data_from}'s data" if shared else ""), flush=True)
-            trainer = SeedGroupTrainer(cfg, seeds, env, expert, run_dir, HIDDEN, ACTIVATION, datasets=shared,
+            src = members[0].data_from
+            shared = _datasets(args.out / "runs" / src, seeds) if src else None
+            print(f"[{args.out.name}] {k + 1}/{len(batches)}: {', '.join(r.name for r in members)}: seeds {seeds} "
+                  f"together ({robots} robots)" + (f", on {src}'s data" if shared else ""), flush=True)
+            trainer = SeedGroupTrainer(cfgs, seeds, env, expert, dirs, HIDDEN, ACTIVATION, datasets=shared,
                                        printer=lambda *a, **kw: None)
             trainer.start()
-            students = []
-            while trainer.epoch < cfg.train.epochs:
+            students: list[list[list[dict]]] = [[] for _ in members]  # [member][snapshot][seed]
+            while trainer.epoch < trainer.cfg.train.epochs:
                 trainer.run_epoch()
-                if r.snapshots or trainer.epoch == cfg.train.epochs:
-                    students.append(trainer.state_dicts())
-            result = {"history": trainer.history, "students": [list(x) for x in zip(*students)],
-                      "config": cfg.to_dict(), "seeds": seeds, "gradient_steps": gradient_steps(cfg),
-                      "snapshot_epochs": list(range(1, cfg.train.epochs + 1)) if r.snapshots else [cfg.train.epochs],
-                      "seconds": time.monotonic() - t0}
-            torch.save(result, run_dir / "result.pt")
-            write_json({k: v for k, v in result.items() if k != "students"}, run_dir / "metrics.json")
-            if not args.keep_datasets and r.name not in needed_later:
-                _drop_datasets(run_dir)
+                for m, r in enumerate(members):
+                    if r.snapshots or trainer.epoch == trainer.cfg.train.epochs:
+                        students[m].append(trainer.state_dicts(m))
+            seconds = time.monotonic() - t0
+            for m, (r, cfg, run_dir) in enumerate(zip(members, cfgs, dirs)):
+                result = {"history": trainer.member_history(m), "students": [list(x) for x in zip(*students[m])],
+                          "config": cfg.to_dict(), "seeds": seeds, "gradient_steps": gradient_steps(cfg),
+                          "snapshot_epochs": (list(range(1, cfg.train.epochs + 1)) if r.snapshots
+                                              else [cfg.train.epochs]),
+                          "seconds": seconds / len(members), "trained_with": [x.name for x in members],
+                          "group_seconds": seconds}
+                torch.save(result, run_dir / "result.pt")
+                write_json({k: v for k, v in result.items() if k != "students"}, run_dir / "metrics.json")
+                if not args.keep_datasets and r.name not in needed_later:
+                    _drop_datasets(run_dir)
+                out[r.name] = result
             h = trainer.history[-1]
-            print(f"[{args.out.name}]   train loss {np.mean(h['train_loss']):.4f} (mean of seeds), dataset "
-                  f"{h['dataset_size']} per seed, {result['seconds']:.0f} s", flush=True)
-            out[r.name] = result
+            print(f"[{args.out.name}]   train loss {np.mean(h['train_loss']):.4f} (mean of {len(h['train_loss'])} "
+                  f"students), dataset {h['dataset_size']} each, {seconds:.0f} s", flush=True)
     finally:
-        env.close()
+        if env is not None:
+            env.close()
         if not args.keep_datasets:
             for name in needed_later:
                 _drop_datasets(args.out / "runs" / name)

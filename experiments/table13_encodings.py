@@ -54,6 +54,7 @@ def grid() -> list[tuple[int, float, int, str, str]]:
 def runs() -> list[Run]:
     return [Run(f"{n:02d}_{p}-{F}_dt{dt:g}_H{H}", {"algorithm": "dagger",
                                                    "encoding": {"p": p, "F": F, "horizon": H, "dt": dt}},
+                group=f"dt{dt:g}_H{H}",
                 row={"N°": n, "p": p, "F": F, "dt": dt, "H": H, "Time H.": round(dt * H, 2),
                      "Dim.": encoded_dim(EncodingConfig(p, F, H))}) for n, dt, H, p, F in grid()]
 

@@ -1,4 +1,5 @@
-"""The training seeds of one distillation setting in lockstep: one collection env, one stacked MLP.
+"""The training seeds of one distillation setting in lockstep: one collection env, one stacked MLP
+(several settings too, when they differ only in the encoding's p and F).
 
 Why: an experiment row needs several training seeds; run one after the other they cost K times
 the env steps of one run and K times the per-step Python overhead. Here student k of K drives its
@@ -37,24 +38,38 @@ COLLECT_SEED = 3000
 
 
 class StudentStack(nn.Module):
-    """K students' MLPs as one: layer l's weights (K, in, out) and biases (K, 1, out).
+    """S students' MLPs as one: layer l's weights (S, in, out) and biases (S, 1, out).
 
-    The students keep their normalisers; :meth:`write_back` copies the stacked weights into them
-    (for acting, evaluating and saving).
+    Students of different output sizes D_s (encodings) are stacked with their last layer padded to
+    the largest D with zero columns; ``mask`` (S, 1, D) marks each student's own outputs, and a loss
+    that ignores the padding gives those columns zero gradient, so they stay zero (Adadelta's step
+    is proportional to the gradient). The students keep their normalisers; :meth:`write_back`
+    copies the stacked weights into them (for acting, evaluating and saving).
     """
 
     def __init__(self, students: list[Student]):
         super().__init__()
         self.students = list(students)  # a plain list: not registered, so parameters() is the stack only
         layers = [[m for m in s.mlp if isinstance(m, nn.Linear)] for s in self.students]
-        self.weight = nn.ParameterList(nn.Parameter(torch.stack([ls[i].weight.detach().T for ls in layers]).clone())
-                                       for i in range(len(layers[0])))
-        self.bias = nn.ParameterList(nn.Parameter(torch.stack([ls[i].bias.detach()[None] for ls in layers]).clone())
-                                     for i in range(len(layers[0])))
+        self.dims = [ls[-1].out_features for ls in layers]
+        d_max = max(self.dims)
+
+        def pad(t: torch.Tensor) -> torch.Tensor:  # (..., D_s) -> (..., D_max), zeros appended
+            return nn.functional.pad(t, (0, d_max - t.shape[-1]))
+
+        n = len(layers[0])
+        self.weight = nn.ParameterList(nn.Parameter(torch.stack(
+            [(pad(ls[i].weight.detach().T) if i == n - 1 else ls[i].weight.detach().T) for ls in layers]).clone())
+            for i in range(n))
+        self.bias = nn.ParameterList(nn.Parameter(torch.stack(
+            [(pad(ls[i].bias.detach()) if i == n - 1 else ls[i].bias.detach())[None] for ls in layers]).clone())
+            for i in range(n))
+        self.register_buffer("mask", (torch.arange(d_max)[None] < torch.tensor(self.dims)[:, None]).float()[:, None])
         self.activation = next(m for m in self.students[0].mlp if not isinstance(m, nn.Linear))
 
     def net(self, obs: torch.Tensor) -> torch.Tensor:
-        """(K, B, obs_dim) -> (K, B, D): each student's label-space output on its own batch."""
+        """(S, B, obs_dim) -> (S, B, D_max): each student's label-space output on its own batch
+        (zeros beyond its D_s)."""
         x = torch.stack([s.obs_normalizer(obs[k]) for k, s in enumerate(self.students)])
         last = len(self.weight) - 1
         for i, (w, b) in enumerate(zip(self.weight, self.bias)):
@@ -63,13 +78,22 @@ class StudentStack(nn.Module):
                 x = self.activation(x)
         return x
 
+    def mse(self, obs: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
+        """(S,) each student's mean squared error over its batch and its own D_s outputs.
+
+        Args:
+            obs: (S, B, obs_dim); labels: (S, B, D_max), padded with anything beyond D_s.
+        """
+        sq = (self.net(obs) - labels).square() * self.mask
+        return sq.sum(dim=(1, 2)) / (obs.shape[1] * torch.tensor(self.dims, dtype=sq.dtype))
+
     @torch.no_grad()
     def write_back(self) -> None:
         for k, s in enumerate(self.students):
             layers = [m for m in s.mlp if isinstance(m, nn.Linear)]
             for i, lin in enumerate(layers):
-                lin.weight.copy_(self.weight[i][k].T)
-                lin.bias.copy_(self.bias[i][k, 0])
+                lin.weight.copy_(self.weight[i][k, :, :lin.out_features].T)
+                lin.bias.copy_(self.bias[i][k, 0, :lin.out_features])
 
 
 def new_students(seeds: list[int], obs_dim: int, cfg: DistillConfig, hidden_dims, activation: str) -> list[Student]:
@@ -81,40 +105,68 @@ def new_students(seeds: list[int], obs_dim: int, cfg: DistillConfig, hidden_dims
     return out
 
 
+def check_lockstep(cfgs: list[DistillConfig]) -> None:
+    """Settings trained together must share everything but the encoding's p and F.
+
+    Raises:
+        ValueError: naming the first field that differs.
+    """
+    ref = cfgs[0].to_dict()
+    for c in cfgs[1:]:
+        d = c.to_dict()
+        for key in ("algorithm", "selector", "train"):
+            if d[key] != ref[key]:
+                raise ValueError(f"settings trained together differ in {key}: {ref[key]} vs {d[key]}")
+        for key in ("horizon", "dt"):
+            if d["encoding"][key] != ref["encoding"][key]:
+                raise ValueError(f"settings trained together differ in encoding.{key}")
+
+
 class SeedGroupTrainer:
-    """K seeds of one setting: collect (DAgger per epoch, naive at epoch 0) and train in lockstep.
+    """Every seed of one or more settings: collect (DAgger per epoch, naive at epoch 0) and train in lockstep.
 
     Args:
-        cfg: the setting (``train.seed`` is ignored; ``seeds`` are used).
+        cfg: the setting, or M settings differing only in the encoding's p and F
+            (:func:`check_lockstep`); ``train.seed`` is ignored, ``seeds`` are used.
         seeds: K training seeds.
-        env: ``LocomotionEnv`` with K x ``robots_per_slot`` robots; slot k is seed k's.
+        env: ``LocomotionEnv`` with M x K x ``robots_per_slot`` robots; slot m K + k is setting m's seed k.
         expert: (B, obs_dim) -> (B, 28) raw actions.
-        run_dir: ``seed_<s>/dataset`` per seed go there.
-        datasets: reuse these (one per seed, e.g. a naive run's expert-driven data) instead of
-            collecting; their data must be ``cfg``'s.
+        run_dir: one per setting; ``seed_<s>/dataset`` per seed go there.
+        datasets: reuse these (one per slot, e.g. a naive run's expert-driven data) instead of
+            collecting; their data must be the settings'.
     """
 
-    def __init__(self, cfg: DistillConfig, seeds: list[int], env, expert, run_dir: Path, hidden_dims,
-                 activation: str, datasets: list[DiskDataset] | None = None, printer=print):
-        self.cfg, self.seeds, self.env, self.expert, self.run_dir = cfg, list(seeds), env, expert, Path(run_dir)
+    def __init__(self, cfg: DistillConfig | list[DistillConfig], seeds: list[int], env, expert,
+                 run_dir: Path | list[Path], hidden_dims, activation: str, datasets: list[DiskDataset] | None = None,
+                 printer=print):
+        self.cfgs = list(cfg) if isinstance(cfg, list) else [cfg]
+        run_dirs = [Path(d) for d in run_dir] if isinstance(run_dir, list) else [Path(run_dir)]
+        check_lockstep(self.cfgs)
+        self.cfg, self.seeds, self.env, self.expert = self.cfgs[0], list(seeds), env, expert
         self.print = printer
-        self.enc = cfg.encoding.to_encoding()
-        self.stride = cfg.encoding.stride(env.step_dt)
+        self.slots = [(m, s) for m in range(len(self.cfgs)) for s in self.seeds]
+        self.encs = [c.encoding.to_encoding() for c in self.cfgs]
+        self.horizon = self.encs[0].horizon
+        self.stride = self.cfg.encoding.stride(env.step_dt)
         self.obs_dim = int(env.get_observations()["policy"].shape[1])
-        if env.num_envs % len(self.seeds):
-            raise ValueError(f"{env.num_envs} robots do not split into {len(self.seeds)} slots")
-        self.per_slot = env.num_envs // len(self.seeds)
-        self.students = new_students(self.seeds, self.obs_dim, cfg, hidden_dims, activation)
+        if env.num_envs % len(self.slots):
+            raise ValueError(f"{env.num_envs} robots do not split into {len(self.slots)} slots")
+        self.per_slot = env.num_envs // len(self.slots)
+        self.students = [new_students([s], self.obs_dim, self.cfgs[m], hidden_dims, activation)[0]
+                         for m, s in self.slots]
         self.stack = StudentStack(self.students)
-        self.optimizer = torch.optim.Adadelta(self.stack.parameters(), lr=cfg.train.learning_rate)
-        self.scheduler = torch.optim.lr_scheduler.StepLR(self.optimizer, step_size=1, gamma=cfg.train.lr_decay)
-        self.gens = [torch.Generator().manual_seed(s) for s in self.seeds]
-        self.meta = metadata(self.enc, cfg.encoding.dt, self.obs_dim, {"stride": self.stride})
+        self.optimizer = torch.optim.Adadelta(self.stack.parameters(), lr=self.cfg.train.learning_rate)
+        self.scheduler = torch.optim.lr_scheduler.StepLR(self.optimizer, step_size=1, gamma=self.cfg.train.lr_decay)
+        self.gens = [torch.Generator().manual_seed(s) for _, s in self.slots]
+        self.metas = [metadata(e, c.encoding.dt, self.obs_dim, {"stride": self.stride})
+                      for e, c in zip(self.encs, self.cfgs)]
         self.collects = datasets is None
         if datasets is None:
-            meta = {k: self.meta[k] for k in ("encoding", "obs_dim", "output_dim")}
-            datasets = [DiskDataset.create(self.run_dir / f"seed_{s}" / "dataset", self.obs_dim,
-                                           self.meta["output_dim"], cfg.train.dataset_cap, meta) for s in self.seeds]
+            datasets = []
+            for m, s in self.slots:
+                meta = {k: self.metas[m][k] for k in ("encoding", "obs_dim", "output_dim")}
+                datasets.append(DiskDataset.create(run_dirs[m] / f"seed_{s}" / "dataset", self.obs_dim,
+                                                   self.metas[m]["output_dim"], self.cfg.train.dataset_cap, meta))
         else:  # the normaliser follows the data it trains on, as if it had collected it
             for student, ds in zip(self.students, datasets):
                 obs, _ = ds.ordered()
@@ -126,12 +178,13 @@ class SeedGroupTrainer:
         self.windows: SlidingWindows | None = None  # carried from epoch to epoch: no warm-up per epoch
 
     def start(self) -> None:
-        """Restart the collection schedule: seed k's robots play keys k x robots_per_slot + i."""
+        """Restart the collection schedule: seed k's robots play keys k x robots_per_slot + i (in every
+        setting: the settings of one seed see the same collection episodes)."""
         self.windows = None
         if not self.collects:
             return
-        keys = torch.cat([s * self.per_slot + torch.arange(self.per_slot) for s in self.seeds]).to(self.env.device)
-        self.env.reset(seed=COLLECT_SEED, episode_keys=keys)
+        keys = torch.cat([s * self.per_slot + torch.arange(self.per_slot) for _, s in self.slots])
+        self.env.reset(seed=COLLECT_SEED, episode_keys=keys.to(self.env.device))
 
     def _student_actions(self, obs: torch.Tensor) -> torch.Tensor:
         n = self.per_slot
@@ -155,32 +208,34 @@ class SeedGroupTrainer:
             s.eval()
         if self.windows is None:
             obs = self.env.get_observations()["policy"]
-            self.windows = SlidingWindows(self.env.num_envs, obs.shape[1], self.env.num_actions, self.enc.horizon,
+            self.windows = SlidingWindows(self.env.num_envs, obs.shape[1], self.env.num_actions, self.horizon,
                                           self.stride, obs.device)
+        encoders = [(lambda a, e=self.encs[m]: encode_labels(a, e)) for m, _ in self.slots]
         with torch.no_grad():
-            info = collect_slots(self.env, self.expert, [lambda a: encode_labels(a, self.enc)] * len(self.seeds),
-                                 count, self.enc.horizon, self.stride, sink, beta_value=b,
-                                 student=self._student_actions if b < 1.0 else None, windows=self.windows)
+            info = collect_slots(self.env, self.expert, encoders, count, self.horizon, self.stride, sink,
+                                 beta_value=b, student=self._student_actions if b < 1.0 else None,
+                                 windows=self.windows)
         info["beta"] = b
         return info
 
     def train_pass(self) -> dict:
-        """``passes`` lockstep passes: step j takes mini-batch j of every seed's own shuffled pass."""
+        """``passes`` lockstep passes: step j takes mini-batch j of every slot's own shuffled pass."""
         cfg = self.cfg
         sizes = {len(ds) for ds in self.datasets}
         if len(sizes) != 1:
-            raise RuntimeError(f"seeds hold datasets of different sizes {sorted(sizes)}; lockstep needs one size")
+            raise RuntimeError(f"slots hold datasets of different sizes {sorted(sizes)}; lockstep needs one size")
         limit = rows_per_pass(cfg, self.epoch, sizes.pop())
-        losses = torch.zeros(len(self.seeds), dtype=torch.float64)
+        d_max = max(self.stack.dims)
+        losses = torch.zeros(len(self.slots), dtype=torch.float64)
         steps, t0 = 0, time.monotonic()
         for _ in range(cfg.train.passes):
             passes = [ds.minibatches(cfg.train.batch_size, g, limit=limit) for ds, g in zip(self.datasets, self.gens)]
             for batches in zip(*passes):
                 obs = torch.stack([b[0] for b in batches])
-                labels = torch.stack([b[1] for b in batches])
-                loss = (self.stack.net(obs) - labels).square().mean(dim=(1, 2))  # (K,) each seed's MSE
+                labels = torch.stack([nn.functional.pad(b[1], (0, d_max - b[1].shape[1])) for b in batches])
+                loss = self.stack.mse(obs, labels)  # (S,) each slot's MSE
                 self.optimizer.zero_grad(set_to_none=True)
-                loss.sum().backward()  # d(sum_k MSE_k)/d(theta_k) = d MSE_k / d theta_k
+                loss.sum().backward()  # d(sum_s MSE_s)/d(theta_s) = d MSE_s / d theta_s
                 self.optimizer.step()
                 losses += loss.detach().double()
                 steps += 1
@@ -204,8 +259,20 @@ class SeedGroupTrainer:
         self.epoch += 1
         return row
 
-    def state_dicts(self) -> list[dict]:
-        return [copy.deepcopy(s.state_dict()) for s in self.students]
+    def member_history(self, m: int) -> list[dict]:
+        """Setting m's view of the history: its seeds' train losses and datapoints."""
+        idx = [i for i, (mm, _) in enumerate(self.slots) if mm == m]
+        out = []
+        for row in self.history:
+            r = dict(row, train_loss=[row["train_loss"][i] for i in idx])
+            if row["collect"] is not None:
+                r["collect"] = dict(row["collect"], datapoints=[row["collect"]["datapoints"][i] for i in idx])
+            out.append(r)
+        return out
+
+    def state_dicts(self, m: int = 0) -> list[dict]:
+        """Setting m's students (one per seed)."""
+        return [copy.deepcopy(s.state_dict()) for s, (mm, _) in zip(self.students, self.slots) if mm == m]
 
 
 def gradient_steps(cfg: DistillConfig) -> int:

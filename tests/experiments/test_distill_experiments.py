@@ -84,12 +84,16 @@ def test_table12_and_table13_rows(tiny, monkeypatch):
     row = read_csv(tiny / "t12" / "table.csv")[0]
     assert row["batch"] == "512" and row["gradient steps"] == "2"  # 30 then 60 rows: one step per pass
     monkeypatch.setattr(sys, "argv", [table13_encodings.__file__, "--scale", "small", "--out", str(tiny / "t13"),
-                                      "--only", "10_spline-spline_dt0.02_H10", "16_spline-spline_dt0.02_H15"])
+                                      "--only", "10_spline-spline_dt0.02_H10", "12_first-spline_dt0.02_H10",
+                                      "16_spline-spline_dt0.02_H15"])
     table13_encodings.main()
     rows = read_csv(tiny / "t13" / "table.csv")
-    assert [(r["N°"], r["Dim."], r["thesis SP"]) for r in rows] == [("10", "88", "97.43"), ("16", "88", "95.6")]
+    assert [(r["N°"], r["Dim."], r["thesis SP"]) for r in rows] == [("10", "88", "97.43"), ("12", "64", "98.7"),
+                                                                      ("16", "88", "95.6")]
     # rows 10 and 16 once printed one MSE: the same test states, but each row's own labels and students
-    assert rows[0]["MSE per seed"] != rows[1]["MSE per seed"]
-    assert rows[0]["test windows"] == rows[1]["test windows"] == "10"
+    assert rows[0]["MSE per seed"] != rows[2]["MSE per seed"]
+    assert rows[0]["test windows"] == rows[2]["test windows"] == "10"
+    metrics = json.loads((tiny / "t13" / "runs" / "12_first-spline_dt0.02_H10" / "metrics.json").read_text())
+    assert metrics["trained_with"] == ["10_spline-spline_dt0.02_H10", "12_first-spline_dt0.02_H10"]  # one group
     assert len(table13_encodings.runs()) == 36
     assert [r.row["Dim."] for r in table13_encodings.runs()][:6] == [108, 96, 100, 88, 76, 64]

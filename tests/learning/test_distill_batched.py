@@ -121,3 +121,30 @@ def test_a_continued_collection_is_one_long_one():
 
     torch.testing.assert_close(run([8, 8]), run([16]))
     assert len(run([8, 8])) == 16
+
+
+def test_settings_of_different_output_sizes_train_together_as_alone(tmp_path, one_thread):
+    """first-spline (D = 64) and discrete-discrete (D = 108) in one stack (the smaller padded): each
+    student equals the one trained alone; the padding columns stay zero."""
+    env = LinearEnv(4, torch.eye(4), torch.zeros(4, 28))
+    cfgs = [_cfg(), load_distill_config(overrides={**_cfg().to_dict(), "encoding": {
+        "p": "discrete", "F": "discrete", "horizon": 5, "dt": 0.02}})]
+    gen = torch.Generator().manual_seed(3)
+    data = []
+    for i, c in enumerate(cfgs):
+        ds = DiskDataset.create(tmp_path / f"d{i}", 4, encoded_dim(c.encoding.to_encoding()), 1000)
+        ds.append(torch.randn(200, 4, generator=gen), torch.randn(200, encoded_dim(c.encoding.to_encoding()),
+                                                                  generator=gen))
+        data.append(ds)
+    both = SeedGroupTrainer(cfgs, [1], env, None, [tmp_path / "a", tmp_path / "b"], HIDDEN, "elu", datasets=data)
+    alone = [SeedGroupTrainer(c, [1], LinearEnv(2, torch.eye(4), torch.zeros(4, 28)), None, tmp_path / f"s{i}",
+                              HIDDEN, "elu", datasets=[data[i]]) for i, c in enumerate(cfgs)]
+    for t in (both, *alone):
+        for _ in range(2):
+            t.train_pass()
+            t.epoch += 1
+    assert both.stack.dims == [64, 108] and both.stack.weight[-1][0, :, 64:].abs().max() == 0
+    for i in range(2):
+        want, got = alone[i].state_dicts()[0], both.state_dicts(i)[0]
+        for name in want:
+            torch.testing.assert_close(got[name], want[name], rtol=1e-4, atol=1e-5, msg=name)
