@@ -104,3 +104,18 @@ def test_type_problem(value, annotation, ok):
 def test_scene_bounds(tmp_path, body, key):
     with pytest.raises(ConfigError, match=f"{key}: must be >= "):
         load_task(_task(tmp_path, body))
+
+
+def test_curriculum_naming_a_missing_reward_fails_when_the_env_is_built(tmp_path):
+    """A task whose rewards lack a term a curriculum switches (here: base's penalties curriculum names
+    action_rate) fails at build with the file, the key and the rewards there are (was: KeyError)."""
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    task = load_task(TASKS_DIR / "base.yaml", overrides={"scene": {"num_workers": 0}})
+    rewards = {k: v for k, v in task.data["rewards"].items() if k != "action_rate"}
+    task.data["rewards"] = rewards
+    with pytest.raises(ConfigError) as err:
+        LocomotionEnv(task, num_envs=1, verbose=False)
+    text = str(err.value)
+    assert "curriculum.penalties.params.terms: unknown reward term(s) ['action_rate']" in text, text
+    assert "track_lin_vel_xy" in text  # the rewards there are

@@ -15,10 +15,32 @@ def resolve_curriculum(task: TaskConfig) -> list[Term]:
     return resolve_terms(task, "curriculum", cur_mdp, {}, positional=("env", "env_ids"))
 
 
+REWARD_NAME_PARAMS = ("reward_term", "terms")
+"""Curriculum parameters that name reward terms (a name, or a list of names)."""
+
+
+def check_reward_names(task: TaskConfig, terms: list[Term], rewards: list[str]) -> None:
+    """Every reward term a curriculum term names must be in the task's ``rewards``: a typo or a removed
+    reward fails when the env is built, naming the file, the key and the rewards there are.
+
+    Raises:
+        ConfigError: an unknown reward name.
+    """
+    for t in terms:
+        for key in REWARD_NAME_PARAMS:
+            value = t.params.get(key)
+            names = [value] if isinstance(value, str) else list(value) if isinstance(value, (list, tuple)) else []
+            unknown = [n for n in names if n not in rewards]
+            if unknown:
+                raise task.error(f"curriculum.{t.name}.params.{key}",
+                                 f"unknown reward term(s) {unknown}; the task's rewards are {sorted(rewards)}")
+
+
 class CurriculumManager:
     def __init__(self, task: TaskConfig, env):
         self.env = env
         self.terms = resolve_curriculum(task)
+        check_reward_names(task, self.terms, list(env.reward_manager.weights))
         self.state: dict = {}
         self.values: dict[str, float] = {}
 
