@@ -15,7 +15,7 @@ DOC = Path(__file__).resolve().parents[2] / "docs" / "gymnasium.md"
 def _example(tmp_path: Path) -> dict:
     """The namespace of the doc's PPO code block (the first ```python block after '## Minimal PPO')."""
     text = DOC.read_text().split("## Minimal PPO", 1)[1]
-    code = re.search(r"```python\n(.*?)```", text, re.S).group(1)
+    code = re.search(r"```python\n(.*?)```", text, re.DOTALL).group(1)
     path = tmp_path / "ppo.py"
     path.write_text(code)
     return runpy.run_path(str(path), run_name="ppo_example")  # not "__main__": train() is called below
