@@ -61,8 +61,12 @@ def test_table11_writes_our_numbers_beside_the_thesis(tiny, monkeypatch):
     mtime = (out / "runs" / "naive_first-spline" / "result.pt").stat().st_mtime
     run_script(monkeypatch, table11_naive_vs_dagger, out, "naive_first-spline")
     assert (out / "runs" / "naive_first-spline" / "result.pt").stat().st_mtime == mtime
-    # a naive variant trains on the naive run's data (retrained: its datasets were not kept)
-    run_script(monkeypatch, table11_naive_vs_dagger, out, "naive-dagger-steps_first-spline")
+
+
+@pytest.mark.slow
+def test_table11_naive_variant_trains_on_the_naive_runs_data(tiny, monkeypatch):
+    out = tiny / "t11v"
+    run_script(monkeypatch, table11_naive_vs_dagger, out, "naive-dagger-steps_first-spline")  # + its source
     variant = {r["schedule"]: r for r in read_csv(out / "table.csv")}["DAgger's steps"]
     assert variant["train datapoints"] == "60" and variant["gradient steps"] == str(1 + 1)  # ceil(30/64) + ceil(60/64)
     assert json.loads((out / "config.json").read_text())["runs"]["naive-dagger-steps_first-spline"]["data_from"] \
