@@ -3,6 +3,8 @@
     python -m dls_quadruped.learning.train --task rough --num-envs 64 --iterations 100 --device cpu --seed 0
     python -m dls_quadruped.learning.train --task rough --resume          # continue the latest run
     python -m dls_quadruped.learning.train --task speed --init-from docs/policies/base_networks.pt
+    python -m dls_quadruped.learning.train --task base --checkpoint-copy docs/policies/base_resume.pt
+    python -m dls_quadruped.learning.train --task base --resume-from docs/policies/base_resume.pt  # another machine
 
 Checkpoints (written atomically, with the env's curricula, terrain levels, command ranges, reward
 weights and RNG state) every ``--save-interval`` iterations (default: a tenth of the run, at most
@@ -10,7 +12,12 @@ weights and RNG state) every ``--save-interval`` iterations (default: a tenth of
 end, and on SIGINT/SIGTERM (at the end of the current iteration; a second signal stops at once).
 ``--resume`` reloads the newest readable checkpoint of the newest run (or of ``--run-dir``),
 restores the env state and continues for ``--iterations`` more; a checkpoint that does not fit
-the task is refused before anything in the run directory is written. ``--init-from`` starts a new
+the task is refused before anything in the run directory is written. ``--resume-from CKPT``
+continues from a checkpoint file anywhere (e.g. one committed beside the policies, written there by
+``--checkpoint-copy``) in a new run directory: networks, optimiser, learning rate, iteration,
+curricula, terrain levels, command ranges, the episodes in progress (simulator state included) and
+every RNG, so its first iteration is the one the uninterrupted run would have taken (tested).
+``--init-from`` starts a new
 run from another run's actor and critic (a checkpoint file or a run directory's newest one; fresh
 optimiser, iteration 0, the task's own curricula; see ``AtomicOnPolicyRunner.init_networks``); it is
 recorded in the run directory's ``init_from.yaml``. At the end the actor is exported to TorchScript
@@ -38,9 +45,11 @@ from dls_quadruped.cli import (
     positive_float,
     positive_int,
     run_cli,
+    torch_device,
 )
 from dls_quadruped.envs.config import load_task, save_resolved
 from dls_quadruped.envs.env import LocomotionEnv
+from dls_quadruped.learning import resume_state
 from dls_quadruped.learning.distributed import (
     Ranks,
     broadcast_from_main,
@@ -71,9 +80,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--num-envs", type=positive_int, default=None)
     p.add_argument("--iterations", type=positive_int, default=None,
                    help="PPO iterations (default: agent.max_iterations)")
-    p.add_argument("--device", default="cpu")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", type=torch_device, default="cpu", help="cpu, cuda or cuda:<index>")
+    p.add_argument("--seed", type=int, default=None,
+                   help="seed (default: 0, or the checkpoint's with --resume/--resume-from, which must match)")
     p.add_argument("--resume", action="store_true", help="continue from the newest readable checkpoint")
+    p.add_argument("--resume-from", type=Path, default=None, metavar="CKPT",
+                   help="continue from this checkpoint file (e.g. copied from another machine) in a new run "
+                        "directory, with its optimiser, env state and RNG; not with --resume or --init-from")
+    p.add_argument("--checkpoint-copy", type=Path, default=None, metavar="PATH",
+                   help="also write every checkpoint (atomically) to PATH, e.g. docs/policies/base_resume.pt, "
+                        "a file to commit and continue from with --resume-from")
     p.add_argument("--init-from", type=Path, default=None, metavar="CKPT",
                    help="start from another run's actor and critic: a model_<it>.pt (or a networks-only "
                         "file such as docs/policies/base_networks.pt) or a run directory (its newest); "
@@ -90,6 +106,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help=f"also save when this many minutes passed since the last save ({DEFAULT_SAVE_EVERY_MIN})")
     p.add_argument("--num-workers", type=non_negative_int, default=None,
                    help="simulator worker processes (scene.num_workers; 0 = in-process)")
+    p.add_argument("--update-threads", type=non_negative_int, default=None,
+                   help="torch threads of the PPO update (default: every core, the simulator workers idle "
+                        "then; 0: the trainer's own count)")
+    p.add_argument("--stock-update", action="store_true",
+                   help="rsl-rl's PPO update as shipped, without learning/fast_update.py (same numbers, slower)")
     return p.parse_args(argv)
 
 
@@ -114,23 +135,34 @@ def _fresh_dir(args: argparse.Namespace, task_dir: Path) -> Path:
     return args.run_dir
 
 
-def _init_source(path: Path) -> tuple[Path, dict]:
-    """The checkpoint ``--init-from`` names (a file, or a run directory's newest readable one)."""
+def _init_source(path: Path, flag: str = "--init-from") -> tuple[Path, dict]:
+    """The checkpoint ``flag`` names (a file, or a run directory's newest readable one)."""
     if path.is_dir():
         found = newest_readable_checkpoint(path)
         if found is None:
-            raise UserError(f"--init-from: no readable model_<it>.pt in {path}")
+            raise UserError(f"{flag}: no readable model_<it>.pt in {path}")
         return found
     if not path.is_file():
-        raise UserError(f"--init-from: {path} does not exist (give a model_<it>.pt or a run directory)")
+        raise UserError(f"{flag}: {path} does not exist (give a model_<it>.pt or a run directory)")
     try:
         return path, read_checkpoint(path)
     except ValueError as err:
-        raise UserError(f"--init-from: cannot read {path}: {err}") from None
+        raise UserError(f"{flag}: cannot read {path}: {err}") from None
+
+
+def _checkpoint_seed(ckpt: dict) -> int | None:
+    """The env seed a checkpoint was trained with (its episode schedule's), None if it does not say."""
+    schedule = ckpt.get("env_state", {}).get("schedule")
+    return None if schedule is None else int(schedule["seed"])
 
 
 def _choose_run(args: argparse.Namespace, task_dir: Path) -> tuple[Path, tuple[Path, dict] | None]:
-    """The run directory (created if fresh) and, with ``--resume``, its newest readable checkpoint."""
+    """The run directory (created if fresh) and, with ``--resume``, its newest readable checkpoint
+    (with ``--resume-from``, that file)."""
+    if args.resume_from is not None:
+        found = _init_source(args.resume_from, "--resume-from")  # read before a run directory is made
+        _choose_seed(args, found)
+        return _fresh_dir(args, task_dir), found
     if not args.resume:
         return _fresh_dir(args, task_dir), None
     run_dir = _resume_dir(args, task_dir)
@@ -168,6 +200,18 @@ def _agree_on_run(args: argparse.Namespace, task_dir: Path, ranks: Ranks) -> tup
     return run_dir, ((Path(ckpt_path), read_checkpoint(Path(ckpt_path))) if ckpt_path else None)
 
 
+def _choose_seed(args: argparse.Namespace, found: tuple[Path, dict] | None) -> int:
+    """``--seed``, or the checkpoint's when continuing one; a different explicit ``--seed`` is refused
+    (the env's per-robot randomisation at startup follows the seed, so the run would not continue)."""
+    saved = _checkpoint_seed(found[1]) if found is not None else None
+    if saved is None:
+        return args.seed if args.seed is not None else 0
+    if args.seed is not None and args.seed != saved:
+        raise UserError(f"--seed {args.seed}: {found[0]} was trained with seed {saved}; "
+                        f"give --seed {saved} or leave --seed out")
+    return saved
+
+
 def main(argv: list[str] | None = None) -> Path:
     """Train; returns the run directory."""
     args = parse_args(argv)
@@ -186,26 +230,36 @@ def _train(args: argparse.Namespace, ranks: Ranks) -> Path:
     task = load_task(args.task, overrides=overrides)
     if args.init_from is not None and args.resume:
         raise UserError("--init-from starts a new run and --resume continues one; give only one of them")
+    if args.resume_from is not None and (args.resume or args.init_from is not None):
+        raise UserError("--resume-from continues from a checkpoint file in a new run directory; "
+                        "give it without --resume and --init-from")
     if args.init_std is not None and args.init_from is None:
         raise UserError("--init-std sets the exploration std of an --init-from start; give --init-from too")
     source = _init_source(args.init_from) if args.init_from is not None else None
     task_dir = args.log_root / task.name
-    cfg = runner_config(task.data["agent"], args.iterations, args.seed)
+    cfg = runner_config(task.data["agent"], args.iterations, args.seed if args.seed is not None else 0)
     cfg["save_interval"] = args.save_interval or default_save_interval(int(cfg["max_iterations"]),
                                                                        cfg.get("save_interval", 50))
     run_dir, found = _agree_on_run(args, task_dir, ranks)
-    seed = args.seed + ranks.rank  # other robots' rollouts on every rank; rank 0's weights win (broadcast)
+    base_seed = _choose_seed(args, found)
+    cfg["seed"] = base_seed
+    seed = base_seed + ranks.rank  # other robots' rollouts on every rank; rank 0's weights win (broadcast)
     torch.manual_seed(seed)
     env = LocomotionEnv(task, num_envs=args.num_envs, device=args.device, seed=seed)
     try:
         runner = AtomicOnPolicyRunner(env, cfg, log_dir=str(run_dir), device=args.device,
-                                      save_every_s=60.0 * args.save_every_min)
+                                      save_every_s=60.0 * args.save_every_min,
+                                      fast_update=not args.stock_update, update_threads=args.update_threads)
+        runner.copy_to = str(args.checkpoint_copy) if args.checkpoint_copy is not None and ranks.is_main else None
         if found is not None:
             path, ckpt = found
             try:
                 runner.load_checkpoint(ckpt, str(path))  # checked against the task before anything is written
             except CheckpointMismatch as err:
-                raise UserError(f"--resume: {err}") from None
+                raise UserError(f"{'--resume-from' if args.resume_from is not None else '--resume'}: {err}") from None
+            for change in resume_state.changes(ckpt, runner):
+                print(f"[train] note: {change} differs from the checkpoint's: the run goes on, "
+                      "but not exactly as the uninterrupted one", flush=True)
             # model_<it>.pt holds the state after iteration <it>: continue with the next one
             runner.current_learning_iteration += 1
             if ranks.rank > 0:  # the checkpoint holds rank 0's RNG: give this rank its own stream again
@@ -228,6 +282,9 @@ def _train(args: argparse.Namespace, ranks: Ranks) -> Path:
             if ranks.is_main:
                 write_yaml({"init_from": str(path), "iteration": int(ckpt["iter"]),
                             "sha256": sha256_file(path), "init_std": args.init_std}, run_dir / "init_from.yaml")
+        if ranks.is_main and args.resume_from is not None:
+            write_yaml({"resumed_from": str(found[0]), "iteration": int(found[1]["iter"]),
+                        "sha256": sha256_file(found[0])}, run_dir / "resumed_from.yaml")
         if ranks.is_main:
             for stale in remove_stale_tmp(run_dir):
                 print(f"[train] note: removed {stale} (left by a save that was killed)")

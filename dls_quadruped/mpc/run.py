@@ -26,6 +26,7 @@ from dls_quadruped.cli import (
     positive_float,
     positive_int,
     run_cli,
+    torch_device,
 )
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.mpc.baseline import BaselineConfig, BaselineRun, run_baseline
@@ -94,7 +95,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--anchor-share", type=finite_float, default=0.0,
                         help="share of the samples drawn around the nominal trot besides the naive warm start "
                              "(default 0: naive warm start alone, the thesis's naive controller)")
-    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--device", type=torch_device, default="cpu", help="cpu, cuda or cuda:<index>")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-video", action="store_true")
     parser.add_argument("--out", type=Path, default=Path("results/mpc_baseline"))
