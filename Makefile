@@ -84,8 +84,14 @@ ITERATIONS ?= 500
 # machine of your own.
 TRAIN_THREADS ?= 1
 DEVICE ?= cpu
-SEED ?= 0
+# empty: 0 for a new run, the checkpoint's for RESUME=1 / RESUME_FROM (another one is refused)
+SEED ?=
 RESUME ?=
+# RESUME_FROM=docs/policies/base_resume.pt continues from a checkpoint file (e.g. committed by a
+# session on another machine) in a new run dir; CHECKPOINT_COPY=PATH also writes every checkpoint
+# to PATH (the file to commit). See docs/train.md, "Runs that span machines".
+RESUME_FROM ?=
+CHECKPOINT_COPY ?=
 # INIT_FROM=docs/policies/base_networks.pt starts the run from the base expert's actor and critic
 # (fine-tuning; how the speed, rough and climb experts were trained, docs/train.md).
 INIT_FROM ?=
@@ -99,8 +105,9 @@ PLAY_SECONDS ?= 10
 
 train: $(STAMP)
 	OMP_NUM_THREADS=$(TRAIN_THREADS) $(PY) -m dls_quadruped.learning.train --task $(TASK) --num-envs $(TRAIN_NUM_ENVS) --iterations $(ITERATIONS) \
-		--device $(DEVICE) --seed $(SEED) $(if $(RESUME),--resume,) $(if $(INIT_FROM),--init-from $(INIT_FROM),) \
+		--device $(DEVICE) $(if $(SEED),--seed $(SEED),) $(if $(RESUME),--resume,) $(if $(INIT_FROM),--init-from $(INIT_FROM),) \
 		$(if $(INIT_STD),--init-std $(INIT_STD),) \
+		$(if $(RESUME_FROM),--resume-from $(RESUME_FROM),) $(if $(CHECKPOINT_COPY),--checkpoint-copy $(CHECKPOINT_COPY),) \
 		$(if $(TRAIN_WORKERS),--num-workers $(TRAIN_WORKERS),)
 
 play: $(STAMP)

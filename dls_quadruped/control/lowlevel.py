@@ -135,6 +135,26 @@ class LowLevelController:
         self._fresh[ids] = True
         self.target_vel_xy_w[ids] = 0.0
 
+    STATE_FIELDS = ("phase", "p_lo_w", "contact", "target_xy_w", "target_vel_xy_w", "_fresh", "p_ref_w")
+    """The per-robot buffers that carry from one physics step to the next (a checkpoint's controller state)."""
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """Copies of :attr:`STATE_FIELDS` (each (B, ...)): restored, the next ``compute`` is bit-identical."""
+        return {k: getattr(self, k).clone() for k in self.STATE_FIELDS}
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        """Restore :meth:`state_dict` output.
+
+        Raises:
+            ValueError: a buffer is missing or has another shape (another number of robots).
+        """
+        for k in self.STATE_FIELDS:
+            mine = getattr(self, k)
+            if k not in state or tuple(state[k].shape) != tuple(mine.shape):
+                got = tuple(state[k].shape) if k in state else "missing"
+                raise ValueError(f"controller state {k}: expected shape {tuple(mine.shape)}, got {got}")
+            setattr(self, k, state[k].to(mine).clone())
+
     def track_target(self, p_td_w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """One alpha-beta step on the horizontal targets: (tracked target (B, 4, 3), its velocity (B, 4, 3))."""
         if self.cfg.target_bandwidth == 0.0:

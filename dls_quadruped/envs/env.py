@@ -37,6 +37,7 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from dls_quadruped.core.state import RobotState
+from dls_quadruped.envs import episode_state
 from dls_quadruped.envs.config import (
     TaskConfig,
     dataclass_from_dict,
@@ -267,8 +268,10 @@ class LocomotionEnv(VecEnv):
         """What training needs to continue where it stopped (saved in every checkpoint).
 
         Curriculum state and values, reward weights (the penalty switch), command ranges, terrain
-        levels, the step counter, the episode schedule's counters and the torch RNG state. Robot poses
-        are not kept: robots restart their episodes on resume (each its next scheduled episode).
+        levels, the step counter, the episode schedule's counters, the torch RNG state and, under
+        ``"episodes"``, the episodes in progress (``envs/episode_state.py``: the simulator's whole state
+        and every per-robot buffer), so that an env of the same task and number of robots continues
+        bit-identically.
         """
         state = {
             "curriculum_state": copy.deepcopy(self.curriculum_manager.state),
@@ -279,14 +282,17 @@ class LocomotionEnv(VecEnv):
             "common_step_counter": self.common_step_counter,
             "schedule": self.schedule.state_dict(),
             "rng_cpu": torch.get_rng_state(),
+            "episodes": episode_state.capture(self),
         }
         if self.device.type == "cuda":
             state["rng_cuda"] = torch.cuda.get_rng_state(self.device)
         return state
 
     def load_state_dict(self, state: dict) -> None:
-        """Restore ``state_dict()`` output: re-places every robot on its restored terrain level
-        (without running the curriculum) and restores the RNG last.
+        """Restore ``state_dict()`` output and the RNG last. With ``"episodes"`` saved from as many
+        robots, the episodes in progress go on where they stopped (bit-identically); otherwise (another
+        ``num_envs``, or an older checkpoint) every robot starts its next episode on its restored
+        terrain level (without running the curriculum).
 
         Raises:
             ValueError: the state does not fit this env (other terms, other number of envs).
@@ -297,6 +303,9 @@ class LocomotionEnv(VecEnv):
         if set(state["command_params"]) != set(cm.params):
             raise ValueError(f"checkpoint command parameters {sorted(state['command_params'])} "
                              f"!= task's {sorted(cm.params)}")
+        episodes = state.get("episodes")
+        if episodes is not None and int(episodes["num_envs"]) != self.num_envs:
+            episodes = None  # another --num-envs: fresh episodes below
         levels = torch.as_tensor(state["terrain_levels"], dtype=torch.long)
         if levels.shape != (self.num_envs,):
             # another --num-envs: keep the level distribution by cycling over the saved levels
@@ -316,8 +325,11 @@ class LocomotionEnv(VecEnv):
             else:  # another --num-envs: a fresh schedule, advanced past the episodes already played
                 self.schedule.restart(int(state["schedule"]["seed"]))
                 self.schedule.episode[:] = int(state["schedule"]["episode"].max())
-        self._reset_idx(torch.arange(self.num_envs, device=self.device), curriculum=False)
-        self.obs_buf = self.observation_manager.compute()
+        if episodes is not None:
+            episode_state.restore(self, episodes)
+        else:
+            self._reset_idx(torch.arange(self.num_envs, device=self.device), curriculum=False)
+            self.obs_buf = self.observation_manager.compute()
         torch.set_rng_state(state["rng_cpu"])
         if "rng_cuda" in state and self.device.type == "cuda":
             torch.cuda.set_rng_state(state["rng_cuda"], self.device)

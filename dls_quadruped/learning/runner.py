@@ -6,10 +6,14 @@ a kill never leaves a truncated checkpoint) and ``exported/policy.pt`` (TorchScr
 ``exported/policy.onnx`` (any batch size, weights embedded).
 
 A checkpoint holds rsl-rl's own state plus ``env_state`` (``LocomotionEnv.state_dict()``: curricula,
-terrain levels, command ranges, reward weights, RNG) and ``obs_dims``/``num_actions`` so a resume
-onto another task is refused before anything is written. Besides rsl-rl's every-``save_interval``
-saves, the runner saves when ``save_every_s`` seconds of wall time passed since the last save and,
-after SIGINT/SIGTERM, at the end of the current iteration (then raises ``TrainingInterrupted``).
+terrain levels, command ranges, reward weights, RNG, the episodes in progress), ``obs_dims``/
+``num_actions`` and the task's name so a resume onto another task is refused before anything is
+written, and ``learning/resume_state.py``'s part (numpy/python RNG, logger counters, configs,
+versions): a run continued from it, anywhere, takes the iteration the uninterrupted run would have.
+``copy_to`` names a second file every checkpoint is also written to (atomically; one to commit).
+Besides rsl-rl's every-``save_interval`` saves, the runner saves when ``save_every_s`` seconds of
+wall time passed since the last save and, after SIGINT/SIGTERM, at the end of the current
+iteration (then raises ``TrainingInterrupted``).
 
 Under torchrun the runner joins the process group with gloo on the CPU and NCCL on GPUs
 (``learning/distributed.py``; rsl-rl-lib itself only knows NCCL); rsl-rl all-reduces the gradients,
@@ -32,6 +36,7 @@ import torch
 import yaml
 from rsl_rl.runners import OnPolicyRunner
 
+from dls_quadruped.learning import resume_state
 from dls_quadruped.learning.distributed import any_rank, init_distributed
 from dls_quadruped.learning.symmetry import check_symmetry_cfg
 
@@ -60,6 +65,7 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         check_symmetry_cfg(env, train_cfg)  # a bad mirror map fails here, naming its term (issue 14)
         super().__init__(env, train_cfg, log_dir=log_dir, device=device)
         self.save_every_s = save_every_s
+        self.copy_to: str | None = None  # every checkpoint is also written here (train --checkpoint-copy)
         self.stop_signal: int | None = None
         self._last_save_time = time.monotonic()
         self._last_saved: tuple[str, int] | None = None
@@ -140,9 +146,11 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
             saved["env_state"] = self.env.state_dict()
             saved["obs_dims"] = dict(self.env.obs_dims)
             saved["num_actions"] = int(self.env.num_actions)
-        tmp = f"{path}.tmp"
-        torch.save(saved, tmp)
-        os.replace(tmp, path)  # atomic on POSIX
+        saved.update(resume_state.capture(self))  # numpy/python RNG, logger counters, task, versions
+        for target in (path, self.copy_to) if self.copy_to else (path,):
+            tmp = f"{target}.tmp"
+            torch.save(saved, tmp)
+            os.replace(tmp, target)  # atomic on POSIX
         self._last_saved = key
         self._last_save_time = time.monotonic()
         self.logger.save_model(path, self.current_learning_iteration)
@@ -155,6 +163,8 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
             CheckpointMismatch: the checkpoint was trained on other observation or action sizes.
         """
         self._check_sizes(ckpt, path)
+        if (why := resume_state.mismatch(ckpt, self)) is not None:
+            raise CheckpointMismatch(f"{path} {why}")
         try:
             self.alg.load(ckpt, None, True)
         except (RuntimeError, KeyError) as err:  # size mismatch of a checkpoint without obs_dims
@@ -165,6 +175,7 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
                 self.env.load_state_dict(ckpt["env_state"])
             except (KeyError, ValueError) as err:
                 raise CheckpointMismatch(f"{path}: env state does not fit this task: {err}") from err
+        resume_state.restore(self, ckpt)
 
 
     def init_networks(self, ckpt: dict, path: str) -> None:

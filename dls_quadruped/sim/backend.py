@@ -61,12 +61,17 @@ class SimConfig:
     """Longest wait for a worker to build its shard (imports and model loading on a busy machine)."""
 
 
-def _execute(shard: Shard, cmd: str, arg: Any) -> None:
-    """Run one backend command on a shard (same code in-process and in a worker).
+def _execute(shard: Shard, cmd: str, arg: Any) -> Any:
+    """Run one backend command on a shard (same code in-process and in a worker); returns its answer
+    (the snapshot for "snapshot", else None).
 
-    ``arg`` is the step count for "step", the shard-local ids for "reset"/"set_lin_vel", and
-    ``(name, ids, values)`` for "model_field".
+    ``arg`` is the step count for "step", the shard-local ids for "reset"/"set_lin_vel",
+    ``(name, ids, values)`` for "model_field" and the shard's snapshot for "restore".
     """
+    if cmd == "snapshot":
+        return shard.snapshot()
+    if cmd == "restore":
+        return shard.restore(arg)
     if cmd == "step":
         shard.step(arg)
     elif cmd == "reset":
@@ -77,6 +82,22 @@ def _execute(shard: Shard, cmd: str, arg: Any) -> None:
         shard.set_model_field(*arg)
     else:
         raise ValueError(f"unknown backend command {cmd!r}")
+
+
+def _join_rows(parts: list[Any]) -> Any:
+    """Shard snapshots (nested dicts of arrays/tensors, rows = robots) joined along the rows."""
+    if isinstance(parts[0], dict):
+        return {k: _join_rows([p[k] for p in parts]) for k in parts[0]}
+    if isinstance(parts[0], torch.Tensor):
+        return torch.cat(parts)
+    return np.concatenate(parts)
+
+
+def _rows(snap: Any, lo: int, hi: int) -> Any:
+    """Rows [lo, hi) of every array in a (nested dict) snapshot."""
+    if isinstance(snap, dict):
+        return {k: _rows(v, lo, hi) for k, v in snap.items()}
+    return snap[lo:hi].clone() if isinstance(snap, torch.Tensor) else np.array(snap[lo:hi], copy=True)
 
 
 class WorkerError(RuntimeError):
@@ -140,8 +161,7 @@ def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: 
             _reply(conn, ("ok", None))
             return
         try:
-            _execute(shard, cmd, arg)
-            answer = ("ok", None)
+            answer = ("ok", _execute(shard, cmd, arg))
         except Exception as err:
             answer = ("error", f"{cmd}: {err!r}")
         if not _reply(conn, answer):
@@ -472,6 +492,49 @@ class VecSim:
             raise ValueError(f"values must have one row per env id ({len(ids)}), got {len(values)}")
         key = name if index is None else (name, np.asarray(index, dtype=np.int64))
         self._dispatch("model_field", ids, (key, values))
+
+    def snapshot(self) -> dict:
+        """The whole simulation state of every robot, for a checkpoint: every shard's
+        (``Shard.snapshot``, joined in robot order, so it does not depend on the worker count) and the
+        shared state and command buffers (the last published state, the held references, wrenches)."""
+        parts = self._each("snapshot", [None] * self._num_shards())
+        return {"shards": _join_rows(parts),
+                "state": {k: v.clone() for k, v in self.buf.state.items()},
+                "command": {k: v.clone() for k, v in self.buf.command.items()}}
+
+    def restore(self, snap: dict) -> RobotState:
+        """Load :meth:`snapshot` output of a simulator of as many robots (any worker count): the next
+        ``step`` is bit-identical to the one the snapshot's simulator would have taken.
+
+        Raises:
+            ValueError: a snapshot of another number of robots.
+        """
+        n = int(snap["state"]["time"].shape[0])
+        if n != self.num_envs:
+            raise ValueError(f"simulator snapshot of {n} robots, this simulator has {self.num_envs}")
+        b = self._bounds
+        self._each("restore", [_rows(snap["shards"], b[w], b[w + 1]) for w in range(self._num_shards())])
+        for group, saved in (("state", snap["state"]), ("command", snap["command"])):
+            for k, v in getattr(self.buf, group).items():
+                v.copy_(saved[k])
+        return self._refresh_state()
+
+    def _num_shards(self) -> int:
+        return 1 if self._shard is not None else len(self._conns)
+
+    def _each(self, cmd: str, args: list[Any]) -> list[Any]:
+        """Send ``(cmd, args[w])`` to shard w, every shard; their answers in shard order."""
+        if self._shard is not None:
+            return [_execute(self._shard, cmd, args[0])]
+        if not self._conns:
+            raise WorkerError("the simulator is closed (a worker failed earlier or close() was called)")
+        for w, arg in enumerate(args):
+            self._send(w, (cmd, arg), cmd)
+        answers = [self._recv(w, cmd) for w in range(len(args))]
+        errors = [msg for status, msg in answers if status != "ok"]
+        if errors:
+            raise RuntimeError("simulator backend failed: " + "; ".join(errors))
+        return [msg for _, msg in answers]
 
     def close(self) -> None:
         """Stop the worker processes (idempotent; a dead or hung worker is killed, not waited for)."""

@@ -60,6 +60,12 @@ COMMAND_SPECS: dict[str, tuple[int, ...]] = {
 }
 """Shapes of the float64 command buffers written by the backend and read by shards."""
 
+MJ_STATE_FIELDS = ("time", "qpos", "qvel", "act", "history", "qacc_warmstart", "plugin_state", "ctrl",
+                   "qfrc_applied", "xfrc_applied", "eq_active", "mocap_pos", "mocap_quat", "userdata")
+"""MjData fields of ``mjSTATE_INTEGRATION``: everything ``mj_step`` reads that it did not compute itself
+(``qacc_warmstart`` included: the constraint solver starts from it, so a restored run that lacked
+it would differ in the last bits)."""
+
 
 @dataclass
 class SharedBuffers:
@@ -214,6 +220,34 @@ class Shard:
             field[ids] = values
         else:
             field[np.ix_(ids, index)] = values
+
+    # ------------------------------------------------------------------ checkpoints
+    def snapshot(self) -> dict:
+        """This shard's whole simulation state (rows = its robots): the MuJoCo integration state, the
+        controller's buffers, the divergence flags and the last torques. Restored with :meth:`restore`,
+        the next :meth:`step` is bit-identical to the one the snapshot's shard would have taken."""
+        mj = {f: np.array(self.batch.bind(f), copy=True) for f in MJ_STATE_FIELDS}
+        size = sum(v[0].size for v in mj.values()) if self.n else 0
+        if self.n and size != self.batch.nstate:  # a MuJoCo with more state than MJ_STATE_FIELDS names
+            raise RuntimeError(f"MJ_STATE_FIELDS hold {size} numbers per robot, MuJoCo's state has {self.batch.nstate}")
+        return {"mj": mj, "controller": self.controller.state_dict(), "diverged": self.diverged.copy(),
+                "tau": self.tau.clone()}
+
+    def restore(self, snap: dict) -> None:
+        """Load :meth:`snapshot` output (of as many robots as this shard has); the published buffers are
+        the backend's to restore (the last step's sensor outputs are not recomputed here).
+
+        Raises:
+            ValueError: another number of robots.
+        """
+        if len(snap["diverged"]) != self.n:
+            raise ValueError(f"simulator snapshot of {len(snap['diverged'])} robots for a shard of {self.n}")
+        for f in MJ_STATE_FIELDS:
+            self.batch.bind(f)[:] = snap["mj"][f]
+        self.controller.load_state_dict(snap["controller"])
+        self.diverged[:] = snap["diverged"]
+        self.tau = snap["tau"].clone()
+        self._terms = self._dynamics_terms()  # a pure function of (qpos, qvel), as after a step
 
     # ------------------------------------------------------------------ output
     def publish(self) -> None:
