@@ -68,9 +68,11 @@ class Cell:
     vx: float | None = None                      # fixed forward speed, else the simple task
     naive_share: float = 0.0                      # rl_warm_start: share of samples around the previous solution
     row: dict = field(default_factory=dict)       # table columns
+    student: str | None = None                    # rl_warm_start: this student export (else found by encoding)
 
 
-def parse_args(description: str, name: str) -> argparse.Namespace:
+def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
+    """The scripts' common flags; ``extra(parser)`` adds a script's own."""
     p = ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)  # one-line errors
     p.add_argument("--scale", choices=sorted(SCALES), default="small")
     p.add_argument("--out", type=Path, default=REPO / "results" / "experiments" / name)
@@ -85,6 +87,8 @@ def parse_args(description: str, name: str) -> argparse.Namespace:
     p.add_argument("--sampler-seeds", type=int, default=3,
                    help="sampler noise streams per episode for the MPC cells (robots in parallel)")
     p.add_argument("--only", nargs="*", default=None, help="run only these cells")
+    if extra is not None:
+        extra(p)
     args = p.parse_args()
     args.episodes = args.episodes or SCALES[args.scale]["episodes"]
     args.seconds = args.seconds or SCALES[args.scale]["seconds"]
@@ -119,10 +123,15 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
         sampler = SamplerConfig(**cell.sampler)
         student = None
         if cell.controller == "rl_warm_start":
-            student = student_path(args.students, sampler.encoding_p, sampler.encoding_F, sampler.horizon, sampler.dt)
+            if cell.student:
+                student = Path(cell.student) if Path(cell.student).is_file() else None
+                why = f"no student {cell.student}"
+            else:
+                student = student_path(args.students, sampler.encoding_p, sampler.encoding_F, sampler.horizon, sampler.dt)
+                why = (f"no student {sampler.encoding_p}-{sampler.encoding_F}_H{sampler.horizon}_dt{sampler.dt:g} "
+                       f"under {args.students}")
             if student is None:
-                out[cell.name] = {"skipped": f"no student {sampler.encoding_p}-{sampler.encoding_F}_H{sampler.horizon}"
-                                             f"_dt{sampler.dt:g} under {args.students}"}
+                out[cell.name] = {"skipped": why}
                 print(f"[{args.out.name}] {cell.name}: skipped ({out[cell.name]['skipped']})", flush=True)
                 continue
         cfg = ControllerConfig(cell.controller, policy=args.policy, student=student, sampler=sampler,
@@ -142,6 +151,41 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
               f"initial cost {s['initial_cost']['median']:.1f}, survival {s['survival']['rate']:.2f}, "
               f"{summary['seconds_wall']:.0f} s", flush=True)
     bar.close()
+    return out
+
+
+def merge_training_seeds(summaries: list[dict]) -> dict:
+    """One table row from the cells of T training seeds (T students of one setting, each run with S sampler
+    seeds on the same E episodes): per episode, each student's mean over its sampler seeds, giving (T, E)
+    per-episode values whose medians and intervals resample students and episodes (two levels, as the
+    distillation tables do); survival pooled over every robot, its interval Wilson's with the episodes as
+    the trials; the horizon cost per step the median of the students' medians. A skipped seed skips the row."""
+    from dls_quadruped.eval.metrics import episode_summary, wilson_interval
+
+    skipped = [s["skipped"] for s in summaries if "skipped" in s]
+    if skipped:
+        return {"skipped": skipped[0]}
+    episodes = {s["episodes"] for s in summaries}
+    if len(episodes) != 1:
+        raise ValueError(f"training-seed cells played different episode counts {sorted(episodes)}")
+    per_episode = {}
+    for key in summaries[0]["per_episode"]:
+        per_episode[key] = np.stack([np.nanmean(np.atleast_2d(np.asarray(s["per_episode"][key], dtype=float)), axis=0)
+                                     for s in summaries])
+    (e,) = episodes
+    rate = float(np.mean([s["survival"]["rate"] for s in summaries]))
+    out = {"controller": summaries[0]["controller"], "episodes": e, "training_seeds": len(summaries),
+           "replicas": sum(s.get("replicas", 1) for s in summaries),
+           "survival": {"rate": rate, "ci95": list(wilson_interval(rate * e, e))},
+           "per_episode": {k: v.tolist() for k, v in per_episode.items()},
+           "seeds": [s.get("cell") for s in summaries]}
+    for key, v in per_episode.items():
+        if key != "survived":
+            out[key] = episode_summary(v)
+            out[key]["per_seed_median"] = [s[key]["median"] for s in summaries if key in s]
+    if all("horizon_cost" in s for s in summaries):
+        out["horizon_cost"] = [{"median": float(np.median([s["horizon_cost"][k]["median"] for s in summaries]))}
+                               for k in range(len(summaries[0]["horizon_cost"]))]
     return out
 
 

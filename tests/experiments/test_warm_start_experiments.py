@@ -35,8 +35,32 @@ def test_table16_cell_is_cached_and_tabulated(tmp_path: Path) -> None:
 
 def test_missing_student_is_skipped_not_replaced(tmp_path: Path) -> None:
     out = tmp_path / "t15"
-    stdout = _run("table15_horizon.py", out, "--students", str(tmp_path / "none"), "--only", "rl_warm_start_dt0.04_H5")
+    stdout = _run("table15_horizon.py", out, "--students", str(tmp_path / "none"), "--single-student", "--only",
+                  "rl_warm_start_dt0.04_H5")
     assert "skipped" in stdout
     results = json.loads((out / "results.json").read_text())
     assert "no student first-spline_H5_dt0.04" in results["rl_warm_start_dt0.04_H5"]["skipped"]
     assert not (out / "cells" / "rl_warm_start_dt0.04_H5.json").exists()
+
+
+def test_training_seeds_merge_per_episode_means() -> None:
+    """A Table 15 row from two students' cells: per episode, each student's mean over its sampler seeds;
+    survival pooled; the median over (student, episode) values."""
+    sys.path.insert(0, str(REPO))
+    from experiments.warm_start_common import merge_training_seeds
+
+    def cell(name, reward, survived):  # (S = 2 sampler seeds, E = 3 episodes)
+        return {"cell": name, "controller": "rl_warm_start", "episodes": 3, "replicas": 2,
+                "survival": {"rate": sum(map(sum, survived)) / 6},
+                "per_episode": {"rl_reward": reward, "survived": survived},
+                "rl_reward": {"median": 0.0}, "horizon_cost": [{"median": 1.0}, {"median": 4.0}]}
+
+    a = cell("s0", [[1.0, 2.0, 3.0], [3.0, 4.0, 5.0]], [[1, 1, 1], [1, 0, 1]])  # per episode: 2, 3, 4
+    b = cell("s1", [[10.0, 0.0, 6.0], [12.0, 2.0, 8.0]], [[1, 1, 1], [1, 1, 1]])  # per episode: 11, 1, 7
+    b["horizon_cost"] = [{"median": 3.0}, {"median": 8.0}]
+    m = merge_training_seeds([a, b])
+    assert m["per_episode"]["rl_reward"] == [[2.0, 3.0, 4.0], [11.0, 1.0, 7.0]]
+    assert m["rl_reward"]["median"] == 3.5  # median of 1, 2, 3, 4, 7, 11
+    assert m["survival"]["rate"] == (5 / 6 + 1) / 2 and m["episodes"] == 3 and m["training_seeds"] == 2
+    assert [h["median"] for h in m["horizon_cost"]] == [2.0, 6.0]
+    assert merge_training_seeds([a, {"skipped": "no student x"}]) == {"skipped": "no student x"}
