@@ -171,6 +171,9 @@ def load(variant: str = "native") -> ctypes.CDLL | None:
         fn.restype = ctypes.c_int
         fn.argtypes = [ctypes.c_int] * 5 + [ctypes.c_int64, ctypes.c_int] + [_F] * 4 + [_I32, _F] + [_F, _I64, _F] \
             + [_F] * 10
+        solve = lib.mpc_solve  # mpc_costs + argmin; raw addresses (ints): the solve's hot path skips ctypes.cast
+        solve.restype = ctypes.c_int
+        solve.argtypes = [ctypes.c_int] * 5 + [ctypes.c_int64, ctypes.c_int] + [ctypes.c_void_p] * 21
         return lib
     except Exception as err:  # noqa: BLE001 - no compiler / broken toolchain: caller falls back, stays correct
         warnings.warn(f"building the C++ MPC kernel ({variant}) failed ({type(err).__name__}: {err}); "

@@ -295,4 +295,31 @@ int mpc_costs(int B, int M, int N, int G, int D, int64_t seed, int num_threads,
   return 0;
 }
 
+// mpc_costs, then each robot's argmin in the same call (torch.min(dim=1): the first minimum; costs are
+// never NaN): best_cost (B,), best_index (B,).
+int mpc_solve(int B, int M, int N, int G, int D, int64_t seed, int num_threads,
+              const float* prm, const float* sigma, const float* lo, const float* hi,
+              const int32_t* dec_idx, const float* dec_w,
+              const float* warm, const int64_t* group, const float* perturb,
+              const float* x0, const float* phase, const float* base_xy, const float* base_yaw,
+              const float* terrain_z, const float* h_ref, const float* vel_ref, const float* wz_ref,
+              const float* foothold, float* out, float* best_cost, int64_t* best_index) {
+  const int rc = mpc_costs(B, M, N, G, D, seed, num_threads, prm, sigma, lo, hi, dec_idx, dec_w, warm, group,
+                           perturb, x0, phase, base_xy, base_yaw, terrain_z, h_ref, vel_ref, wz_ref, foothold, out);
+  if (rc != 0) return rc;
+  for (int b = 0; b < B; ++b) {
+    const float* row = out + static_cast<long>(b) * M;
+    float best = row[0];
+    int64_t arg = 0;
+    for (int m = 1; m < M; ++m)
+      if (row[m] < best) {
+        best = row[m];
+        arg = m;
+      }
+    best_cost[b] = best;
+    best_index[b] = arg;
+  }
+  return 0;
+}
+
 }  // extern "C"

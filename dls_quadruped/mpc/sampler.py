@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import torch
 
-from dls_quadruped.mpc import warm_start
+from dls_quadruped.mpc import cpp_kernel, solve_glue, warm_start
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import (
     Refs,
@@ -132,6 +132,11 @@ class SamplingMPC:
         self.record_step_costs = False
         """Fill ``MPCResult.step_costs`` (a reference rollout of the winner, ~1.5 ms per solve); else NaN."""
         self._layouts: dict[tuple[float, ...], tuple[torch.Tensor, torch.Tensor]] = {}
+        self.fused = True
+        """With the ``cpp`` kernel on the CPU, run the fused solve (:mod:`solve_glue`: input cleaning, kernel +
+        argmin and the winner's decoding in C++ calls, preallocated buffers); the same result bit for bit as the
+        torch path that ``fused = False`` runs (and any other kernel or device)."""
+        self._workspaces: dict[tuple[int, int], solve_glue.Workspace] = {}
 
     # ------------------------------------------------------------------ warm starts
 
@@ -195,7 +200,7 @@ class SamplingMPC:
                     f"p={self.cfg.encoding_p!r}, F={self.cfg.encoding_F!r}, H={self.cfg.horizon}; "
                     f"got {tuple(getattr(ws, 'shape', ()))}"
                 )
-            if not torch.isfinite(ws).all():
+            if not solve_glue.all_finite(ws):
                 raise ValueError(f"warm_starts[{g}] contains NaN/inf; every entry must be finite")
             rows.append(ws.to(self.device, torch.float32).expand(b, self.dim))
         if self.cfg.num_samples < num_ws:
@@ -246,6 +251,12 @@ class SamplingMPC:
         if phase is None:
             raise ValueError("phase must be given: (B, 4) gait phase in [0, 1)")
         ws, props = self._validate(state, refs, warm_starts, proportions, phase)
+        if self.fused and self.cfg.kernel == "cpp" and self.device.type == "cpu":
+            kernel_lib = cpp_kernel.load()
+            glue = solve_glue.load() if kernel_lib is not None else None
+            if glue is not None:
+                return solve_glue.solve(self, kernel_lib, glue, ws, props, state, refs, phase, base_xy_w, base_yaw,
+                                        terrain_z_w)
         b, dev = state.batch_size, self.device
         state = state.to(dev)
         refs = refs.to(dev)
