@@ -14,7 +14,7 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-closed-loop bench-gym lint clean
+.PHONY: install test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym lint clean
 
 $(STAMP): setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -47,7 +47,7 @@ demo: $(STAMP)
 demo-balance: $(STAMP)
 	$(PY) -m dls_quadruped.demo --num-envs $(NUM_ENVS) --seconds $(SECONDS_PER_PHASE) --out $(OUT)/demo_balance
 
-bench: bench-env bench-terrain bench-mpc bench-rl bench-closed-loop
+bench: bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop
 
 bench-env: $(STAMP)
 	$(PY) -m dls_quadruped.bench.env --out $(OUT)/bench
@@ -60,6 +60,11 @@ bench-mpc: $(STAMP)
 
 bench-rl: $(STAMP)
 	$(PY) -m dls_quadruped.bench.rl_env --out $(OUT)/bench
+
+# one PPO iteration split into collection and update, samples/s of each, rsl-rl's stock update beside
+# learning/fast_update.py's, interleaved (N = 256 and 1024; docs/benchmarks.md "PPO update")
+bench-ppo: $(STAMP)
+	OMP_WAIT_POLICY=PASSIVE $(PY) -m dls_quadruped.bench.ppo_update --out $(OUT)/bench
 
 # the gymnasium view's cost beside the native env (rough, N = 1024; docs/gymnasium.md "Cost"), not part of `make bench`
 bench-gym: $(STAMP)
@@ -79,10 +84,13 @@ clean:
 TASK ?= base
 TRAIN_NUM_ENVS ?= $(if $(filter command line environment,$(origin NUM_ENVS)),$(NUM_ENVS),256)
 ITERATIONS ?= 500
-# torch intra-op threads of the trainer: 1 is 5-8x faster than 2 for the PPO update when the two
-# cores are shared with other processes (OpenMP threads then wait on each other); raise it on a
-# machine of your own.
+# torch intra-op threads of the trainer during collection (the simulator workers own the cores then).
+# The PPO update runs on UPDATE_THREADS (empty: every core; the workers idle then), with OpenMP's idle
+# threads sleeping (OMP_WAIT_POLICY=PASSIVE): spinning, 2 threads were 3-8x slower than 1 on cores shared
+# with other processes; sleeping, within +-10 % of 1 at load 4-5 (docs/train.md "Update speed").
+# UPDATE_THREADS=0: the update on TRAIN_THREADS too.
 TRAIN_THREADS ?= 1
+UPDATE_THREADS ?=
 DEVICE ?= cpu
 # empty: 0 for a new run, the checkpoint's for RESUME=1 / RESUME_FROM (another one is refused)
 SEED ?=
@@ -104,11 +112,11 @@ PLAY_SECONDS ?= 10
 .PHONY: train play
 
 train: $(STAMP)
-	OMP_NUM_THREADS=$(TRAIN_THREADS) $(PY) -m dls_quadruped.learning.train --task $(TASK) --num-envs $(TRAIN_NUM_ENVS) --iterations $(ITERATIONS) \
+	OMP_NUM_THREADS=$(TRAIN_THREADS) OMP_WAIT_POLICY=PASSIVE $(PY) -m dls_quadruped.learning.train --task $(TASK) --num-envs $(TRAIN_NUM_ENVS) --iterations $(ITERATIONS) \
 		--device $(DEVICE) $(if $(SEED),--seed $(SEED),) $(if $(RESUME),--resume,) $(if $(INIT_FROM),--init-from $(INIT_FROM),) \
 		$(if $(INIT_STD),--init-std $(INIT_STD),) \
 		$(if $(RESUME_FROM),--resume-from $(RESUME_FROM),) $(if $(CHECKPOINT_COPY),--checkpoint-copy $(CHECKPOINT_COPY),) \
-		$(if $(TRAIN_WORKERS),--num-workers $(TRAIN_WORKERS),)
+		$(if $(TRAIN_WORKERS),--num-workers $(TRAIN_WORKERS),) $(if $(UPDATE_THREADS),--update-threads $(UPDATE_THREADS),)
 
 play: $(STAMP)
 	$(PY) -m dls_quadruped.learning.play --task $(TASK) --seconds $(PLAY_SECONDS) $(if $(CHECKPOINT),--checkpoint $(CHECKPOINT),)

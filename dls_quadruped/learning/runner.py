@@ -38,6 +38,7 @@ from rsl_rl.runners import OnPolicyRunner
 
 from dls_quadruped.learning import resume_state
 from dls_quadruped.learning.distributed import any_rank, init_distributed
+from dls_quadruped.learning.fast_update import speed_up_update
 from dls_quadruped.learning.symmetry import check_symmetry_cfg
 
 _CKPT = re.compile(r"model_(\d+)\.pt$")
@@ -57,13 +58,18 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
 
     Args:
         save_every_s: also save when this many seconds passed since the last save (None: never).
+        fast_update: make rsl-rl's PPO update cheaper without changing its numbers
+            (``learning/fast_update.py``); False: rsl-rl's stock update.
+        update_threads: with ``fast_update``, torch threads during the update (None: every core).
         Other arguments as ``OnPolicyRunner``.
     """
 
     def __init__(self, env, train_cfg: dict, log_dir: str | None = None, device: str = "cpu",
-                 save_every_s: float | None = None):
+                 save_every_s: float | None = None, fast_update: bool = True, update_threads: int | None = None):
         check_symmetry_cfg(env, train_cfg)  # a bad mirror map fails here, naming its term (issue 14)
         super().__init__(env, train_cfg, log_dir=log_dir, device=device)
+        if fast_update:
+            speed_up_update(self.alg, update_threads)  # before any checkpoint loads into the optimiser
         self.save_every_s = save_every_s
         self.copy_to: str | None = None  # every checkpoint is also written here (train --checkpoint-copy)
         self.stop_signal: int | None = None
