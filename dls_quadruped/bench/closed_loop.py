@@ -8,12 +8,17 @@ metric, and the env + simulator (physics, low-level control, observations, rewar
 process it times the kernel alone for one robot (M = 10 000, N = 10), so the throughput can be read
 against the machine's kernel speed (our machines differ by 3-5x there).
 
+Each row runs on the fused solve (``SamplingMPC.fused``, issue 25) and on the torch path around the kernel
+(``--paths``, default both), back to back in the same process: the kernel's share of the wall time and the
+robot-seconds per second of the two, and their ratio.
+
 Writes results/bench/closed_loop.json and prints a markdown table.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 from pathlib import Path
@@ -57,12 +62,15 @@ def kernel_alone(samples: int, horizon: int, solves: int = 30) -> float:
     return statistics.median(times)
 
 
-def run(controller: str, robots: int, seconds: float, samples: int, horizon: int, num_workers: int) -> dict:
+def run(controller: str, robots: int, seconds: float, samples: int, horizon: int, num_workers: int,
+        path: str = "fused") -> dict:
+    """One closed loop of ``robots`` robots for ``seconds``; ``path``: "fused" or "torch" (SamplingMPC.fused)."""
     env = make_env(commands(robots, 0, None), seconds, seed=0, num_workers=num_workers)
     try:
         cfg = ControllerConfig(controller, policy=DEFAULT_POLICY, student=DEFAULT_STUDENT,
                                sampler=SamplerConfig(num_samples=samples, horizon=horizon))
         ctrl = make_controller(cfg, env)
+        ctrl.mpc.fused = path == "fused"
         run_closed_loop(env, ctrl, num_steps=5)  # warm-up: kernel build, layouts, worker start
         ctrl.mpc.kernel_seconds, ctrl.solve_seconds = 0.0, 0.0
         tr = run_closed_loop(env, ctrl, num_steps=round(seconds / env.step_dt))
@@ -70,7 +78,7 @@ def run(controller: str, robots: int, seconds: float, samples: int, horizon: int
         env.close()
     t = tr.timing
     wall = t["wall"]
-    return {"controller": controller, "robots": robots, "seconds": seconds, "samples": samples, "horizon": horizon,
+    return {"controller": controller, "path": path, "robots": robots, "seconds": seconds, "samples": samples, "horizon": horizon,
             "num_workers": num_workers, "robot_seconds_per_second": t["robot_seconds_per_second"],
             "wall_s": wall, "share": {k: t[k] / wall for k in ("kernel", "policy", "probe", "env_and_sim")}
             | {"solve_without_kernel": (t["solve"] - t["kernel"]) / wall},
@@ -87,37 +95,47 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--horizon", type=int, default=10)
     p.add_argument("--threads", type=int, nargs="+", default=[1], help="torch / kernel threads to measure")
     p.add_argument("--num-workers", type=int, nargs="+", default=[0], help="simulator processes (0: in-process)")
+    p.add_argument("--paths", nargs="+", default=["fused", "torch"], choices=["fused", "torch"],
+                   help="solve paths around the kernel, run back to back per row (SamplingMPC.fused)")
     p.add_argument("--out", type=Path, default=Path("results/bench"))
     args = p.parse_args(argv)
     rows = []
-    bar = progress(total=len(args.threads) * len(args.num_workers) * len(args.robots) * len(args.controllers),
+    load_start = os.getloadavg()
+    bar = progress(total=len(args.threads) * len(args.num_workers) * len(args.robots) * len(args.controllers)
+                   * len(args.paths),
                    desc="configurations", unit="config")
     for threads in args.threads:
         torch.set_num_threads(threads)
         kernel = kernel_alone(args.samples, args.horizon)
         for workers in args.num_workers:
             for robots in args.robots:
-                for ctrl in args.controllers:
-                    r = run(ctrl, robots, args.seconds, args.samples, args.horizon, workers)
+                for ctrl, path in ((c, q) for c in args.controllers for q in args.paths):
+                    r = run(ctrl, robots, args.seconds, args.samples, args.horizon, workers, path)
                     r.update({"threads": threads, "kernel_alone_ms_B1": 1e3 * kernel})
                     rows.append(r)
-                    print(f"[bench.closed_loop] {ctrl} B={robots} threads={threads} workers={workers}: "
+                    print(f"[bench.closed_loop] {ctrl} ({path}) B={robots} threads={threads} workers={workers}: "
                           f"{r['robot_seconds_per_second']:.2f} robot-s/s, kernel {100 * r['share']['kernel']:.0f} %, "
                           f"kernel alone (B=1) {1e3 * kernel:.2f} ms", flush=True)
                     bar.update(1)
     bar.close()
-    import os
-
-    res = {"cpu": cpu_model(), "load_avg_at_end": os.getloadavg(), "torch": torch.__version__, "rows": rows}
+    res = {"cpu": cpu_model(), "load_avg_at_start": load_start, "load_avg_at_end": os.getloadavg(),
+           "torch": torch.__version__, "rows": rows}
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(res, args.out / "closed_loop.json", indent=1)
-    print("| controller | B | threads | sim workers | robot-s/s | kernel | rest of solve | policy | probe | env+sim | kernel alone B=1 [ms] |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print(f"{res['cpu']}, load average {[round(x, 2) for x in load_start]} -> "
+          f"{[round(x, 2) for x in res['load_avg_at_end']]}")
+    print("| controller | path | B | threads | sim workers | robot-s/s | vs torch path | kernel | rest of solve | "
+          "policy | probe | env+sim | kernel alone B=1 [ms] |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    key = lambda r: (r["controller"], r["robots"], r["threads"], r["num_workers"])
+    torch_rows = {key(r): r for r in rows if r["path"] == "torch"}
     for r in rows:
-        s = r["share"]
-        print(f"| {r['controller']} | {r['robots']} | {r['threads']} | {r['num_workers']} | {r['robot_seconds_per_second']:.2f} | "
-              f"{100 * s['kernel']:.0f} % | {100 * s['solve_without_kernel']:.0f} % | {100 * s['policy']:.0f} % | "
-              f"{100 * s['probe']:.0f} % | {100 * s['env_and_sim']:.0f} % | {r['kernel_alone_ms_B1']:.2f} |")
+        s, ref = r["share"], torch_rows.get(key(r))
+        speed = f"{r['robot_seconds_per_second'] / ref['robot_seconds_per_second']:.2f}x" if ref else "-"
+        print(f"| {r['controller']} | {r['path']} | {r['robots']} | {r['threads']} | {r['num_workers']} | "
+              f"{r['robot_seconds_per_second']:.2f} | {speed} | {100 * s['kernel']:.0f} % | "
+              f"{100 * s['solve_without_kernel']:.0f} % | {100 * s['policy']:.0f} % | {100 * s['probe']:.0f} % | "
+              f"{100 * s['env_and_sim']:.0f} % | {r['kernel_alone_ms_B1']:.2f} |")
     return res
 
 

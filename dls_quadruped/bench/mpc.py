@@ -14,6 +14,8 @@ N = 10 (issue 15): for the host (``-march=native``), for ``x86-64-v3`` (AVX2 + F
 AVX-512) and without auto-vectorisation (``scalar``), taking turns solve by solve; full solve and kernel
 call medians, speed-ups over ``scalar`` and the kernel's share of the machine's fp32 peak go to
 results/bench/mpc_builds.json and the "## MPC C++ kernel builds" section of docs/benchmarks.md.
+
+Last, the fused solve vs the torch path side by side (issue 25, :mod:`dls_quadruped.bench.mpc_path`).
 """
 
 from __future__ import annotations
@@ -106,8 +108,8 @@ def time_cpp_builds(num_samples: int, horizon: int, solves: int, threads: int, w
 
     The builds take turns solve by solve (each its own SamplingMPC with the same seed, so the same work),
     so that load from other jobs falls on all of them alike. The solve goes through the normal path:
-    ``cpp_kernel.load`` is patched to hand out the build under test, and ``cpp_kernel.cpp_costs`` to time
-    the kernel call inside the solve."""
+    ``cpp_kernel.load`` is patched to hand out the build under test; the kernel call inside the solve is
+    ``SamplingMPC.kernel_seconds``' increment."""
     libs = {v: cpp_kernel.load(v) for v in build_variants()}
     libs = {v: lib for v, lib in libs.items() if lib is not None}
     state, refs, phase = _problem("cpu")
@@ -116,31 +118,22 @@ def time_cpp_builds(num_samples: int, horizon: int, solves: int, threads: int, w
         cfg = SamplerConfig(num_samples=num_samples, horizon=horizon, kernel="cpp")
         mpc = SamplingMPC(cfg, device="cpu", seed=0)
         runs[v] = (mpc, warm_start.nominal_trot(1, cfg), warm_start.nominal_trot(1, cfg, freq=1.8))
-    kernel_call = cpp_kernel.cpp_costs
-    last_kernel_ms = [0.0]
-
-    def timed_kernel(*args, **kwargs) -> torch.Tensor:
-        t0 = time.perf_counter()
-        out = kernel_call(*args, **kwargs)
-        last_kernel_ms[0] = (time.perf_counter() - t0) * 1e3
-        return out
-
     solve_ms = {v: [] for v in libs}
     kernel_ms = {v: [] for v in libs}
     threads_before = torch.get_num_threads()
     torch.set_num_threads(threads)
-    with mock.patch.object(cpp_kernel, "cpp_costs", timed_kernel):
-        for i in progress(range(warmup + solves), desc=f"solves, {threads} threads", unit="solve", leave=False):
-            for v, lib in libs.items():
-                mpc, default, external = runs[v]
-                with mock.patch.object(cpp_kernel, "load", lambda variant="native", lib=lib: lib):
-                    t0 = time.perf_counter()
-                    mpc.solve(state, refs, [mpc.naive_warm_start(default), external], proportions=(0.5, 0.5),
-                              phase=phase)
-                    elapsed = (time.perf_counter() - t0) * 1e3
-                if i >= warmup:
-                    solve_ms[v].append(elapsed)
-                    kernel_ms[v].append(last_kernel_ms[0])
+    for i in progress(range(warmup + solves), desc=f"solves, {threads} threads", unit="solve", leave=False):
+        for v, lib in libs.items():
+            mpc, default, external = runs[v]
+            with mock.patch.object(cpp_kernel, "load", lambda variant="native", lib=lib: lib):
+                kernel_before = mpc.kernel_seconds
+                t0 = time.perf_counter()
+                mpc.solve(state, refs, [mpc.naive_warm_start(default), external], proportions=(0.5, 0.5),
+                          phase=phase)
+                elapsed = (time.perf_counter() - t0) * 1e3
+            if i >= warmup:
+                solve_ms[v].append(elapsed)
+                kernel_ms[v].append((mpc.kernel_seconds - kernel_before) * 1e3)
     torch.set_num_threads(threads_before)
     rows = []
     for v, lib in libs.items():
@@ -201,8 +194,9 @@ def update_builds_docs(rows: list[dict], info: dict, path: Path) -> None:
         "AVX-512) and without auto-vectorisation (`scalar`), timed side by side in one process, the builds taking "
         f"turns solve by solve; the solve of the table above at M = {m}, N = {n}, medians over "
         f"{rows[0]['solves']} solves; every build also has `{info.get('common_flags', '')}`. "
-        "`kernel` is the C++ call alone inside the solve (the rest is torch: "
-        "validation, layout, re-drawing and decoding the winner). "
+        "`solve` includes building the naive warm start; `kernel` is the C++ call alone inside the solve "
+        "(`SamplingMPC.kernel_seconds`: the kernel and the argmin; the rest is validation, input cleaning and "
+        "decoding the winner, see \"MPC solve path\"). "
         f"Machine: {info['cpu']}, {info['cpu_count']} cores at {info.get('cpu_mhz') or '?'} MHz, SIMD flags "
         f"{', '.join(info['simd_flags']) or '-'}, {info['compiler']}, torch {info['torch']}; load average "
         f"(1, 5, 15 min) at start {info['load_avg_1_5_15']} and end {info.get('load_avg_end')}: {load_note}.\n\n"
@@ -425,6 +419,9 @@ def main(argv: list[str] | None = None) -> None:
     if not args.no_docs and not args.quick:
         update_docs(table, info, results, args.docs)
     run_builds(args)
+    from dls_quadruped.bench import mpc_path
+
+    mpc_path.run(argparse.Namespace(quick=args.quick, solves=200, out=args.out, docs=args.docs, no_docs=args.no_docs))
 
 
 if __name__ == "__main__":

@@ -143,12 +143,15 @@ void winner_sample(int B, int G, int D, const float* warm, const int64_t* group,
 }
 
 // Decoding the winner, part 1 (gait.contact_sequence, samples.forces_from_offsets): per robot b, step k, leg i
-//   f, d: rows of the winner (stride fd_stride); F: (B, N, 4, 3) decoded force offsets; phase: (B, 4);
+//   f, d: rows of the winner (stride fd_stride); F: decoded force offset s (0..11, leg-major) of robot b at step k
+//   at F[b F_bs + k F_ks + s F_ss] (the encoded row itself for "first" / "discrete", torch's spline matmul);
+//   phase: (B, 4);
 //   c: [dt, weight, ...] (see winner_decode).
 // Outputs: contact (B, N, 4) bool; F_h (B, N, 4, 3) forces before the limits; sumsq (B, N, 4) F_x^2 + F_y^2,
 // whose square root torch takes.
-void winner_forces(int B, int N, const float* f, const float* d, int fd_stride, const float* F, const float* phase,
-                   const float* c, uint8_t* contact, float* F_h, float* sumsq) {
+void winner_forces(int B, int N, const float* f, const float* d, int fd_stride, const float* F, int64_t F_bs,
+                   int64_t F_ks, int64_t F_ss, const float* phase, const float* c, uint8_t* contact, float* F_h,
+                   float* sumsq) {
   const float dt = c[0], weight = c[1];
   for (int b = 0; b < B; ++b)
     for (int k = 0; k < N; ++k) {
@@ -167,18 +170,19 @@ void winner_forces(int B, int N, const float* f, const float* d, int fd_stride, 
       }
       const float shift = (1.0f / (nst < 1.0f ? 1.0f : nst)) * weight;  // python float / tensor = reciprocal * float
       for (int i = 0; i < 4; ++i) {
-        const float* Fi = F + (bk * 4 + i) * 3;
+        const float* Fi = F + b * F_bs + k * F_ks + (3 * i) * F_ss;
         float* out = F_h + (bk * 4 + i) * 3;
         out[0] = cf[i] * Fi[0];
-        out[1] = cf[i] * Fi[1];
-        out[2] = cf[i] * (Fi[2] + shift);
+        out[1] = cf[i] * Fi[F_ss];
+        out[2] = cf[i] * (Fi[2 * F_ss] + shift);
         sumsq[bk * 4 + i] = out[0] * out[0] + out[1] * out[1];
       }
     }
 }
 
 // Decoding the winner, part 2 (samples.clip_horizon, horizontal_to_world, cost.input_step_costs' terms):
-//   p: (B, N, 4, 2) decoded offsets; F_h, norm_xy: winner_forces' forces and torch.sqrt of its sumsq;
+//   p: decoded offset s (0..7, leg-major) of robot b at step k at p[b p_bs + k p_ks + s p_ss] (as F above);
+//   F_h, norm_xy: winner_forces' forces and torch.sqrt of its sumsq;
 //   base_xy: (B, 2); cos_yaw, sin_yaw: (B,) (torch's cos/sin); terrain_z: (B, 4); foothold: (B, 4, 3)
 //   reference footholds; nominal: (4, 2); r: (24,) R diagonal;
 //   c: [dt, weight, px_lo, px_hi, py_lo, py_hi, fz_lo, fz_hi, mu, foot_radius] (float32).
@@ -186,7 +190,8 @@ void winner_forces(int B, int N, const float* f, const float* d, int fd_stride, 
 // with u = [targets (12), forces (12)] world; step_costs (B, N) NaN; init_cost (B,): NaN -> +inf in place.
 // The solve's last guard: returns the number of robots with a flag in bad_in (9, B) or a non-finite action
 // (best (B, D) -- f and d are its first 8 entries -- p_h0, F_h0, target0, force0).
-int winner_decode(int B, int N, int D, const float* p, const float* F_h, const float* norm_xy, const float* base_xy,
+int winner_decode(int B, int N, int D, const float* p, int64_t p_bs, int64_t p_ks, int64_t p_ss, const float* F_h,
+                  const float* norm_xy, const float* base_xy,
                   const float* cos_yaw, const float* sin_yaw, const float* terrain_z, const float* foothold,
                   const float* nominal, const float* r, const float* c, float* p_h0, float* F_h0, float* target0,
                   float* force0, float* input_terms, float* step_costs, const float* best, const uint8_t* bad_in,
@@ -199,9 +204,9 @@ int winner_decode(int B, int N, int D, const float* p, const float* F_h, const f
       const long bk = static_cast<long>(b) * N + k;
       float u[24];
       for (int i = 0; i < 4; ++i) {
-        const float* pi = p + (bk * 4 + i) * 2;
+        const float* pi = p + b * p_bs + k * p_ks + (2 * i) * p_ss;
         const float* Fi = F_h + (bk * 4 + i) * 3;
-        const float px = clamp_nan(pi[0], px_lo, px_hi), py = clamp_nan(pi[1], py_lo, py_hi);
+        const float px = clamp_nan(pi[0], px_lo, px_hi), py = clamp_nan(pi[p_ss], py_lo, py_hi);
         const float fz = clamp_nan(Fi[2], fz_lo, fz_hi);
         const float nxy = norm_xy[bk * 4 + i];
         const float limit = mu * fz;

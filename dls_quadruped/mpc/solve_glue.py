@@ -27,6 +27,7 @@ import hashlib
 import os
 import platform
 import subprocess
+import sys
 import tempfile
 import time
 import warnings
@@ -36,6 +37,7 @@ import torch
 
 from dls_quadruped.mpc import cpp_kernel
 from dls_quadruped.mpc.config import SamplerConfig
+from dls_quadruped.mpc.cost import Refs
 from dls_quadruped.mpc.encodings import (
     F_SCALARS,
     P_SCALARS,
@@ -44,8 +46,11 @@ from dls_quadruped.mpc.encodings import (
     encoded_dim,
     spline_basis,
 )
+from dls_quadruped.mpc.kernel import KernelInputs
 
 SOURCE = Path(__file__).with_name("solve_glue.cpp")
+_SAMPLER = "dls_quadruped.mpc.sampler"
+"""Imports this module; its MPCResult and checks are looked up in sys.modules (no import machinery per solve)."""
 FLAGS = ["-O2", "-ffp-contract=off", "-fno-math-errno", "-std=gnu++17", "-shared", "-fPIC"]
 """No -march=native and no FMA contraction: the results must round like torch's separate ops."""
 
@@ -54,8 +59,8 @@ _SIGNATURES = {  # name: (restype, argtypes); pointers go as raw addresses (ints
     "clean_inputs": (None, [ctypes.c_int] + [_P] * 11),
     "winner_noise_args": (None, [ctypes.c_int] * 3 + [ctypes.c_int64] + [_P] * 11),
     "winner_sample": (None, [ctypes.c_int] * 3 + [_P] * 11),
-    "winner_forces": (None, [ctypes.c_int] * 2 + [_P] * 2 + [ctypes.c_int] + [_P] * 6),
-    "winner_decode": (ctypes.c_int, [ctypes.c_int] * 3 + [_P] * 20),
+    "winner_forces": (None, [ctypes.c_int] * 2 + [_P] * 2 + [ctypes.c_int, _P] + [ctypes.c_int64] * 3 + [_P] * 5),
+    "winner_decode": (ctypes.c_int, [ctypes.c_int] * 3 + [_P] + [ctypes.c_int64] * 3 + [_P] * 19),
     "all_finite": (ctypes.c_int, [ctypes.c_int64, _P]),
     "rotation_from_cos_sin": (None, [ctypes.c_int] + [_P] * 3),
 }
@@ -130,6 +135,9 @@ class Workspace:
         self.clean_ptr = flat.data_ptr()
         self.bad = torch.zeros(len(INPUT_WIDTHS), b, dtype=torch.bool)
         self.noise = torch.empty(6, b, 1, dim // 2)  # u1, angle, log u1, radius, cos, sin: (B, 1, D/2) as rng.normals
+        self.noise_views = tuple(self.noise)
+        self.enc = cfg.encoding
+        self.keep: dict[str, torch.Tensor] = {}
         self.init_terms = torch.empty(b, 24)
         self.input_terms = torch.empty(b, 1, n, 24)
         self.forces = torch.empty(b, 1, n, 4, 3)
@@ -158,16 +166,20 @@ def _f32(t: torch.Tensor) -> torch.Tensor:
     return t.detach().to("cpu", torch.float32).contiguous()
 
 
-def _decode_block(block: torch.Tensor, kind: str, scalars: int, horizon: int, basis_t: torch.Tensor) -> torch.Tensor:
-    """encodings._decode_block with the spline basis computed once: (B, 1, H, n) contiguous."""
-    lead = block.shape[:-1]
+def _decoded_block(best: torch.Tensor, w: Workspace, block: str, scalars: int) -> tuple[int, int, int, int]:
+    """Where the C++ glue reads the decoded ``block`` ("p" or "F") of the winners ``best`` (B, D): (address, robot
+    stride, step stride, scalar stride), in floats. encodings._decode_block without copies: "first" and "discrete"
+    are the encoded entries themselves; a spline is torch's matmul of the parameters with the basis, on the
+    (B, 1, n, 4) view the torch path multiplies (its result (B, 1, n, N) is read transposed)."""
+    kind, sl, n = getattr(w.enc, block), w.slices[block], w.n
+    if kind == "first":
+        return best.data_ptr() + 4 * sl.start, w.dim, 0, 1
     if kind == "discrete":
-        out = block.unflatten(-1, (horizon, scalars))
-    elif kind == "first":
-        out = block.unsqueeze(-2).expand(*lead, horizon, scalars)
-    else:
-        out = (block.unflatten(-1, (scalars, SPLINE_PARAMS)) @ basis_t).transpose(-1, -2)
-    return out.contiguous()
+        return best.data_ptr() + 4 * sl.start, w.dim, scalars, 1
+    theta = best.view(w.b, 1, w.dim)[..., sl].unflatten(-1, (scalars, SPLINE_PARAMS))
+    values = (theta @ w.basis_t).contiguous()  # (B, 1, n, N): value of scalar s at step k at s N + k
+    w.keep[block] = values  # alive until the C++ call has read it
+    return values.data_ptr(), scalars * n, 1, n
 
 
 def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, props: tuple[float, ...], state,
@@ -175,10 +187,7 @@ def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, prop
           terrain_z_w: torch.Tensor | None):
     """:meth:`SamplingMPC.solve` after its argument validation, fused (CPU, ``cpp`` kernel); the same result
     bit for bit. ``ws``: (B, G, D) validated warm starts; ``props``: their proportions."""
-    from dls_quadruped.mpc.cost import Refs
-    from dls_quadruped.mpc.kernel import KernelInputs
-    from dls_quadruped.mpc.sampler import _check_tensor
-
+    sampler = sys.modules[_SAMPLER]
     b, g = state.batch_size, ws.shape[1]
     w = mpc._workspaces.get((b, g))
     if w is None or w.cfg is not mpc.cfg or w.model is not mpc.model:
@@ -200,7 +209,7 @@ def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, prop
         terrain_z_w = torch.zeros(b, 4)
     for name, value, shape in (("base_xy_w", base_xy_w, (b, 2)), ("base_yaw", base_yaw, (b,)),
                                ("terrain_z_w", terrain_z_w, (b, 4))):
-        _check_tensor(name, value, shape)
+        sampler._check_tensor(name, value, shape)
     inputs = [_f32(t) for t in (phase, base_xy_w, base_yaw, terrain_z_w, refs.com_height_w, refs.lin_vel_w,
                                 refs.yaw_rate, refs.foothold_w)]
     lib.clean_inputs(b, x.data_ptr(), *(t.data_ptr() for t in inputs), w.clean_ptr, w.bad.data_ptr())
@@ -223,7 +232,7 @@ def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, prop
     inp = KernelInputs(seed_t, ws, group, perturb, c["state"], c["phase"], c["base_xy_w"], yaw, c["terrain_z_w"],
                        Refs(h_ref, c["refs.lin_vel_w"], wz_ref, foothold))
     # ---- the winner: noise arguments and the initial cost's terms (C++), log/sqrt/cos/sin (torch), clip (C++)
-    u1, angle, log_u1, radius, cos_a, sin_a = w.noise
+    u1, angle, log_u1, radius, cos_a, sin_a = w.noise_views
     q_diag = w.glue_consts[3]
     ws_index = torch.empty(b, dtype=torch.int64)
     lib.winner_noise_args(b, m, dim, seed, *(t.data_ptr() for t in (
@@ -239,7 +248,7 @@ def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, prop
         torch.sqrt(torch.mul(log_u1, -2.0, out=radius), out=radius)  # rng.normal_pair's sqrt(-2 log u1)
         torch.cos(angle, out=cos_a)
         torch.sin(angle, out=sin_a)
-        best = torch.empty(b, 1, dim)
+        best = torch.empty(b, dim)
         lib.winner_sample(b, g, dim, *(t.data_ptr() for t in (
             ws, group, perturb, best_index, sigma, lo, hi, radius, cos_a, sin_a, best)))
         result, num_bad = _decode_winner(lib, w, best, inp, best_index, best_cost, init_cost, ws_index)
@@ -253,44 +262,40 @@ def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, prop
 
 def _guard(mpc, result, inp, bad_in: torch.Tensor) -> None:
     """SamplingMPC.solve's last guard (torch): robots with a flagged input or a non-finite action fall back."""
-    from dls_quadruped.mpc.sampler import _action_finite, _describe_bad
-
+    sampler = sys.modules[_SAMPLER]
     finite = ~bad_in.any(dim=0)
     bad_inputs = {name: bad_in[i].clone() for i, name in enumerate(INPUT_WIDTHS)}
-    bad_inputs["solution"] = finite & ~_action_finite(result)
+    bad_inputs["solution"] = finite & ~sampler._action_finite(result)
     bad = torch.stack(list(bad_inputs.values())).any(dim=0)
     if bool(bad.any()):
-        result = mpc._fallback(result, bad, inp, _describe_bad(bad_inputs))
+        result = mpc._fallback(result, bad, inp, sampler._describe_bad(bad_inputs))
     mpc.last_result, mpc._forgotten = result, None
 
 
 def _decode_winner(lib: ctypes.CDLL, w: Workspace, best: torch.Tensor, inp, best_index: torch.Tensor,
                    best_cost: torch.Tensor, init_cost: torch.Tensor, ws_index: torch.Tensor):
-    """(MPCResult of the winners ``best`` (B, 1, D) as ``SamplingMPC._extract`` computes it (step costs NaN),
+    """(MPCResult of the winners ``best`` (B, D) as ``SamplingMPC._extract`` computes it (step costs NaN),
     number of robots the last guard flags)."""
-    from dls_quadruped.mpc.sampler import MPCResult
-
-    enc = w.cfg.encoding
     b, n = w.b, w.n
-    p_h = _decode_block(best[..., w.slices["p"]], enc.p, P_SCALARS, n, w.basis_t)  # (B, 1, N, 8)
-    offset_h = _decode_block(best[..., w.slices["F"]], enc.F, F_SCALARS, n, w.basis_t)  # (B, 1, N, 12)
+    p_h = _decoded_block(best, w, "p", P_SCALARS)
+    offset_h = _decoded_block(best, w, "F", F_SCALARS)
     cos_yaw, sin_yaw = torch.cos(inp.base_yaw), torch.sin(inp.base_yaw)
     const, nominal, r_diag, _ = w.glue_consts
     contact = torch.empty(b, n, 4, dtype=torch.bool)
     p_h0, F_h0, target0, force0 = torch.empty(b, 4, 2), torch.empty(b, 4, 3), torch.empty(b, 4, 3), torch.empty(b, 4, 3)
     step_costs = torch.empty(b, n)
     f_ptr = best.data_ptr()
-    lib.winner_forces(b, n, f_ptr, f_ptr + 4 * best.element_size(), w.dim, offset_h.data_ptr(), inp.phase.data_ptr(),
+    lib.winner_forces(b, n, f_ptr, f_ptr + 4 * best.element_size(), w.dim, *offset_h, inp.phase.data_ptr(),
                       const.data_ptr(), contact.data_ptr(), w.forces.data_ptr(), w.sumsq.data_ptr())
     torch.sqrt(w.sumsq, out=w.norm_xy)  # samples.clip_horizon's |F_xy|, torch's sqrt
-    num_bad = lib.winner_decode(b, n, w.dim, *(t.data_ptr() for t in (
-        p_h, w.forces, w.norm_xy, inp.base_xy_w, cos_yaw, sin_yaw, inp.terrain_z_w, inp.refs.foothold_w, nominal,
+    num_bad = lib.winner_decode(b, n, w.dim, *p_h, *(t.data_ptr() for t in (
+        w.forces, w.norm_xy, inp.base_xy_w, cos_yaw, sin_yaw, inp.terrain_z_w, inp.refs.foothold_w, nominal,
         r_diag, const, p_h0, F_h0, target0, force0, w.input_terms, step_costs, best, w.bad, init_cost)))
     step_input = w.input_terms.sum(-1)[:, 0]  # (B, N), torch's summation order
-    result = MPCResult(
-        f=best[:, 0, 0:4], d=best[:, 0, 4:8], contact=contact[:, 0], foot_target_w=target0, force_w=force0,
+    result = sys.modules[_SAMPLER].MPCResult(
+        f=best[:, 0:4], d=best[:, 4:8], contact=contact[:, 0], foot_target_w=target0, force_w=force0,
         p_h=p_h0, F_h=F_h0, best_cost=best_cost, best_input_cost=step_input.sum(-1), initial_cost=init_cost,
-        best_index=best_index, warm_start_index=ws_index, best_encoded=best[:, 0], contact_horizon=contact,
+        best_index=best_index, warm_start_index=ws_index, best_encoded=best, contact_horizon=contact,
         step_costs=step_costs, step_input_costs=step_input, fallback=torch.zeros(b, dtype=torch.bool),
     )
     return result, num_bad
