@@ -35,7 +35,11 @@ from dls_quadruped.bench.rl_env import make_runner, ppo_iteration
 from dls_quadruped.cli import ArgumentParser, non_negative_int, positive_int, run_cli
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
-from dls_quadruped.learning.fast_update import available_cores, speed_up_update
+from dls_quadruped.learning.fast_update import (
+    available_cores,
+    default_update_threads,
+    speed_up_update,
+)
 
 VARIANTS = ("stock", "fast_1_thread", "fast")
 
@@ -109,7 +113,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if args.quick:
         args.sizes, args.iterations = [64], 1
     torch.set_num_threads(args.threads)
-    update_threads = available_cores() if args.update_threads is None else args.update_threads
+    update_threads = default_update_threads() if args.update_threads is None else args.update_threads
     t0 = time.perf_counter()
     result: dict[str, Any] = {
         "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "available_cores": available_cores(),

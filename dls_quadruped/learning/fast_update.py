@@ -49,6 +49,12 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
+def default_update_threads() -> int:
+    """Threads for one trainer's update: the available cores shared among the processes torchrun
+    started on this machine (``LOCAL_WORLD_SIZE``; 1 without torchrun), at least 1."""
+    return max(1, available_cores() // int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
+
+
 class ReusedForwardSymmetry(Symmetry):
     """rsl-rl's ``Symmetry`` whose logged-only mirror loss reuses the update's actor forward pass.
 
@@ -128,7 +134,8 @@ def speed_up_update(alg: PPO, threads: int | None = None) -> PPO:
 
     Args:
         alg: rsl-rl's ``PPO`` (feed-forward actor and critic; recurrent ones keep rsl-rl's storage).
-        threads: torch threads during the update (None: every available core; 0: leave as is).
+        threads: torch threads during the update (None: ``default_update_threads()``, every available
+            core, shared among torchrun's local processes; 0: leave as is).
 
     Returns:
         ``alg``.
@@ -138,7 +145,7 @@ def speed_up_update(alg: PPO, threads: int | None = None) -> PPO:
     if type(alg.storage) is RolloutStorage and not (alg.actor.is_recurrent or alg.critic.is_recurrent):
         alg.storage.__class__ = ShuffleOnceStorage
     alg.optimizer = fused_optimizer(alg.optimizer)
-    threads = available_cores() if threads is None else threads
+    threads = default_update_threads() if threads is None else threads
     if threads > 0:
         alg.update = _with_threads(alg.update, threads)
     return alg

@@ -107,8 +107,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--num-workers", type=non_negative_int, default=None,
                    help="simulator worker processes (scene.num_workers; 0 = in-process)")
     p.add_argument("--update-threads", type=non_negative_int, default=None,
-                   help="torch threads of the PPO update (default: every core, the simulator workers idle "
-                        "then; 0: the trainer's own count)")
+                   help="torch threads of the PPO update (default: every core, shared among torchrun's processes "
+                        "on the machine; the simulator workers idle then; 0: the trainer's own count)")
     p.add_argument("--stock-update", action="store_true",
                    help="rsl-rl's PPO update as shipped, without learning/fast_update.py (same numbers, slower)")
     return p.parse_args(argv)

@@ -14,6 +14,7 @@ from tensordict import TensorDict
 
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
+from dls_quadruped.learning import fast_update
 from dls_quadruped.learning.fast_update import (
     ReusedForwardSymmetry,
     ShuffleOnceStorage,
@@ -71,6 +72,16 @@ def test_fused_optimizer_keeps_class_params_and_defaults():
     assert fused.param_groups[0]["params"] == list(net.parameters())
     sgd = torch.optim.SGD(net.parameters(), lr=0.1)
     assert fused_optimizer(sgd) is sgd  # no fused kernel wanted there: unchanged
+
+
+def test_update_threads_share_the_cores_among_torchrun_processes(monkeypatch):
+    monkeypatch.setattr(fast_update, "available_cores", lambda: 16)
+    monkeypatch.delenv("LOCAL_WORLD_SIZE", raising=False)
+    assert fast_update.default_update_threads() == 16
+    monkeypatch.setenv("LOCAL_WORLD_SIZE", "3")
+    assert fast_update.default_update_threads() == 5
+    monkeypatch.setenv("LOCAL_WORLD_SIZE", "32")
+    assert fast_update.default_update_threads() == 1
 
 
 @pytest.fixture(scope="module")
