@@ -71,7 +71,7 @@ bench-gym: $(STAMP)
 	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.bench.gym_env --out $(OUT)/bench
 
 bench-closed-loop: $(STAMP)
-	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.bench.closed_loop --out $(OUT)/bench
+	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.bench.closed_loop --robots 16 64 --paths fused torch --out $(OUT)/bench
 
 clean:
 	rm -rf $(VENV) results .pytest_cache
