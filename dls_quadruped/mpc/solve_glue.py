@@ -120,7 +120,8 @@ INPUT_WIDTHS = {"state": 24, "phase": 4, "base_xy_w": 2, "base_yaw": 1, "terrain
 
 class Workspace:
     """Buffers and constants of the solves of one (B robots, G warm starts) for one SamplingMPC, reused solve after
-    solve. Nothing here leaves a solve: the result's tensors are allocated per solve (callers keep them)."""
+    solve. Nothing here leaves a solve: the result's tensors are allocated per solve (callers keep them). One solve
+    at a time per SamplingMPC (two threads solving on the same instance would share these buffers)."""
 
     def __init__(self, cfg: SamplerConfig, model, b: int, g: int) -> None:
         self.cfg, self.model, self.b, self.g = cfg, model, b, g
