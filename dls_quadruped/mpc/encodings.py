@@ -21,10 +21,9 @@ Fits are least squares via the normal equations (A.2.9), optionally exact at x_0
 
 from __future__ import annotations
 
-import functools
-
 import torch
 
+from dls_quadruped.core.torch_cache import constant_cache
 from dls_quadruped.mpc.config import EncodingConfig
 
 ACTION_DIM = 28
@@ -66,7 +65,7 @@ def spline_grid(horizon: int, dtype: torch.dtype = torch.float32, device: torch.
     return torch.linspace(0.0, 1.0, horizon, dtype=dtype, device=device)
 
 
-@functools.lru_cache(maxsize=64)  # a constant per arguments (callers only read it): built once, not per solve
+@constant_cache  # a constant per arguments (callers only read it): built once, not per solve
 def spline_basis(horizon: int, dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> torch.Tensor:
     """(H, 4) matrix Phi with s(x_k) = sum_j Phi[k, j] theta_j, i.e. Phi = [x^3 x^2 x 1] C."""
     x = spline_grid(horizon, torch.float64, device)
@@ -166,7 +165,7 @@ def decode(encoded: torch.Tensor, cfg: EncodingConfig) -> torch.Tensor:
     return torch.cat([gait, p.flatten(-2), F.flatten(-2)], dim=-1)
 
 
-@functools.lru_cache(maxsize=64)  # a constant per arguments (callers only read it): built once, not per solve
+@constant_cache  # a constant per arguments (callers only read it): built once, not per solve
 def held_shift_matrix(horizon: int, steps: float, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """(H, H) S with new_k = sum_j S[k, j] old_j = old at time k + steps (linear interp., held at the end)."""
     t = (torch.arange(horizon, dtype=torch.float64) + steps).clamp(0.0, horizon - 1)
@@ -179,7 +178,7 @@ def held_shift_matrix(horizon: int, steps: float, dtype: torch.dtype, device: to
     return mat.to(dtype=dtype, device=device)
 
 
-@functools.lru_cache(maxsize=64)  # a constant per arguments (callers only read it): built once, not per solve
+@constant_cache  # a constant per arguments (callers only read it): built once, not per solve
 def _shift_matrix_spline(horizon: int, steps: float, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """(4, 4) T with theta' = T theta and s'(x) = s(x + steps / (H - 1)) (exact for a cubic)."""
     delta = steps / (horizon - 1)

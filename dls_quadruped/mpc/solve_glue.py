@@ -35,6 +35,7 @@ from pathlib import Path
 
 import torch
 
+from dls_quadruped.core.torch_cache import constant_cache
 from dls_quadruped.mpc import cpp_kernel
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import Refs
@@ -102,7 +103,7 @@ def load() -> ctypes.CDLL | None:
         return None
 
 
-@functools.lru_cache(maxsize=64)
+@constant_cache
 def decode_constants(cfg: SamplerConfig) -> tuple[torch.Tensor, ...]:
     """float32 constants of ``winner_decode`` and the initial cost: c (10,), nominal (4, 2), R diag (24,),
     Q diag (24,); each python float rounded to float32 as torch rounds a scalar operand."""
