@@ -2,6 +2,7 @@
 
     python -m dls_quadruped.closed_loop --controllers rl_warm_start,naive_warm_start,rl_baseline \\
         --episodes 8 --seconds 15 [--sampler-seeds 3] [--samples 10000] [--vx 0.5] [--optimise F,f] [--out DIR]
+    python -m dls_quadruped.closed_loop --controllers rl_warm_start --students base,speed [--shares 0.5,0.5]
 
 Every controller gets a fresh env with the same seed and the same scheduled episodes (commands,
 starting states, and any event or noise, ``envs/schedule.py``), so differences between controllers
@@ -11,6 +12,9 @@ a policy controller is deterministic and runs each episode once. Summaries are p
 then across episodes and seeds with 95 % intervals; ``paired`` holds every pair of controllers'
 differences on the same episodes (two-level bootstrap over episodes and seeds).
 ``--vx`` replaces the simple task's random commands by a fixed forward speed (Table 17).
+``--students`` warm-starts one MPC with several students (thesis 7.4): each seeds its own group of
+samples (``--shares``, equal by default) in the same batched solve; a name ``X`` is the committed
+``docs/policies/X_student_<p>_<F>_h<H>.pt``, anything else a path.
 Writes ``<out>/summary.json`` (per controller: medians and quartiles of the RL reward, initial
 cost, rollout cost, cost per horizon step, velocity error, CoT; survival with a Wilson interval;
 which warm start won; the timing profile), ``<out>/closed_loop.png`` and, with ``--video``,
@@ -40,6 +44,7 @@ from dls_quadruped.cli import (
 )
 from dls_quadruped.closed_loop.controllers import (
     CONTROLLERS,
+    GROUNDS,
     NEEDS_POLICY,
     NEEDS_STUDENT,
     ControllerConfig,
@@ -69,15 +74,60 @@ def _names(text: str, allowed: tuple[str, ...], what: str) -> tuple[str, ...]:
     return names
 
 
+def _list(text: str) -> tuple[str, ...]:
+    names = tuple(t.strip() for t in text.split(",") if t.strip())
+    if not names:
+        raise argparse.ArgumentTypeError(f"expected comma-separated names or paths, got {text!r}")
+    return names
+
+
+def _shares(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(t) for t in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def student_paths(names: tuple[str, ...], encoding: str, horizon: int, dt: float,
+                  policies: Path = Path("docs/policies")) -> tuple[Path, ...]:
+    """``--students`` entries as files: an existing path as is, a bare name as the committed student
+    ``<policies>/<name>_student_<p>_<F>_h<H>.pt`` of the MPC's encoding and horizon (dt = 0.02 s)."""
+    p_kind, f_kind = encoding.split("-")
+    out = []
+    for name in names:
+        path = Path(name)
+        if path.is_file():
+            out.append(path)
+            continue
+        committed = policies / f"{name}_student_{p_kind}_{f_kind}_h{horizon}.pt"
+        if "/" not in name and not name.endswith(".pt") and committed.is_file() and abs(dt - 0.02) < 1e-9:
+            out.append(committed)
+            continue
+        have = sorted(q.name.split("_student_")[0] for q in policies.glob(f"*_student_{p_kind}_{f_kind}_h{horizon}.pt"))
+        raise UserError(f"--students: {name!r} is neither a file nor a committed student "
+                        f"({committed}, dt 0.02 s); committed for {encoding}, H = {horizon}: {have}")
+    return tuple(out)
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--controllers", type=lambda t: _names(t, CONTROLLERS, "--controllers"),
                    default=("rl_warm_start", "naive_warm_start", "rl_baseline"), help=f"comma-separated from {list(CONTROLLERS)}")
     p.add_argument("--policy", type=Path, default=DEFAULT_POLICY, help="RL expert (rl_baseline)")
     p.add_argument("--student", type=Path, default=DEFAULT_STUDENT, help="distilled student (rl_warm_start, student)")
+    p.add_argument("--students", type=_list, default=None,
+                   help="rl_warm_start with several students, comma-separated names (docs/policies/<name>_student_"
+                        "<p>_<F>_h<H>.pt) or paths; replaces --student")
+    p.add_argument("--shares", type=_shares, default=None,
+                   help="--students' shares of the samples, comma-separated, positive, summing to 1 (default: equal)")
     p.add_argument("--episodes", type=positive_int, default=8, help="episodes (robots in parallel); even for the simple task")
     p.add_argument("--seconds", type=positive_float, default=15.0, help="episode length [s]")
     p.add_argument("--vx", type=float, default=None, help="fixed forward command [m/s] instead of the simple task")
+    p.add_argument("--scenario", choices=SCENARIOS, default="simple",
+                   help="simple (flat, no disturbance) or the eval suite's survival / survival_sweep (terrain, pushes, "
+                        "friction, wrench, noise; the MPC stays terrain-blind)")
+    p.add_argument("--ground", choices=("auto", *GROUNDS), default="auto",
+                   help="ground the MPC plans on: auto = flat for simple, stance_feet (flat at its feet's height) else")
     p.add_argument("--samples", type=positive_int, default=10000, help="M, samples per robot")
     p.add_argument("--sampler-seeds", type=positive_int, default=1,
                    help="independent sampler noise streams per episode for the MPC controllers (robots in parallel)")
@@ -118,36 +168,80 @@ def commands(episodes: int, seed: int, vx: float | None) -> np.ndarray:
     return np.tile([vx, 0.0, 0.0], (episodes, 1))
 
 
-def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int, replicas: int = 1):
-    """The base task on flat ground, no noise or perturbation, fixed commands, Table-4 reward; E
-    episodes (one per row of ``cmds``) played ``replicas`` times side by side (robot s E + e: episode e)."""
+SCENARIOS = ("simple", "survival", "survival_sweep")
+"""Where the controllers run: ``simple`` = the base task on flat ground without noise or perturbation;
+``survival`` / ``survival_sweep`` = the eval suite's scenarios (``eval/survival.py``): their terrain
+rows, disturbances (friction, wrench, pushes), observation noise and terminations."""
+
+
+def _survival_layout(scenario: str) -> tuple[int, float, float]:
+    from dls_quadruped.eval import survival as SV
+
+    if scenario == "survival":
+        return SV.ROWS, SV.HARD, SV.STRENGTH
+    return SV.SWEEP_ROWS, 0.0, SV.SWEEP_STRENGTH
+
+
+def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int, replicas: int = 1,
+             scenario: str = "simple"):
+    """The scenario's env with fixed commands and the Table-4 reward: E episodes (one per row of ``cmds``)
+    played ``replicas`` times side by side (robot s E + e: episode e). ``simple``: the base task on flat
+    ground, no noise or perturbation. ``survival`` / ``survival_sweep``: the eval suite's env of that
+    scenario, every robot of episode e on the terrain tile and row the eval suite gives its env e, with the
+    same scheduled disturbances (so a controller meets what the policy alone meets there)."""
     import torch
 
     from dls_quadruped.envs.env import LocomotionEnv
     from dls_quadruped.eval.scenario import EvalOptions
     from dls_quadruped.eval.velocity_tracking import flat_task
 
+    if scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; allowed: {list(SCENARIOS)}")
     e = len(cmds)
     tiled = np.tile(cmds, (replicas, 1))
     opts = EvalOptions(episodes=len(tiled), seed=seed, num_workers=num_workers, episode_length_s=seconds)
-    env = LocomotionEnv(flat_task(tiled, opts), num_envs=len(tiled), seed=seed, verbose=False)
+    if scenario == "simple":
+        task = flat_task(tiled, opts)
+    else:
+        from dls_quadruped.eval import survival as SV
+
+        task = SV.survival_task(tiled, opts, *_survival_layout(scenario))
+    env = LocomotionEnv(task, num_envs=len(tiled), seed=seed, verbose=False)
     if replicas > 1:
         env.reset(seed=seed, episode_keys=torch.arange(len(tiled)) % e)
+    if scenario != "simple":
+        from dls_quadruped.eval import survival as SV
+        from dls_quadruped.eval.sweep import place_on_rows
+
+        rows = _survival_layout(scenario)[0]
+        place_on_rows(env, SV.start_rows(e, len(task.data["terrain"]["types"]), rows)[np.arange(len(tiled)) % e])
     return env
 
 
+def terrain_of(env) -> dict:
+    """Each robot's terrain type name and row (difficulty level) in ``env``."""
+    types = list(env.cfg["terrain"]["types"])
+    col = env.scene.terrain_types.cpu().numpy()
+    return {"types": types, "type": col.tolist(), "row": env.scene.terrain_levels.cpu().numpy().tolist(),
+            "rows": int(env.scene.terrain.num_rows)}
+
+
 def run_controllers(configs: list[ControllerConfig], cmds: np.ndarray, seconds: float, seed: int,
-                    num_workers: int, record_robots: int = 1, sampler_seeds: int = 1) -> dict[str, ClosedLoopTraces]:
-    """Each controller in a fresh env (same seed, scheduled episodes); traces by name. MPC controllers
-    play every episode with ``sampler_seeds`` noise streams (``ClosedLoopTraces.replicas``)."""
+                    num_workers: int, record_robots: int = 1, sampler_seeds: int = 1,
+                    scenario: str = "simple") -> dict[str, ClosedLoopTraces]:
+    """Each controller in a fresh env (same seed, scheduled episodes, ``scenario``); traces by name. MPC
+    controllers play every episode with ``sampler_seeds`` noise streams (``ClosedLoopTraces.replicas``);
+    on a terrain scenario the traces carry each robot's terrain (``.terrain``, :func:`terrain_of`)."""
     out = {}
     for cfg in configs:
         replicas = sampler_seeds if cfg.uses_mpc else 1
-        env = make_env(cmds, seconds, seed, num_workers, replicas)
+        env = make_env(cmds, seconds, seed, num_workers, replicas, scenario)
         try:
+            terrain = terrain_of(env) if scenario != "simple" else None
             controller = make_controller(cfg, env)
             out[cfg.name] = run_closed_loop(env, controller, record_robots=record_robots)
             out[cfg.name].replicas = replicas
+            out[cfg.name].terrain = terrain
         finally:
             env.close()
     return out
@@ -238,17 +332,25 @@ def headline(summary: dict) -> str:
 def main(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     torch.set_num_threads(args.threads)
+    students = student_paths(args.students, args.encoding, args.horizon, args.dt) if args.students else None
+    if students is not None and (set(args.controllers) & set(NEEDS_STUDENT)) != {"rl_warm_start"}:
+        raise UserError(f"--students applies to the rl_warm_start controller alone, got --controllers "
+                        f"{','.join(args.controllers)}")
+    if args.shares is not None and students is None:
+        raise UserError("--shares needs --students")
     for name in args.controllers:
         path = args.student if name in NEEDS_STUDENT else args.policy if name in NEEDS_POLICY else None
-        if path is not None and not path.is_file():
+        if path is not None and students is None and not path.is_file():
             flag = "--student" if name in NEEDS_STUDENT else "--policy"
             raise UserError(f"{flag} {path} not found (controller {name} needs it)")
     p_kind, f_kind = args.encoding.split("-")
+    ground = args.ground if args.ground != "auto" else "flat" if args.scenario == "simple" else "stance_feet"
     try:
         sampler = SamplerConfig(num_samples=args.samples, horizon=args.horizon, dt=args.dt, encoding_p=p_kind,
                                 encoding_F=f_kind, kernel=args.kernel)
-        configs = [ControllerConfig(name, policy=args.policy, student=args.student, sampler=sampler,
+        configs = [ControllerConfig(name, policy=args.policy, student=students or args.student, sampler=sampler,
                                     optimise=args.optimise, naive_share=args.naive_share if name == "rl_warm_start" else 0.0,
+                                    shares=args.shares if name == "rl_warm_start" else None, ground=ground,
                                     seed=args.seed) for name in args.controllers]
     except ValueError as err:
         raise UserError(str(err)) from None
@@ -256,7 +358,7 @@ def main(argv: list[str] | None = None) -> dict:
     t0 = time.perf_counter()
     try:
         traces = run_controllers(configs, cmds, args.seconds, args.seed, args.num_workers, args.record_robots,
-                                 args.sampler_seeds)
+                                 args.sampler_seeds, args.scenario)
     except (ValueError, FileNotFoundError) as err:  # student/MPC mismatch, wrong observation size, bad file
         raise UserError(str(err)) from None
     from dls_quadruped.bench.machine import cpu_model
@@ -265,10 +367,13 @@ def main(argv: list[str] | None = None) -> dict:
     summary = {
         "settings": {"controllers": list(args.controllers), "episodes": args.episodes, "seconds": args.seconds,
                      "command": "simple task" if args.vx is None else f"forward {args.vx} m/s",
+                     "scenario": args.scenario, "ground": ground,
                      "samples": args.samples, "horizon": args.horizon, "dt": args.dt, "encoding": args.encoding,
                      "optimise": list(args.optimise), "naive_share": args.naive_share, "kernel": args.kernel,
                      "sampler_seeds": args.sampler_seeds,
-                     "threads": args.threads, "seed": args.seed, "policy": str(args.policy), "student": str(args.student),
+                     "threads": args.threads, "seed": args.seed, "policy": str(args.policy),
+                     "student": [str(x) for x in students] if students else str(args.student),
+                     "shares": list(args.shares) if args.shares else None,
                      "cpu": cpu_model()},
         "controllers": summaries,
         "paired": paired,

@@ -5,6 +5,10 @@
   sampling MPC, which solves at 100 Hz (twice per policy step: the second solve uses the student's
   horizon shifted by one MPC period, its swing-step force offsets zeroed, as the naive warm start
   shifts its own). Optionally a share of the samples is drawn around the naive warm start as well.
+  With several students (thesis 7.4, Algorithm 2) each seeds its own sample group (``shares``,
+  equal by default; sample 0 of a group is that student's horizon) in the same batched solve, and
+  every solve records which group won (``warm_start_index``: student k is group k, the naive group
+  comes last).
 * ``naive_warm_start``: the model-based baseline (``mpc.baseline``): periodic trot, heuristic
   footholds (eq. 2.2.4), MPC warm-started by its previous solution only.
 * ``rl_baseline``: the RL expert alone (its action at 50 Hz, held for the 4 physics steps).
@@ -37,6 +41,7 @@ from dls_quadruped.mpc.baseline import (
     heuristic_footholds_h,
     mpc_inputs,
     optimised,
+    stance_ground_z,
 )
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
@@ -44,6 +49,9 @@ from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
 CONTROLLERS = ("rl_warm_start", "naive_warm_start", "rl_baseline", "student")
 """Controller names (thesis 7.3.1 plus the student alone)."""
 NEEDS_STUDENT = ("rl_warm_start", "student")
+GROUNDS = ("flat", "stance_feet")
+"""Ground the MPC plans on: ``flat`` = z = 0 (the simple task); ``stance_feet`` = flat at the height its stance
+feet stand on (``mpc.baseline.stance_ground_z``, terrain-blind: no map, as in the thesis)."""
 NEEDS_POLICY = ("rl_baseline",)
 
 
@@ -54,7 +62,10 @@ class ControllerConfig:
     Attributes:
         name: one of ``CONTROLLERS``.
         policy: the RL expert (exported TorchScript actor or rsl-rl checkpoint), for ``rl_baseline``.
-        student: a distilled student export (``make distill``), for ``rl_warm_start`` and ``student``.
+        student: a distilled student export (``make distill``), for ``rl_warm_start`` and ``student``;
+            for ``rl_warm_start`` also a tuple of exports (several policies warm-start one MPC).
+        shares: ``rl_warm_start`` with several students: each student group's share of the samples that
+            are not the naive group's (positive, summing to 1); None = equal shares.
         sampler: MPC settings (M, N, dt, encoding, kernel, sigmas); the student must match its
             encoding, horizon and dt.
         optimise: variables the MPC samples (sigma of the others set to 0): default forces only.
@@ -63,21 +74,24 @@ class ControllerConfig:
         seed: seed of the MPC's noise.
         horizon_cost_every: record the chosen sample's cost per horizon step (Fig. 28) at every k-th solve
             (an eager re-rollout, ~1.5 ms per solve).
+        ground: MPC controllers: the ground the MPC plans on, one of ``GROUNDS``.
     """
 
     name: str
     policy: Path | None = None
-    student: Path | None = None
+    student: Path | tuple[Path, ...] | None = None
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     optimise: tuple[str, ...] = ("F",)
     naive_share: float = 0.0
+    shares: tuple[float, ...] | None = None
     seed: int = 0
     horizon_cost_every: int = 10
+    ground: str = "flat"
 
     def __post_init__(self) -> None:
         if self.name not in CONTROLLERS:
             raise ValueError(f"unknown controller {self.name!r}; allowed: {list(CONTROLLERS)}")
-        if self.name in NEEDS_STUDENT and self.student is None:
+        if self.name in NEEDS_STUDENT and not self.students:
             raise ValueError(f"controller {self.name!r} needs a student (--student, a `make distill` export)")
         if self.name in NEEDS_POLICY and self.policy is None:
             raise ValueError(f"controller {self.name!r} needs the RL expert (--policy)")
@@ -88,10 +102,48 @@ class ControllerConfig:
             raise ValueError(f"horizon_cost_every must be an int >= 1, got {self.horizon_cost_every!r}")
         if self.naive_share > 0.0 and self.name != "rl_warm_start":
             raise ValueError(f"naive_share applies to rl_warm_start only, got it for {self.name!r}")
+        if len(self.students) > 1 and self.name != "rl_warm_start":
+            raise ValueError(f"several students warm-start rl_warm_start only; {self.name!r} takes one, "
+                             f"got {len(self.students)}")
+        if self.shares is not None:
+            check_shares(self.shares, len(self.students))
+        if self.ground not in GROUNDS:
+            raise ValueError(f"ground must be one of {list(GROUNDS)}, got {self.ground!r}")
+
+    @property
+    def students(self) -> tuple[Path, ...]:
+        """The student exports, in group order (empty without a student)."""
+        if self.student is None:
+            return ()
+        if isinstance(self.student, (tuple, list)):
+            return tuple(Path(s) for s in self.student)
+        return (Path(self.student),)
+
+    def group_shares(self) -> tuple[float, ...]:
+        """``rl_warm_start``: the share of the M samples of every group, students first, then the naive
+        group if ``naive_share`` > 0."""
+        n = len(self.students)
+        shares = self.shares if self.shares is not None else (1.0 / n,) * n
+        out = tuple((1.0 - self.naive_share) * s for s in shares)
+        return out + ((self.naive_share,) if self.naive_share > 0.0 else ())
 
     @property
     def uses_mpc(self) -> bool:
         return self.name in ("rl_warm_start", "naive_warm_start")
+
+
+def check_shares(shares: tuple[float, ...], students: int) -> None:
+    """Raise ``ValueError`` unless ``shares`` has one positive finite share per student, summing to 1."""
+    import math
+
+    values = tuple(shares)
+    if len(values) != students:
+        raise ValueError(f"shares: one per student ({students}), got {len(values)}: {list(values)}")
+    bad = [v for v in values if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0.0]
+    if bad:
+        raise ValueError(f"shares must be positive finite numbers, got {list(values)}")
+    if abs(sum(values) - 1.0) > 1e-6:
+        raise ValueError(f"shares must sum to 1, got {list(values)} (sum {sum(values):.6g})")
 
 
 @dataclass
@@ -176,9 +228,10 @@ class PolicyController(Controller):
             self._policy = load_policy(cfg.policy, env)
             self._what = f"policy {cfg.policy}"
         else:
-            module, _ = _load_student(cfg.student, env, str(env.device))
+            (path,) = cfg.students
+            module, _ = _load_student(path, env, str(env.device))
             self._policy = lambda obs: module.first_action(obs["policy"])
-            self._what = f"student {cfg.student}"
+            self._what = f"student {path}"
 
     def act(self, obs: TensorDict) -> torch.Tensor:
         out = _call(self._what, self._policy, obs)
@@ -206,12 +259,19 @@ class MPCController(Controller):
         else:
             self.sampler_cfg = optimised(cfg.sampler, cfg.optimise)
             self.mpc = SamplingMPC(self.sampler_cfg, device="cpu", seed=cfg.seed)
-            self.student, meta = _load_student(cfg.student, env)
-            warm_start.check_student_encoding(meta, self.sampler_cfg)
+            self.students = []
+            for path in cfg.students:
+                module, meta = _load_student(path, env)
+                try:
+                    warm_start.check_student_encoding(meta, self.sampler_cfg)
+                except ValueError as err:
+                    raise ValueError(f"student {path}: {err}") from None
+                self.students.append(module)
+            self.shares = cfg.group_shares()
             self.default = warm_start.nominal_trot(b, self.sampler_cfg)
         self._solves = 0
-        self._student_ws: torch.Tensor | None = None
-        self._student_ok = torch.ones(b, dtype=torch.bool)
+        self._student_ws: list[torch.Tensor] | None = None
+        self._student_ok: list[torch.Tensor] = [torch.ones(b, dtype=torch.bool)]
 
     def kernel_seconds(self) -> float:
         return self.mpc.kernel_seconds
@@ -223,44 +283,47 @@ class MPCController(Controller):
         if self.cfg.name != "rl_warm_start":
             return
         x = obs["policy"].cpu()
-        out = _call(f"student {self.cfg.student}", self.student, x)
-        _check_output(f"student {self.cfg.student}", x, out, self.mpc.dim)
-        ok = torch.isfinite(out).all(dim=1)
-        self._student_ok = ok
-        self._student_ws = warm_start.from_student(torch.where(ok[:, None], out, torch.zeros_like(out)), self.sampler_cfg)
+        self._student_ws, self._student_ok = [], []
+        for path, student in zip(self.cfg.students, self.students):
+            out = _call(f"student {path}", student, x)
+            _check_output(f"student {path}", x, out, self.mpc.dim)
+            ok = torch.isfinite(out).all(dim=1)
+            self._student_ok.append(ok)
+            self._student_ws.append(warm_start.from_student(torch.where(ok[:, None], out, torch.zeros_like(out)),
+                                                            self.sampler_cfg))
         self._query_phase = self.env.state.phase.cpu().clone()
 
-    def _student_warm_start(self, substep: int) -> torch.Tensor:
-        """The student's horizon shifted by ``substep`` MPC periods (as the naive warm start is shifted);
+    def _student_warm_start(self, substep: int, k: int = 0) -> torch.Tensor:
+        """Student k's horizon shifted by ``substep`` MPC periods (as the naive warm start is shifted);
         robots whose student output was not finite get the naive warm start (or the nominal trot)."""
-        ws = self._student_ws
+        ws = self._student_ws[k]
         if substep:
             enc = self.sampler_cfg.encoding
             f, d = ws[:, 0:4], ws[:, 4:8]
             _, contact = gait.contact_sequence(self._query_phase, f, d, self.sampler_cfg.dt, enc.horizon)
             for _ in range(substep):
                 ws = warm_start.naive(ws, self.sampler_cfg, contact)
-        if not bool(self._student_ok.all()):
+        if not bool(self._student_ok[k].all()):
             naive = self.mpc.naive_warm_start(self.default)
-            ws = torch.where(self._student_ok[:, None], ws, naive)
+            ws = torch.where(self._student_ok[k][:, None], ws, naive)
         return ws
 
     def _solve(self, substep: int) -> MPCResult:
         state = self.env.state
         cmd = self.env.command_manager.command.cpu()
+        ground_z = stance_ground_z(state) if self.cfg.ground == "stance_feet" else None
         if self.cfg.name == "naive_warm_start":
-            result, _ = self.baseline.step(state, cmd)
+            result, _ = self.baseline.step(state, cmd, ground_z)
             return result
         if self._student_ws is None:
             raise RuntimeError("rl_warm_start: prepare(obs) must run before physics()")
         p_h = heuristic_footholds_h(state, cmd, self.baseline_cfg)
-        srbd, refs, frame = mpc_inputs(state, cmd, p_h, self.baseline_cfg.com_height, self.sampler_cfg, self.mpc.model)
-        ws = [self._student_warm_start(substep)]
-        props: tuple[float, ...] = (1.0,)
+        srbd, refs, frame = mpc_inputs(state, cmd, p_h, self.baseline_cfg.com_height, self.sampler_cfg, self.mpc.model,
+                                       ground_z)
+        ws = [self._student_warm_start(substep, k) for k in range(len(self.students))]
         if self.cfg.naive_share > 0.0:
             ws.append(self.mpc.naive_warm_start(ws[0]))
-            props = (1.0 - self.cfg.naive_share, self.cfg.naive_share)
-        return self.mpc.solve(srbd, refs, ws, props, phase=state.phase, **frame)
+        return self.mpc.solve(srbd, refs, ws, self.shares, phase=state.phase, **frame)
 
     def physics(self) -> torch.Tensor | None:
         env = self.env
@@ -283,7 +346,7 @@ class MPCController(Controller):
                 best_cost=result.best_cost.cpu(), input_cost=result.best_input_cost.cpu(),
                 initial_cost=result.initial_cost.cpu(), step_costs=result.step_costs.cpu(),
                 step_input_costs=result.step_input_costs.cpu(), warm_start_index=result.warm_start_index.cpu(),
-                fallback=result.fallback.cpu(), student_fallback=~self._student_ok.cpu()))
+                fallback=result.fallback.cpu(), student_fallback=~torch.stack(self._student_ok).all(dim=0)))
         am.prev_raw_action[:] = prev  # the action rate of the policy step, as the policy controllers see it
         return None
 

@@ -43,6 +43,20 @@ def cost_of_transport(traces: ClosedLoopTraces, settle_s: float = SETTLE_S) -> n
         return mean_p / (C.TOTAL_MASS * C.GRAVITY * mean_v)
 
 
+def winner_switches_per_s(winner: np.ndarray, step_dt: float) -> np.ndarray:
+    """(T, S, E) warm-start group of each solve's winner (-1: no valid solve) -> (E,) switches per second:
+    the number of consecutive valid solves whose winning group differs, over the time those solves span
+    (NaN for an episode with fewer than two valid solves). Fig. 34's "switches per second"."""
+    w = np.asarray(winner).reshape(-1, winner.shape[-1])  # solves in time order
+    period = step_dt / winner.shape[1]
+    out = np.full(w.shape[1], np.nan)
+    for e in range(w.shape[1]):
+        col = w[:, e][w[:, e] >= 0]
+        if col.size >= 2:
+            out[e] = float((col[1:] != col[:-1]).sum()) / ((col.size - 1) * period)
+    return out
+
+
 def per_episode_median(x: np.ndarray) -> np.ndarray:
     """(T, ..., E) per-step values (NaN after the episode's end) -> (E,) median of each episode's finite values."""
     flat = np.asarray(x, dtype=float).reshape(-1, x.shape[-1])
@@ -84,7 +98,8 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
     }
     mpc = bool(np.isfinite(traces.rollout_cost).any())
     if mpc:
-        per_ep.update({"rollout_cost": per_episode_median(traces.rollout_state_cost),
+        per_ep.update({"winner_switches_per_s": winner_switches_per_s(traces.winner, traces.step_dt),
+                       "rollout_cost": per_episode_median(traces.rollout_state_cost),
                        "rollout_cost_full": per_episode_median(traces.rollout_cost),
                        "mpc_initial_cost": per_episode_median(traces.mpc_initial_cost)})
     units = {k: _units(v, replicas) for k, v in per_ep.items()}
@@ -127,7 +142,28 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
     out["initial_cost_terms"] = {name: M.episode_summary(_units(per_episode_median(traces.initial_cost_terms[..., i]),
                                                                  replicas))
                                  for i, name in enumerate(STATE_TERMS)}
+    if traces.terrain is not None:  # survival per terrain type and per row, Wilson's interval with the episodes as trials
+        t = traces.terrain
+        out["survival_per_type"] = _survival_by(survived_env, np.asarray(t["type"]), len(t["types"]), replicas,
+                                                labels=t["types"])
+        out["survival_per_row"] = _survival_by(survived_env, np.asarray(t["row"]), t["rows"], replicas)
     out["timing"] = dict(traces.timing)
+    return out
+
+
+def _survival_by(survived: np.ndarray, group: np.ndarray, count: int, replicas: int,
+                 labels: list[str] | None = None) -> list[dict]:
+    """Survival of the robots of each group value 0 .. count-1: rate over its robots, Wilson's interval
+    with its episodes (robots / replicas) as the trials."""
+    out = []
+    for g in range(count):
+        sel = group == g
+        n = int(sel.sum())
+        rate = float(survived[sel].mean()) if n else float("nan")
+        episodes = n / replicas
+        lo, hi = M.wilson_interval(rate * episodes, episodes) if n else (float("nan"), float("nan"))
+        out.append({"group": labels[g] if labels else g, "rate": rate, "robots": n, "episodes": episodes,
+                    "ci95_episodes": [lo, hi]})
     return out
 
 

@@ -53,6 +53,7 @@ class ClosedLoopTraces:
         mpc_fallbacks, student_fallbacks: robot-solves that used a fallback.
         step_dt: [s] policy step; timing: wall-clock profile [s] (see :func:`run_closed_loop`).
         replicas: S sampler seeds per episode (env s E + e plays episode e; set by whoever built the env).
+        terrain: on a terrain scenario, each robot's terrain type and row (``closed_loop.__main__.terrain_of``).
     """
 
     controller: str
@@ -78,6 +79,7 @@ class ClosedLoopTraces:
     step_dt: float
     timing: dict = field(default_factory=dict)
     replicas: int = 1
+    terrain: dict | None = None
 
     @property
     def rollout_state_cost(self) -> np.ndarray:

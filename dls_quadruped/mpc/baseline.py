@@ -131,7 +131,8 @@ class ModelBasedBaseline:
             return flat.repeat(1, horizon)
         return fit_spline(flat[:, None, :].expand(-1, horizon, 8), constrained=True).reshape(self.num_robots, -1)
 
-    def step(self, state: RobotState, cmd_vel_h: torch.Tensor) -> tuple[MPCResult, Refs]:
+    def step(self, state: RobotState, cmd_vel_h: torch.Tensor,
+             ground_z: torch.Tensor | None = None) -> tuple[MPCResult, Refs]:
         """One MPC solve: returns the result (first action in the world frame) and the references used.
 
         The warm start is the naive one (previous solution shifted); the blocks that are not optimised
@@ -154,23 +155,26 @@ class ModelBasedBaseline:
                 w[:, self.slices["d"]] = cfg.duty
             if "p" not in cfg.optimise or first:
                 w[:, self.slices["p"]] = p_block
-        srbd, refs, frame = mpc_inputs(state, cmd_vel_h, p_h, cfg.com_height, self.sampler_cfg, self.mpc.model)
+        srbd, refs, frame = mpc_inputs(state, cmd_vel_h, p_h, cfg.com_height, self.sampler_cfg, self.mpc.model,
+                                       ground_z)
         result = self.mpc.solve(srbd, refs, warm_starts=warm_starts, proportions=proportions,
                                 phase=state.phase, **frame)
         return result, refs
 
 
 def mpc_inputs(state: RobotState, cmd_vel_h: torch.Tensor, p_h: torch.Tensor, com_height: float,
-               sampler: SamplerConfig, model) -> tuple:
+               sampler: SamplerConfig, model, ground_z: torch.Tensor | None = None) -> tuple:
     """The SRBD state, the cost references and the horizontal frame of one solve.
 
     Args:
         state: robot state (B robots); cmd_vel_h: (B, 3) command (v_x, v_y [m/s] in frame H, yaw rate [rad/s]);
         p_h: (B, 4, 2) [m] reference footholds relative to the nominal ones (eq. 2.2.4);
-        com_height: [m] CoM height reference above flat ground at z = 0.
+        com_height: [m] CoM height reference above the ground;
+        ground_z: (B,) [m] height of the flat ground the MPC assumes under each robot (None: z = 0):
+            the CoM reference, the reference footholds and the touch-downs are placed on it.
 
     Returns:
-        (SRBDState, Refs, {"base_xy_w": (B, 2), "base_yaw": (B,)}).
+        (SRBDState, Refs, {"base_xy_w": (B, 2), "base_yaw": (B,)[, "terrain_z_w": (B, 4) with ground_z]}).
     """
     b = state.base_pos_w.shape[0]
     srbd = srbd_state_from_base(state.base_pos_w, state.base_quat_w, state.base_lin_vel_w,
@@ -186,9 +190,26 @@ def mpc_inputs(state: RobotState, cmd_vel_h: torch.Tensor, p_h: torch.Tensor, co
         base_xy[:, None, 1] + s[:, None] * nominal[..., 0] + c[:, None] * nominal[..., 1],
         torch.full_like(nominal[..., 0], C.FOOT_RADIUS),
     ], dim=-1)
-    refs = Refs(com_height_w=torch.full((b,), float(com_height)), lin_vel_w=v_ref_w,
-                yaw_rate=cmd[:, 2].clone(), foothold_w=foothold_w)
-    return srbd, refs, {"base_xy_w": base_xy, "base_yaw": yaw}
+    frame = {"base_xy_w": base_xy, "base_yaw": yaw}
+    com_ref = torch.full((b,), float(com_height))
+    if ground_z is not None:
+        z = ground_z.float()
+        com_ref = com_ref + z
+        foothold_w = torch.cat([foothold_w[..., :2], foothold_w[..., 2:] + z[:, None, None]], dim=-1)
+        frame["terrain_z_w"] = z[:, None].expand(b, 4).contiguous()
+    refs = Refs(com_height_w=com_ref, lin_vel_w=v_ref_w, yaw_rate=cmd[:, 2].clone(), foothold_w=foothold_w)
+    return srbd, refs, frame
+
+
+def stance_ground_z(state: RobotState) -> torch.Tensor:
+    """(B,) [m] a blind robot's estimate of the ground under it: the mean height of the commanded stance
+    feet less the foot radius (all four feet when none is in stance). No terrain map: on a step or a slope
+    the MPC still plans on flat ground, at the height its feet stand on (what leg odometry gives)."""
+    foot_z = state.foot_pos_w[..., 2].float() - C.FOOT_RADIUS
+    stance = state.contact_cmd.bool()
+    none = ~stance.any(dim=-1, keepdim=True)
+    w = (stance | none).float()
+    return (foot_z * w).sum(-1) / w.sum(-1)
 
 
 @dataclass

@@ -74,8 +74,8 @@ def test_last_action_is_the_applied_mpc_action_and_nan_student_falls_back() -> N
         torch.testing.assert_close(env.action_manager.applied_physical[:, 16:], res.F_h.flatten(-2), atol=1e-3, rtol=0)
         torch.testing.assert_close(obs["policy"][:, 33:61], applied)  # last_action term of the observation
         # a NaN output for robot 1: it runs on the naive warm start, counted; robot 0 is untouched
-        student = ctrl.student
-        ctrl.student = lambda x: torch.cat([student(x)[:1], torch.full_like(student(x)[1:], float("nan"))])
+        student = ctrl.students[0]
+        ctrl.students[0] = lambda x: torch.cat([student(x)[:1], torch.full_like(student(x)[1:], float("nan"))])
         with torch.inference_mode():
             ctrl.prepare(obs)
             _, _, dones, _ = env.step_controlled(ctrl.physics)
@@ -113,7 +113,7 @@ def test_bad_configurations_are_refused(tmp_path: Path, capsys) -> None:
             make_controller(ControllerConfig("rl_warm_start", student=STUDENT, sampler=SamplerConfig(horizon=5)), env)
         # a student answering for another number of robots (mismatched B) is refused before any solve
         ctrl = make_controller(ControllerConfig("rl_warm_start", student=STUDENT, sampler=SMALL), env)
-        ctrl.student = lambda x: torch.zeros(1, 64)
+        ctrl.students[0] = lambda x: torch.zeros(1, 64)
         with pytest.raises(ValueError, match=r"returned shape \(1, 64\), expected \(2, 64\)"):
             ctrl.prepare(env.get_observations())
     finally:
