@@ -141,6 +141,7 @@ eval: $(STAMP)
 # Distillation of an expert into a horizon student (issue 10; docs/distill.md). Defaults: Table 7
 # (tasks/agents/distill.yaml), first-spline, H = 10, dt = 0.02 s, DAgger alpha = 0.6.
 # `make distill EXPERT=... ENCODING=discrete-discrete HORIZON=5 DT=0.04 ALGO=naive EPOCHS=20`
+# DISTILL_TASK: the env task the expert acts in (default: the config's, base), e.g. speed_full_range.
 EXPERT ?= docs/policies/base_actor.pt
 ENCODING ?= first-spline
 HORIZON ?= 10
@@ -150,10 +151,11 @@ EPOCHS ?= 30
 DISTILL_NUM_ENVS ?= 128
 DISTILL_OUT ?= results/distill
 DISTILL_ARGS ?=
+DISTILL_TASK ?=
 
 .PHONY: distill
 
 distill: $(STAMP)
 	OMP_NUM_THREADS=$(TRAIN_THREADS) $(PY) -m dls_quadruped.learning.distill --expert $(EXPERT) --encoding $(ENCODING) \
 		--horizon $(HORIZON) --dt $(DT) --algo $(ALGO) --epochs $(EPOCHS) --num-envs $(DISTILL_NUM_ENVS) \
-		--out $(DISTILL_OUT) $(if $(RESUME),--resume,) $(DISTILL_ARGS)
+		--out $(DISTILL_OUT) $(if $(DISTILL_TASK),--task $(DISTILL_TASK),) $(if $(RESUME),--resume,) $(DISTILL_ARGS)

@@ -69,6 +69,10 @@ class Cell:
     naive_share: float = 0.0                      # rl_warm_start: share of samples around the previous solution
     row: dict = field(default_factory=dict)       # table columns
     student: str | None = None                    # rl_warm_start: this student export (else found by encoding)
+    students: tuple[str, ...] = ()                # rl_warm_start: several student exports, one sample group each
+    shares: tuple[float, ...] | None = None       # their shares (None: equal)
+    policy: str | None = None                     # rl_baseline: this expert (else --policy)
+    scenario: str = "simple"                      # closed_loop scenario (simple, survival, survival_sweep)
 
 
 def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
@@ -122,7 +126,15 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
             continue
         sampler = SamplerConfig(**cell.sampler)
         student = None
-        if cell.controller == "rl_warm_start":
+        if cell.controller == "rl_warm_start" and cell.students:
+            missing = [x for x in cell.students if not Path(x).is_file()]
+            student = None if missing else tuple(Path(x) for x in cell.students)
+            why = f"no student {missing[0]}" if missing else ""
+            if student is None:
+                out[cell.name] = {"skipped": why}
+                print(f"[{args.out.name}] {cell.name}: skipped ({why})", flush=True)
+                continue
+        elif cell.controller == "rl_warm_start":
             if cell.student:
                 student = Path(cell.student) if Path(cell.student).is_file() else None
                 why = f"no student {cell.student}"
@@ -134,16 +146,27 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
                 out[cell.name] = {"skipped": why}
                 print(f"[{args.out.name}] {cell.name}: skipped ({out[cell.name]['skipped']})", flush=True)
                 continue
-        cfg = ControllerConfig(cell.controller, policy=args.policy, student=student, sampler=sampler,
-                               optimise=cell.optimise, naive_share=cell.naive_share, seed=args.seed)
+        policy = Path(cell.policy) if cell.policy else args.policy
+        if cell.controller == "rl_baseline" and not policy.is_file():
+            out[cell.name] = {"skipped": f"no policy {policy}"}
+            print(f"[{args.out.name}] {cell.name}: skipped (no policy {policy})", flush=True)
+            continue
+        cfg = ControllerConfig(cell.controller, policy=policy, student=student, sampler=sampler,
+                               optimise=cell.optimise, naive_share=cell.naive_share, shares=cell.shares,
+                               ground="flat" if cell.scenario == "simple" else "stance_feet", seed=args.seed)
         t0 = time.monotonic()
         traces = run_controllers([cfg], commands(args.episodes, args.seed, cell.vx), args.seconds, args.seed,
-                                 args.num_workers, sampler_seeds=args.sampler_seeds)[cell.controller]
+                                 args.num_workers, sampler_seeds=args.sampler_seeds,
+                                 scenario=cell.scenario)[cell.controller]
         summary = summarize(traces, replicas=traces.replicas)
-        summary.update({"cell": cell.name, "student": str(student) if student else None, "row": cell.row,
+        student_txt = [str(x) for x in student] if isinstance(student, tuple) else str(student) if student else None
+        summary.update({"cell": cell.name, "student": student_txt, "row": cell.row, "policy": str(policy),
+                        "scenario": cell.scenario, "shares": list(cell.shares) if cell.shares else None,
                         "sampler": cell.sampler, "optimise": list(cell.optimise), "vx": cell.vx,
                         "naive_share": cell.naive_share, "git_commit": _commit(),
                         "seconds_wall": time.monotonic() - t0})
+        if len(cell.students) > 1:  # Fig. 34: the winning group of every solve of robot 0 (-1: none)
+            summary["winner_trace_robot0"] = traces.winner[..., 0].reshape(-1).tolist()
         write_json(summary, path, indent=1)
         out[cell.name] = summary
         s = summary

@@ -91,6 +91,7 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
     survived = int(survived_env.sum())
     per_ep = {
         "rl_reward": per_episode_median(traces.reward),
+        "rl_return": np.nansum(np.asarray(traces.reward, dtype=float), axis=0),  # sum of the per-step rewards
         "initial_cost": per_episode_median(traces.initial_cost),
         "vel_error": per_episode_median(traces.vel_error[settle:]),
         "cost_of_transport": cost_of_transport(traces, settle_s),

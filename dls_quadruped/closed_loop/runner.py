@@ -23,7 +23,12 @@ from dls_quadruped.closed_loop.controllers import Controller
 from dls_quadruped.core.progress import progress
 from dls_quadruped.envs.mdp.kernels import motor_power
 from dls_quadruped.eval.rollout import base_velocity
-from dls_quadruped.mpc.baseline import BaselineConfig, heuristic_footholds_h, mpc_inputs
+from dls_quadruped.mpc.baseline import (
+    BaselineConfig,
+    heuristic_footholds_h,
+    mpc_inputs,
+    stance_ground_z,
+)
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import STATE_TERMS, initial_cost, state_cost_terms
 from dls_quadruped.mpc.srbd import robot_srbd_model
@@ -102,21 +107,25 @@ class InitialCostProbe:
     the same references as the MPC controllers (CoM height reference, commanded velocity and yaw rate,
     flat attitude; the foothold reference does not enter the state cost)."""
 
-    def __init__(self, sampler: SamplerConfig, baseline: BaselineConfig | None = None):
+    def __init__(self, sampler: SamplerConfig, baseline: BaselineConfig | None = None, ground: str = "flat"):
         self.sampler = sampler
         self.baseline = baseline or BaselineConfig(sampler=sampler)
         self.model = robot_srbd_model()
+        self.ground = ground  # "flat" (z = 0) or "stance_feet": the ground the MPC controllers plan on
+
+    def _inputs(self, state, cmd: torch.Tensor):
+        p_h = heuristic_footholds_h(state, cmd, self.baseline)
+        ground_z = stance_ground_z(state) if self.ground == "stance_feet" else None
+        return mpc_inputs(state, cmd, p_h, self.baseline.com_height, self.sampler, self.model, ground_z)
 
     def __call__(self, state, cmd: torch.Tensor) -> torch.Tensor:
         """(B,) initial cost."""
-        p_h = heuristic_footholds_h(state, cmd, self.baseline)
-        srbd, refs, _ = mpc_inputs(state, cmd, p_h, self.baseline.com_height, self.sampler, self.model)
+        srbd, refs, _ = self._inputs(state, cmd)
         return initial_cost(srbd.as_vector(), refs, self.sampler.weights)
 
     def terms(self, state, cmd: torch.Tensor) -> torch.Tensor:
         """(B, 9) the initial cost by term (``mpc.cost.STATE_TERMS``); sums to :meth:`__call__`'s value."""
-        p_h = heuristic_footholds_h(state, cmd, self.baseline)
-        srbd, refs, _ = mpc_inputs(state, cmd, p_h, self.baseline.com_height, self.sampler, self.model)
+        srbd, refs, _ = self._inputs(state, cmd)
         return state_cost_terms(srbd.as_vector(), refs.state_vector(), self.sampler.weights)
 
 
@@ -131,7 +140,7 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     steps = int(num_steps or env.max_episode_length)
     cpu = lambda t: t.detach().cpu()
     sampler = controller.cfg.sampler
-    probe = InitialCostProbe(sampler)
+    probe = InitialCostProbe(sampler, ground=controller.cfg.ground)  # every controller's cost on the same ground
     solves = getattr(controller, "solves_per_step", 0)
     horizon = sampler.horizon
     nan = np.nan

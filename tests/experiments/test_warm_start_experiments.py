@@ -64,3 +64,24 @@ def test_training_seeds_merge_per_episode_means() -> None:
     assert m["survival"]["rate"] == (5 / 6 + 1) / 2 and m["episodes"] == 3 and m["training_seeds"] == 2
     assert [h["median"] for h in m["horizon_cost"]] == [2.0, 6.0]
     assert merge_training_seeds([a, {"skipped": "no student x"}]) == {"skipped": "no student x"}
+
+
+def test_table18_two_students_and_the_policies_alone(tmp_path: Path) -> None:
+    """Table 18's two-policy cell (the base student under two names) beside both policies alone: paired
+    differences from each, the groups' wins, switches per second and robot 0's winner trace (Fig. 34)."""
+    pol = tmp_path / "policies"
+    pol.mkdir()
+    src = REPO / "docs" / "policies"
+    for name in ("base_actor.pt", "speed_actor.pt", "base_student_first_spline_h10.pt"):
+        (pol / name).symlink_to(src / name)
+    (pol / "speed_student_first_spline_h10.pt").symlink_to(src / "base_student_first_spline_h10.pt")
+    out = tmp_path / "t18"
+    _run("table18_multi_policy.py", out, "--policy-dir", str(pol), "--sampler-seeds", "1",
+         "--only", "ws_base+speed", "alone_base", "alone_speed", "ws_rough")
+    cell = json.loads((out / "cells" / "ws_base+speed.json").read_text())
+    assert len(cell["student"]) == 2 and set(cell["warm_start_won"]) <= {"0", "1"}
+    assert len(cell["winner_trace_robot0"]) == 2 * 10  # 0.2 s: 10 policy steps x 2 solves
+    assert cell["rl_return"]["n"] == 2 and "winner_switches_per_s" in cell["per_episode"]
+    table = (out / "table.md").read_text()
+    assert "vs base:" in table and "vs speed:" in table
+    assert "skipped: no student" in table  # rough's student is not there

@@ -1,0 +1,252 @@
+"""Table 18 and Figs. 31-34 (thesis 7.4, RQ2): several policies warm-starting one MPC.
+
+Warm starts base, speed, rough (one student each) and base + speed, rough + speed (two students, equal
+shares of the M = 10 000 samples, one batched solve), first-spline, H = 10, dt = 0.02 s, forces
+only, beside each expert alone (``rl_baseline`` with that expert), every cell on the same scheduled
+episodes (paired):
+
+* Table 18 / Fig. 31: the simple task (flat, no disturbance): RL reward per step and per episode (the
+  sum of the per-step rewards), initial cost, survival; each warm start's paired difference from the
+  same policy alone (a two-policy row: from each of its policies alone).
+* Fig. 32: survival on the survival task (``--scenario survival`` of the closed loop: terrain, pushes,
+  friction, wrench; the MPC terrain-blind, planning on the ground its feet stand on) per warm start
+  vs the policy alone.
+* Fig. 33: base, speed, base + speed and base / speed alone at forward 0.1 / 0.5 / 1.5 m/s: survival
+  and initial cost.
+* Fig. 34: which group won each solve of base + speed at the three speeds (robot 0 over time) and
+  the winner switches per second (per episode, then across episodes).
+
+Students: ``docs/policies/<expert>_student_first_spline_h10.pt`` (``--policy-dir``); a missing one
+skips its cells with a note.
+
+    python experiments/table18_multi_policy.py --scale small
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np
+
+from experiments.warm_start_common import (
+    REPO,
+    Cell,
+    finish,
+    med,
+    paired,
+    parse_args,
+    pyplot,
+    run_cells,
+    save,
+    survival,
+)
+
+WARM_STARTS = (("base",), ("speed",), ("rough",), ("base", "speed"), ("rough", "speed"))
+EXPERTS = ("base", "speed", "rough")
+SPEEDS = (0.1, 0.5, 1.5)
+SPEED_WARM_STARTS = (("base",), ("speed",), ("base", "speed"))
+THESIS = {  # warm start: (RL reward, Δ %, initial cost, Δ %, survival %, Δ points) -- Table 18 (simple task)
+    "base": (526.5, -0.6, 26.7, -57.3, 100, 0), "speed": (445.8, 6.4, 106.7, -69.7, 74, -26),
+    "rough": (388.0, -12.3, 203.7, -32.8, 96, -2), "base + speed": (364.1, None, 91.9, None, 84, None),
+    "rough + speed": (429.2, None, 94.9, None, 93, None),
+}
+
+
+def _label(ws: tuple[str, ...]) -> str:
+    return " + ".join(ws)
+
+
+def _ws_cell(ws: tuple[str, ...], policy_dir: Path, suffix: str = "", **kw) -> Cell:
+    students = tuple(str(policy_dir / f"{n}_student_first_spline_h10.pt") for n in ws)
+    return Cell(f"ws_{'+'.join(ws)}{suffix}", "rl_warm_start", students=students,
+                row={"Warm start": _label(ws)}, **kw)
+
+
+def _alone_cell(name: str, policy_dir: Path, suffix: str = "", **kw) -> Cell:
+    return Cell(f"alone_{name}{suffix}", "rl_baseline", policy=str(policy_dir / f"{name}_actor.pt"),
+                row={"Warm start": f"{name} alone"}, **kw)
+
+
+def cells(policy_dir: Path) -> list[Cell]:
+    out = [_ws_cell(ws, policy_dir) for ws in WARM_STARTS] + [_alone_cell(n, policy_dir) for n in EXPERTS]
+    out += [_ws_cell(ws, policy_dir, "_survival", scenario="survival") for ws in WARM_STARTS]
+    out += [_alone_cell(n, policy_dir, "_survival", scenario="survival") for n in EXPERTS]
+    for v in SPEEDS:
+        out += [_ws_cell(ws, policy_dir, f"_v{v:g}", vx=v) for ws in SPEED_WARM_STARTS]
+        out += [_alone_cell(n, policy_dir, f"_v{v:g}", vx=v) for n in ("base", "speed")]
+    return out
+
+
+def _deltas(results: dict, ws: tuple[str, ...], suffix: str, key: str, relative: bool, digits: int = 1) -> str:
+    """Paired difference of the warm start from each of its policies alone (same episodes)."""
+    parts = []
+    for n in ws:
+        d = paired(results, f"ws_{'+'.join(ws)}{suffix}", f"alone_{n}{suffix}", key, digits=digits, relative=relative)
+        parts.append(d if len(ws) == 1 else f"vs {n}: {d}")
+    return "; ".join(parts)
+
+
+def table18_rows(results: dict) -> list[dict]:
+    rows = []
+    for ws in WARM_STARTS:
+        s = results.get(f"ws_{'+'.join(ws)}")
+        row = {"Warm start": _label(ws)}
+        th = THESIS[_label(ws)]
+        if not s or "skipped" in s:
+            row["RL reward / step"] = f"skipped: {s['skipped']}" if s else "-"
+        else:
+            row.update({
+                "RL reward / step": med(s["rl_reward"], 3),
+                "Δ reward (paired, %)": _deltas(results, ws, "", "rl_reward", True),
+                "RL return / episode": med(s["rl_return"], 0),
+                "Initial cost": med(s["initial_cost"]),
+                "Δ initial (paired, %)": _deltas(results, ws, "", "initial_cost", True),
+                "Rollout cost (state)": med(s.get("rollout_cost")),
+                "Rollout J (full)": med(s.get("rollout_cost_full")),
+                "Survival": survival(s),
+                "Δ survival (paired, fraction)": _deltas(results, ws, "", "survived", False, digits=2),
+                "group wins": " / ".join(f"{100 * v:.0f} %" for v in (s.get("warm_start_won") or {}).values()),
+                "switches / s": med(s.get("winner_switches_per_s"), 2),
+            })
+        row.update({"thesis RL reward": th[0], "thesis Δ %": th[1] if th[1] is not None else "",
+                    "thesis IC": th[2], "thesis Δ IC %": th[3] if th[3] is not None else "",
+                    "thesis survival %": th[4]})
+        rows.append(row)
+    for n in EXPERTS:
+        s = results.get(f"alone_{n}")
+        if s and "skipped" not in s:
+            rows.append({"Warm start": f"{n} alone", "RL reward / step": med(s["rl_reward"], 3),
+                         "RL return / episode": med(s["rl_return"], 0), "Initial cost": med(s["initial_cost"]),
+                         "Survival": survival(s)})
+    return rows
+
+
+def _value(results: dict, name: str, key: str) -> float | None:
+    s = results.get(name) or {}
+    if "skipped" in s or not s:
+        return None
+    if key == "survival":
+        return 100 * s["survival"]["rate"]
+    return (s.get(key) or {}).get("median")
+
+
+def figure(results: dict, path: Path) -> None:
+    """Figs. 31-34 in one sheet."""
+    plt = pyplot()
+    fig, axes = plt.subplots(2, 3, figsize=(15, 8))
+    labels = [_label(ws) for ws in WARM_STARTS]
+    x = np.arange(len(WARM_STARTS))
+    # Fig. 31: reward and initial cost on the simple task, warm start vs the (first) policy alone
+    for ax, key, title in ((axes[0, 0], "rl_reward", "RL reward per step"), (axes[0, 1], "initial_cost", "initial cost")):
+        ours = [_value(results, f"ws_{'+'.join(ws)}", key) for ws in WARM_STARTS]
+        alone = [_value(results, f"alone_{ws[0]}", key) for ws in WARM_STARTS]
+        ax.bar(x - 0.2, [v or 0 for v in ours], 0.4, label="warm start")
+        ax.bar(x + 0.2, [v or 0 for v in alone], 0.4, label="policy alone (first)")
+        ax.set_xticks(x, labels, rotation=20, fontsize=7)
+        ax.set_title(f"Fig. 31: {title}, simple task (median)", fontsize=9)
+        ax.legend(fontsize=7)
+    # Fig. 32: survival on the survival task
+    ax = axes[0, 2]
+    ours = [_value(results, f"ws_{'+'.join(ws)}_survival", "survival") for ws in WARM_STARTS]
+    alone = [_value(results, f"alone_{ws[0]}_survival", "survival") for ws in WARM_STARTS]
+    ax.bar(x - 0.2, [v or 0 for v in ours], 0.4, label="warm start")
+    ax.bar(x + 0.2, [v or 0 for v in alone], 0.4, label="policy alone (first)")
+    ax.set_xticks(x, labels, rotation=20, fontsize=7)
+    ax.set_ylabel("survival [%]")
+    ax.set_title("Fig. 32: survival task", fontsize=9)
+    ax.legend(fontsize=7)
+    # Fig. 33: survival and initial cost vs speed
+    for ax, key, ylabel in ((axes[1, 0], "survival", "survival [%]"), (axes[1, 1], "initial_cost", "initial cost")):
+        for i, ws in enumerate(SPEED_WARM_STARTS):
+            ax.plot(SPEEDS, [_value(results, f"ws_{'+'.join(ws)}_v{v:g}", key) for v in SPEEDS], "o-", color=f"C{i}",
+                    label=_label(ws))
+        for i, n in enumerate(("base", "speed")):
+            ax.plot(SPEEDS, [_value(results, f"alone_{n}_v{v:g}", key) for v in SPEEDS], "o:", color=f"C{i}",
+                    label=f"{n} alone")
+        ax.set_xlabel("forward speed [m/s]")
+        ax.set_ylabel(ylabel)
+        ax.set_title(f"Fig. 33: {ylabel} vs speed", fontsize=9)
+        ax.legend(fontsize=7)
+    axes[1, 1].set_yscale("log")
+    # Fig. 34: winning group of base + speed over time (robot 0, first 2 s), per speed
+    ax = axes[1, 2]
+    for i, v in enumerate(SPEEDS):
+        trace = (results.get(f"ws_base+speed_v{v:g}") or {}).get("winner_trace_robot0")
+        if not trace:
+            continue
+        w = np.asarray(trace[:200], dtype=float)
+        w[w < 0] = np.nan
+        ax.step(np.arange(len(w)) * 0.01, w + 1.2 * i, where="post", label=f"{v:g} m/s")
+    ax.set_yticks([0, 1, 1.2, 2.2, 2.4, 3.4], ["base", "speed"] * 3, fontsize=7)
+    ax.set_xlabel("time [s] (100 Hz solves)")
+    ax.set_title("Fig. 34: winning group of base + speed (robot 0)", fontsize=9)
+    ax.legend(fontsize=7)
+    save(fig, path)
+
+
+def speed_rows(results: dict) -> list[dict]:
+    rows = []
+    for ws in SPEED_WARM_STARTS + (("base alone",), ("speed alone",)):
+        alone = ws[0].endswith("alone")
+        row = {"Warm start": ws[0] if alone else _label(ws)}
+        for v in SPEEDS:
+            name = f"alone_{ws[0].split()[0]}_v{v:g}" if alone else f"ws_{'+'.join(ws)}_v{v:g}"
+            s = results.get(name)
+            if not s or "skipped" in s:
+                row[f"survival {v:g}"] = "skipped" if s else "-"
+                continue
+            row[f"survival {v:g}"] = survival(s)
+            row[f"IC {v:g}"] = med(s["initial_cost"])
+            if not alone and len(ws) > 1:
+                row[f"switches/s {v:g}"] = med(s.get("winner_switches_per_s"), 2)
+        rows.append(row)
+    return rows
+
+
+def survival_rows(results: dict) -> list[dict]:
+    rows = []
+    for ws in WARM_STARTS:
+        s = results.get(f"ws_{'+'.join(ws)}_survival")
+        row = {"Warm start": _label(ws)}
+        if not s or "skipped" in s:
+            row["survival"] = "skipped" if s else "-"
+        else:
+            row.update({"survival": survival(s),
+                        "Δ survival (paired, fraction)": _deltas(results, ws, "_survival", "survived", False, digits=2)})
+        rows.append(row)
+    for n in EXPERTS:
+        s = results.get(f"alone_{n}_survival")
+        if s and "skipped" not in s:
+            rows.append({"Warm start": f"{n} alone", "survival": survival(s)})
+    return rows
+
+
+def _flags(p) -> None:
+    p.add_argument("--policy-dir", type=Path, default=REPO / "docs" / "policies",
+                   help="folder of <expert>_actor.pt and <expert>_student_first_spline_h10.pt")
+
+
+def main() -> None:
+    args = parse_args(__doc__, "table18_multi_policy", _flags)
+    todo = cells(args.policy_dir)
+    results = run_cells(todo, args)
+    from experiments.distill_common import write_table
+
+    write_table(survival_rows(results), ["Warm start", "survival", "Δ survival (paired, fraction)"],
+                args.out / "fig32_survival", f"Fig. 32: survival task ({args.scale}: {args.episodes} episodes x "
+                f"{args.seconds:g} s, {args.sampler_seeds} sampler seeds per MPC episode; the MPC terrain-blind)")
+    cols = ["Warm start"] + [f"{k} {v:g}" for k in ("survival", "IC", "switches/s") for v in SPEEDS]
+    write_table(speed_rows(results), cols, args.out / "fig33_speeds", f"Figs. 33-34: forward speeds ({args.scale})")
+    cols = ["Warm start", "RL reward / step", "Δ reward (paired, %)", "RL return / episode", "Initial cost",
+            "Δ initial (paired, %)", "Rollout cost (state)", "Rollout J (full)", "Survival", "Δ survival (paired, fraction)",
+            "group wins", "switches / s", "thesis RL reward", "thesis Δ %", "thesis IC", "thesis Δ IC %",
+            "thesis survival %"]
+    finish(args, todo, results, table18_rows(results), cols, "Table 18: multiple warm starts, simple task", figure,
+           "fig31_34.png")
+
+
+if __name__ == "__main__":
+    main()
