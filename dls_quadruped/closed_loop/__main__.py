@@ -2,7 +2,8 @@
 
     python -m dls_quadruped.closed_loop --controllers rl_warm_start,naive_warm_start,rl_baseline \\
         --episodes 8 --seconds 15 [--sampler-seeds 3] [--samples 10000] [--vx 0.5] [--optimise F,f] [--out DIR]
-    python -m dls_quadruped.closed_loop --controllers rl_warm_start --students base,speed [--shares 0.5,0.5]
+    python -m dls_quadruped.closed_loop --controllers rl_warm_start --students base,speed [--shares 0.5,0.5] \\
+        [--switching-cost 50] [--group-cost-smoothing 0.9]
 
 Every controller gets a fresh env with the same seed and the same scheduled episodes (commands,
 starting states, and any event or noise, ``envs/schedule.py``), so differences between controllers
@@ -14,7 +15,8 @@ differences on the same episodes (two-level bootstrap over episodes and seeds).
 ``--vx`` replaces the simple task's random commands by a fixed forward speed (Table 17).
 ``--students`` warm-starts one MPC with several students (thesis 7.4): each seeds its own group of
 samples (``--shares``, equal by default) in the same batched solve; a name ``X`` is the committed
-``docs/policies/X_student_<p>_<F>_h<H>.pt``, anything else a path.
+``docs/policies/X_student_<p>_<F>_h<H>.pt``, anything else a path. ``--switching-cost`` and
+``--group-cost-smoothing`` arbitrate between the groups for a coherent winner (``mpc.arbitration``).
 Writes ``<out>/summary.json`` (per controller: medians and quartiles of the RL reward, initial
 cost, rollout cost, cost per horizon step, velocity error, CoT; survival with a Wilson interval;
 which warm start won; the timing profile), ``<out>/closed_loop.png`` and, with ``--video``,
@@ -120,6 +122,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         "<p>_<F>_h<H>.pt) or paths; replaces --student")
     p.add_argument("--shares", type=_shares, default=None,
                    help="--students' shares of the samples, comma-separated, positive, summing to 1 (default: equal)")
+    p.add_argument("--switching-cost", type=float, default=0.0,
+                   help="several warm starts: cost (units of eq. 3.2.1) added to every sample outside the previous "
+                        "winner's group, >= 0 (default 0: off)")
+    p.add_argument("--group-cost-smoothing", type=float, default=0.0,
+                   help="several warm starts: groups compete by a running average of their best cost, "
+                        "A <- (1 - beta) J + beta A; beta in [0, 1) (default 0: off)")
     p.add_argument("--episodes", type=positive_int, default=8, help="episodes (robots in parallel); even for the simple task")
     p.add_argument("--seconds", type=positive_float, default=15.0, help="episode length [s]")
     p.add_argument("--vx", type=float, default=None, help="fixed forward command [m/s] instead of the simple task")
@@ -347,7 +355,8 @@ def main(argv: list[str] | None = None) -> dict:
     ground = args.ground if args.ground != "auto" else "flat" if args.scenario == "simple" else "stance_feet"
     try:
         sampler = SamplerConfig(num_samples=args.samples, horizon=args.horizon, dt=args.dt, encoding_p=p_kind,
-                                encoding_F=f_kind, kernel=args.kernel)
+                                encoding_F=f_kind, kernel=args.kernel, switching_cost=args.switching_cost,
+                                group_cost_smoothing=args.group_cost_smoothing)
         configs = [ControllerConfig(name, policy=args.policy, student=students or args.student, sampler=sampler,
                                     optimise=args.optimise, naive_share=args.naive_share if name == "rl_warm_start" else 0.0,
                                     shares=args.shares if name == "rl_warm_start" else None, ground=ground,
@@ -374,6 +383,7 @@ def main(argv: list[str] | None = None) -> dict:
                      "threads": args.threads, "seed": args.seed, "policy": str(args.policy),
                      "student": [str(x) for x in students] if students else str(args.student),
                      "shares": list(args.shares) if args.shares else None,
+                     "switching_cost": args.switching_cost, "group_cost_smoothing": args.group_cost_smoothing,
                      "cpu": cpu_model()},
         "controllers": summaries,
         "paired": paired,

@@ -26,6 +26,10 @@ def _check_from_dict(cls: type, values: dict) -> None:
         raise ValueError(f"unknown {cls.__name__} keys {unknown}; allowed: {sorted(allowed)}")
 
 
+def _is_real(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 @dataclass(frozen=True)
 class CostWeights:
     """Diagonal cost weights (Tables 9 and 10); entries not listed there are 0.
@@ -125,6 +129,10 @@ class SamplerConfig:
             kernel, eager fallback) or "reference" (plain eager).
         weights: cost weights.
         action: latent-action limits (Table 1), nominal footholds, mass, mu.
+        switching_cost: [cost units of eq. 3.2.1] with several warm starts, added to the cost of every sample
+            outside the robot's previous winning group before the argmin (:mod:`arbitration`); 0 = off.
+        group_cost_smoothing: beta in [0, 1): with several warm starts, the groups compete with a running
+            average of their best cost, A_g <- (1 - beta) J_g + beta A_g (:mod:`arbitration`); 0 = off.
     """
 
     num_samples: int = 10000
@@ -141,6 +149,8 @@ class SamplerConfig:
     kernel: str = "cpp"
     weights: CostWeights = field(default_factory=CostWeights)
     action: LatentActionConfig = field(default_factory=LatentActionConfig)
+    switching_cost: float = 0.0
+    group_cost_smoothing: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.num_samples, int) or self.num_samples < 1:
@@ -156,9 +166,20 @@ class SamplerConfig:
                     f"SamplerConfig.{name} must be >= 0 and finite (0 switches that variable's optimisation off), "
                     f"got {getattr(self, name)!r}"
                 )
+        if not _is_real(self.switching_cost) or not 0 <= self.switching_cost < math.inf:
+            raise ValueError(f"SamplerConfig.switching_cost must be >= 0 and finite (cost units of eq. 3.2.1; "
+                             f"0 switches it off), got {self.switching_cost!r}")
+        if not _is_real(self.group_cost_smoothing) or not 0 <= self.group_cost_smoothing < 1:
+            raise ValueError(f"SamplerConfig.group_cost_smoothing must be in [0, 1) (weight of the previous running "
+                             f"group cost; 0 switches it off), got {self.group_cost_smoothing!r}")
         if self.kernel not in KERNELS:
             raise ValueError(f"SamplerConfig.kernel must be one of {KERNELS}, got {self.kernel!r}")
         _ = self.encoding  # validates the encoding kinds and horizon
+
+    @property
+    def arbitrates(self) -> bool:
+        """A switching cost or a running group cost is on (a solve with several warm starts arbitrates)."""
+        return self.switching_cost > 0 or self.group_cost_smoothing > 0
 
     @property
     def encoding(self) -> EncodingConfig:

@@ -5,8 +5,9 @@
                        phase=phase)
 
 Per solve: validate inputs -> split M into warm-start groups -> draw/clip/decode -> roll out and
-cost every sample (``cpp``, ``fast`` or ``reference`` kernel, :mod:`kernel`) -> argmin -> re-draw and decode
-the winner's first action. Robots with a non-finite input (state, phase, base
+cost every sample (``cpp``, ``fast`` or ``reference`` kernel, :mod:`kernel`) -> argmin (with several warm
+starts optionally arbitrated for a coherent winning group, :mod:`arbitration`) -> re-draw and decode the winner's
+first action. Robots with a non-finite input (state, phase, base
 position or yaw, terrain height, any reference) get the previous solution back (``fallback`` flag and
 ``reason`` naming the robots and the input) instead of a meaningless argmin; a solution that is
 not finite for any other reason is replaced the same way, so ``fallback = False`` always means a
@@ -22,7 +23,7 @@ from dataclasses import dataclass
 
 import torch
 
-from dls_quadruped.mpc import cpp_kernel, solve_glue, warm_start
+from dls_quadruped.mpc import arbitration, cpp_kernel, solve_glue, warm_start
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import (
     Refs,
@@ -132,6 +133,10 @@ class SamplingMPC:
         self.record_step_costs = False
         """Fill ``MPCResult.step_costs`` (a reference rollout of the winner, ~1.5 ms per solve); else NaN."""
         self._layouts: dict[tuple[float, ...], tuple[torch.Tensor, torch.Tensor]] = {}
+        self._counts: dict[tuple[float, ...], tuple[int, ...]] = {}
+        self._arbitration: arbitration.Memory | None = None
+        """Previous winning group and running group costs per robot (``cfg.arbitrates`` with several warm starts)."""
+        self._average: torch.Tensor | None = None  # this solve's running group costs, until its result is known
         self.fused = True
         """With the ``cpp`` kernel on the CPU, run the fused solve (:mod:`solve_glue`: input cleaning, kernel +
         argmin and the winner's decoding in C++ calls, preallocated buffers); the same result bit for bit as the
@@ -164,10 +169,13 @@ class SamplingMPC:
 
     def reset(self, robots: torch.Tensor | None = None) -> None:
         """Forget the previous solution of ``robots`` ((K,) indices; all if None): their next naive
-        warm start is the default (e.g. after the env restarted their episode)."""
+        warm start is the default (e.g. after the env restarted their episode), and their arbitration between
+        warm-start groups starts afresh (no previous winner, no running group cost)."""
         if robots is None or self.last_result is None:
-            self.last_result, self._forgotten = None, None
+            self.last_result, self._forgotten, self._arbitration = None, None, None
             return
+        if self._arbitration is not None:
+            self._arbitration.forget(robots.to(self.device))
         if self._forgotten is None:
             self._forgotten = torch.zeros(self.last_result.best_encoded.shape[0], dtype=torch.bool, device=self.device)
         self._forgotten[robots.to(self.device)] = True
@@ -176,9 +184,35 @@ class SamplingMPC:
 
     def _layout(self, proportions: tuple[float, ...]) -> tuple[torch.Tensor, torch.Tensor]:
         if proportions not in self._layouts:
-            group, perturb, _ = group_layout(self.cfg.num_samples, proportions)
+            group, perturb, counts = group_layout(self.cfg.num_samples, proportions)
             self._layouts[proportions] = (group.to(self.device), perturb.to(self.device))
+            self._counts[proportions] = counts
         return self._layouts[proportions]
+
+    def _arbitrate(self, costs: torch.Tensor, props: tuple[float, ...], best_cost: torch.Tensor,
+                   best_index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The winners (best_cost, best_index) under ``cfg.switching_cost`` and ``cfg.group_cost_smoothing``
+        (:func:`arbitration.select` on the (B, M) costs); the plain argmin with one warm start or both off."""
+        self._average = None
+        if not self.cfg.arbitrates or len(props) < 2:
+            return best_cost, best_index
+        memory = self._arbitration
+        if memory is not None and tuple(memory.average.shape) != (costs.shape[0], len(props)):
+            memory = None  # another batch or number of warm starts: nothing to be coherent with
+        best_cost, best_index, self._average = arbitration.select(
+            costs, self._counts[props], self.cfg.switching_cost, self.cfg.group_cost_smoothing, memory)
+        return best_cost, best_index
+
+    def _remember(self, result: MPCResult) -> None:
+        """Keep ``result`` as the previous solution and, when arbitrating, each robot's winning group and running
+        group costs (a fallback robot keeps neither)."""
+        self.last_result, self._forgotten = result, None
+        if self._average is None:
+            self._arbitration = None
+            return
+        average, self._average = self._average, None
+        average[result.fallback] = float("nan")
+        self._arbitration = arbitration.Memory(result.warm_start_index.clone(), average)
 
     def _validate(self, state: SRBDState, refs: Refs, warm_starts: Sequence[torch.Tensor],
                   proportions: Sequence[float] | None, phase: torch.Tensor) -> tuple[torch.Tensor, tuple[float, ...]]:
@@ -301,14 +335,14 @@ class SamplingMPC:
         if costs.is_cuda:
             torch.cuda.synchronize(costs.device)
         self.kernel_seconds += time.perf_counter() - tic
-        best_cost, best_index = costs.min(dim=1)
+        best_cost, best_index = self._arbitrate(costs, props, *costs.min(dim=1))
         result = self._extract(inp, best_index, best_cost, initial_cost(x0, refs, self.cfg.weights))
         # last guard: whatever the cause, a non-finite action never leaves with fallback = False
         bad_inputs["solution"] = finite & ~_action_finite(result)
         bad = torch.stack(list(bad_inputs.values())).any(dim=0)
         if bool(bad.any()):
             result = self._fallback(result, bad, inp, _describe_bad(bad_inputs))
-        self.last_result, self._forgotten = result, None
+        self._remember(result)
         return result
 
     def _extract(self, inp: KernelInputs, best_index: torch.Tensor, best_cost: torch.Tensor,

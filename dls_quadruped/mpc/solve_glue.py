@@ -8,7 +8,8 @@ with the torch path, ``SamplingMPC.fused = False``) and does:
 
 * input cleaning (non-finite entry -> 0, per-robot flags): :func:`clean_rows` in C++;
 * the kernel and the argmin in one C++ call (``mpc_solve`` in rollout_kernel.cpp) into preallocated
-  buffers (:class:`Workspace`, one per (B, M, G));
+  buffers (:class:`Workspace`, one per (B, M, G)); an arbitration between warm-start groups
+  (:mod:`arbitration`) then re-selects the winner from the same (B, M) costs with the torch path's call;
 * the winner: its noise counters, clip, contacts, forces, limits, frames and input-cost terms in C++
   (``solve_glue.cpp``, built with ``-ffp-contract=off`` and torch's evaluation order); the log, cos, sin,
   the spline matmul and the sums stay torch calls on tensors of the old shapes, because their results
@@ -231,6 +232,7 @@ def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, prop
     mpc.kernel_seconds += time.perf_counter() - tic
     if rc != 0:
         raise ValueError(f"C++ MPC kernel rejected the encoded dimension D = {dim} (must be even and <= 512)")
+    best_cost, best_index = mpc._arbitrate(w.costs, props, best_cost, best_index)  # the torch path's call
     inp = KernelInputs(seed_t, ws, group, perturb, c["state"], c["phase"], c["base_xy_w"], yaw, c["terrain_z_w"],
                        Refs(h_ref, c["refs.lin_vel_w"], wz_ref, foothold))
     # ---- the winner: noise arguments and the initial cost's terms (C++), log/sqrt/cos/sin (torch), clip (C++)
@@ -258,7 +260,7 @@ def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, prop
     if num_bad:  # num_bad < 0: not counted yet
         _guard(mpc, result, inp, w.bad)
     else:
-        mpc.last_result, mpc._forgotten = result, None
+        mpc._remember(result)
     return mpc.last_result
 
 
@@ -271,7 +273,7 @@ def _guard(mpc, result, inp, bad_in: torch.Tensor) -> None:
     bad = torch.stack(list(bad_inputs.values())).any(dim=0)
     if bool(bad.any()):
         result = mpc._fallback(result, bad, inp, sampler._describe_bad(bad_inputs))
-    mpc.last_result, mpc._forgotten = result, None
+    mpc._remember(result)
 
 
 def _decode_winner(lib: ctypes.CDLL, w: Workspace, best: torch.Tensor, inp, best_index: torch.Tensor,

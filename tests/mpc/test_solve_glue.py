@@ -37,10 +37,11 @@ def _problem(b: int, seed: int) -> tuple[SRBDState, Refs, torch.Tensor]:
 
 
 def _run(cfg: SamplerConfig, fused: bool, b: int, solves: int = 5, nan_at: int | None = None,
-         frame: bool = False) -> list[MPCResult]:
+         frame: bool = False, same_twice: bool = False) -> list[MPCResult]:
     """``solves`` solves with the naive warm start (70 %) and a trot at 1.8 Hz (30 %); every third one records the
     step costs (the fused path then decodes the winner with torch); at ``nan_at`` robot 0's state and robot
-    B-1's velocity reference are not finite; ``frame``: pass base_xy_w, base_yaw, terrain_z_w."""
+    B-1's velocity reference are not finite; ``frame``: pass base_xy_w, base_yaw, terrain_z_w; ``same_twice``: two
+    groups of 50 % around the naive warm start instead (their best costs differ by the noise alone)."""
     state, refs, phase = _problem(b, 3)
     mpc = SamplingMPC(cfg, seed=5)
     mpc.fused = fused
@@ -59,7 +60,9 @@ def _run(cfg: SamplerConfig, fused: bool, b: int, solves: int = 5, nan_at: int |
             kw = {"base_xy_w": 0.1 * torch.randn(b, 2, generator=gen), "base_yaw": torch.randn(b, generator=gen),
                   "terrain_z_w": 0.05 * torch.rand(b, 4, generator=gen)}
         mpc.record_step_costs = k % 3 == 2
-        out.append(mpc.solve(s, r, [mpc.naive_warm_start(default), trot], proportions=(0.7, 0.3), phase=phase, **kw))
+        naive = mpc.naive_warm_start(default)
+        ws, props = ([naive, naive], (0.5, 0.5)) if same_twice else ([naive, trot], (0.7, 0.3))
+        out.append(mpc.solve(s, r, ws, proportions=props, phase=phase, **kw))
         phase = (phase + 0.02) % 1.0
     return out
 
@@ -125,3 +128,18 @@ def test_all_finite_matches_torch(libs):
         y = x.clone()
         y[6, 47] = bad
         assert not solve_glue.all_finite(y) and not solve_glue.all_finite(y.T)
+
+
+@pytest.mark.parametrize(("switching_cost", "smoothing"), [(1000.0, 0.0), (0.0, 0.9), (1000.0, 0.5)])
+def test_fused_solve_with_arbitration_is_the_torch_solve(libs, switching_cost, smoothing):
+    """The arbitration between two groups (mpc/arbitration.py) picks the same winners on both paths, with a
+    fallback at solve 1, around different and around the same warm start; around the same one it picks other
+    winners than the plain argmin (the check is not vacuous)."""
+    cfg = SamplerConfig(num_samples=400, horizon=10, switching_cost=switching_cost, group_cost_smoothing=smoothing)
+    for nan_at, same in ((None, False), (1, True)):
+        torch_path, fused = _run(cfg, False, 5, nan_at=nan_at, same_twice=same), _run(cfg, True, 5, nan_at=nan_at,
+                                                                                      same_twice=same)
+        for r_torch, r_fused in zip(torch_path, fused, strict=True):
+            _assert_identical(r_torch, r_fused)
+    plain = _run(SamplerConfig(num_samples=400, horizon=10), True, 5, nan_at=1, same_twice=True)
+    assert any(not torch.equal(a.best_index, p.best_index) for a, p in zip(fused, plain, strict=True))
