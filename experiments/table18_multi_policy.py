@@ -15,6 +15,10 @@ episodes (paired):
   and initial cost.
 * Fig. 34: which group won each solve of base + speed at the three speeds (robot 0 over time) and
   the winner switches per second (per episode, then across episodes).
+* Past the thesis (issue 27 item 5): base + speed with arbitration (``mpc/arbitration.py``): a
+  switching cost s added to every sample outside the last winner's group, and the same with the
+  groups compared by a running average of their best cost (smoothing beta), on the simple task, the
+  survival task and the three speeds.
 
 Students: ``docs/policies/<expert>_student_first_spline_h10.pt`` (``--policy-dir``); a missing one
 skips its cells with a note.
@@ -48,6 +52,9 @@ WARM_STARTS = (("base",), ("speed",), ("rough",), ("base", "speed"), ("rough", "
 EXPERTS = ("base", "speed", "rough")
 SPEEDS = (0.1, 0.5, 1.5)
 SPEED_WARM_STARTS = (("base",), ("speed",), ("base", "speed"))
+ARBITRATION = {"s1000": {"switching_cost": 1000.0},
+               "s300_b0.9": {"switching_cost": 300.0, "group_cost_smoothing": 0.9}}
+"""base + speed with arbitration: tag -> SamplerConfig overrides (s in the cost units of eq. 3.2.1)."""
 THESIS = {  # warm start: (RL reward, Δ %, initial cost, Δ %, survival %, Δ points) -- Table 18 (simple task)
     "base": (526.5, -0.6, 26.7, -57.3, 100, 0), "speed": (445.8, 6.4, 106.7, -69.7, 74, -26),
     "rough": (388.0, -12.3, 203.7, -32.8, 96, -2), "base + speed": (364.1, None, 91.9, None, 84, None),
@@ -55,14 +62,14 @@ THESIS = {  # warm start: (RL reward, Δ %, initial cost, Δ %, survival %, Δ p
 }
 
 
-def _label(ws: tuple[str, ...]) -> str:
-    return " + ".join(ws)
+def _label(ws: tuple[str, ...], tag: str = "") -> str:
+    return " + ".join(ws) + (f" ({tag})" if tag else "")
 
 
-def _ws_cell(ws: tuple[str, ...], policy_dir: Path, suffix: str = "", **kw) -> Cell:
+def _ws_cell(ws: tuple[str, ...], policy_dir: Path, suffix: str = "", tag: str = "", **kw) -> Cell:
     students = tuple(str(policy_dir / f"{n}_student_first_spline_h10.pt") for n in ws)
-    return Cell(f"ws_{'+'.join(ws)}{suffix}", "rl_warm_start", students=students,
-                row={"Warm start": _label(ws)}, **kw)
+    return Cell(f"ws_{'+'.join(ws)}{f'_{tag}' if tag else ''}{suffix}", "rl_warm_start", students=students,
+                sampler=dict(ARBITRATION[tag]) if tag else {}, row={"Warm start": _label(ws, tag)}, **kw)
 
 
 def _alone_cell(name: str, policy_dir: Path, suffix: str = "", **kw) -> Cell:
@@ -77,43 +84,56 @@ def cells(policy_dir: Path) -> list[Cell]:
     for v in SPEEDS:
         out += [_ws_cell(ws, policy_dir, f"_v{v:g}", vx=v) for ws in SPEED_WARM_STARTS]
         out += [_alone_cell(n, policy_dir, f"_v{v:g}", vx=v) for n in ("base", "speed")]
+    for tag in ARBITRATION:
+        out += [_ws_cell(("base", "speed"), policy_dir, "", tag),
+                _ws_cell(("base", "speed"), policy_dir, "_survival", tag, scenario="survival")]
+        out += [_ws_cell(("base", "speed"), policy_dir, f"_v{v:g}", tag, vx=v) for v in SPEEDS]
     return out
 
 
-def _deltas(results: dict, ws: tuple[str, ...], suffix: str, key: str, relative: bool, digits: int = 1) -> str:
+def _deltas(results: dict, ws: tuple[str, ...], suffix: str, key: str, relative: bool, digits: int = 1,
+            tag: str = "") -> str:
     """Paired difference of the warm start from each of its policies alone (same episodes)."""
     parts = []
     for n in ws:
-        d = paired(results, f"ws_{'+'.join(ws)}{suffix}", f"alone_{n}{suffix}", key, digits=digits, relative=relative)
+        d = paired(results, f"{_name(ws, tag)}{suffix}", f"alone_{n}{suffix}", key, digits=digits, relative=relative)
         parts.append(d if len(ws) == 1 else f"vs {n}: {d}")
     return "; ".join(parts)
 
 
+def _name(ws: tuple[str, ...], tag: str = "") -> str:
+    return f"ws_{'+'.join(ws)}{f'_{tag}' if tag else ''}"
+
+
+def _variants() -> list[tuple[tuple[str, ...], str]]:
+    return [(ws, "") for ws in WARM_STARTS] + [(("base", "speed"), tag) for tag in ARBITRATION]
+
+
 def table18_rows(results: dict) -> list[dict]:
     rows = []
-    for ws in WARM_STARTS:
-        s = results.get(f"ws_{'+'.join(ws)}")
-        row = {"Warm start": _label(ws)}
-        th = THESIS[_label(ws)]
+    for ws, tag in _variants():
+        s = results.get(_name(ws, tag))
+        row = {"Warm start": _label(ws, tag)}
+        th = THESIS.get(_label(ws), (None,) * 6) if not tag else (None,) * 6
         if not s or "skipped" in s:
             row["RL reward / step"] = f"skipped: {s['skipped']}" if s else "-"
         else:
             row.update({
                 "RL reward / step": med(s["rl_reward"], 3),
-                "Δ reward (paired, %)": _deltas(results, ws, "", "rl_reward", True),
+                "Δ reward (paired, %)": _deltas(results, ws, "", "rl_reward", True, tag=tag),
                 "RL return / episode": med(s["rl_return"], 0),
                 "Initial cost": med(s["initial_cost"]),
-                "Δ initial (paired, %)": _deltas(results, ws, "", "initial_cost", True),
+                "Δ initial (paired, %)": _deltas(results, ws, "", "initial_cost", True, tag=tag),
                 "Rollout cost (state)": med(s.get("rollout_cost")),
                 "Rollout J (full)": med(s.get("rollout_cost_full")),
                 "Survival": survival(s),
-                "Δ survival (paired, fraction)": _deltas(results, ws, "", "survived", False, digits=2),
+                "Δ survival (paired, fraction)": _deltas(results, ws, "", "survived", False, digits=2, tag=tag),
                 "group wins": " / ".join(f"{100 * v:.0f} %" for v in (s.get("warm_start_won") or {}).values()),
                 "switches / s": med(s.get("winner_switches_per_s"), 2),
             })
-        row.update({"thesis RL reward": th[0], "thesis Δ %": th[1] if th[1] is not None else "",
-                    "thesis IC": th[2], "thesis Δ IC %": th[3] if th[3] is not None else "",
-                    "thesis survival %": th[4]})
+        row.update({"thesis RL reward": th[0] if th[0] is not None else "", "thesis Δ %": th[1] if th[1] is not None else "",
+                    "thesis IC": th[2] if th[2] is not None else "", "thesis Δ IC %": th[3] if th[3] is not None else "",
+                    "thesis survival %": th[4] if th[4] is not None else ""})
         rows.append(row)
     for n in EXPERTS:
         s = results.get(f"alone_{n}")
@@ -189,11 +209,13 @@ def figure(results: dict, path: Path) -> None:
 
 def speed_rows(results: dict) -> list[dict]:
     rows = []
-    for ws in SPEED_WARM_STARTS + (("base alone",), ("speed alone",)):
+    variants = [(ws, "") for ws in SPEED_WARM_STARTS] + [(("base", "speed"), t) for t in ARBITRATION] \
+        + [(("base alone",), ""), (("speed alone",), "")]
+    for ws, tag in variants:
         alone = ws[0].endswith("alone")
-        row = {"Warm start": ws[0] if alone else _label(ws)}
+        row = {"Warm start": ws[0] if alone else _label(ws, tag)}
         for v in SPEEDS:
-            name = f"alone_{ws[0].split()[0]}_v{v:g}" if alone else f"ws_{'+'.join(ws)}_v{v:g}"
+            name = f"alone_{ws[0].split()[0]}_v{v:g}" if alone else f"{_name(ws, tag)}_v{v:g}"
             s = results.get(name)
             if not s or "skipped" in s:
                 row[f"survival {v:g}"] = "skipped" if s else "-"
@@ -208,14 +230,15 @@ def speed_rows(results: dict) -> list[dict]:
 
 def survival_rows(results: dict) -> list[dict]:
     rows = []
-    for ws in WARM_STARTS:
-        s = results.get(f"ws_{'+'.join(ws)}_survival")
-        row = {"Warm start": _label(ws)}
+    for ws, tag in _variants():
+        s = results.get(f"{_name(ws, tag)}_survival")
+        row = {"Warm start": _label(ws, tag)}
         if not s or "skipped" in s:
             row["survival"] = "skipped" if s else "-"
         else:
-            row.update({"survival": survival(s),
-                        "Δ survival (paired, fraction)": _deltas(results, ws, "_survival", "survived", False, digits=2)})
+            row.update({"survival": survival(s), "switches / s": med(s.get("winner_switches_per_s"), 2),
+                        "Δ survival (paired, fraction)": _deltas(results, ws, "_survival", "survived", False, digits=2,
+                                                                 tag=tag)})
         rows.append(row)
     for n in EXPERTS:
         s = results.get(f"alone_{n}_survival")
@@ -235,7 +258,7 @@ def main() -> None:
     results = run_cells(todo, args)
     from experiments.distill_common import write_table
 
-    write_table(survival_rows(results), ["Warm start", "survival", "Δ survival (paired, fraction)"],
+    write_table(survival_rows(results), ["Warm start", "survival", "Δ survival (paired, fraction)", "switches / s"],
                 args.out / "fig32_survival", f"Fig. 32: survival task ({args.scale}: {args.episodes} episodes x "
                 f"{args.seconds:g} s, {args.sampler_seeds} sampler seeds per MPC episode; the MPC terrain-blind)")
     cols = ["Warm start"] + [f"{k} {v:g}" for k in ("survival", "IC", "switches/s") for v in SPEEDS]
