@@ -30,6 +30,7 @@ import re
 import signal
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import torch
@@ -317,7 +318,9 @@ def export_policy(runner: OnPolicyRunner, out_dir: Path) -> dict[str, Path | str
     runner.export_policy_to_jit(str(out_dir), "policy.pt")
     result: dict[str, Path | str] = {"jit": out_dir / "policy.pt"}
     try:
-        runner.export_policy_to_onnx(str(out_dir), "policy.onnx")
+        with warnings.catch_warnings():  # torch's exporter's own deprecation notices (e.g. pytree's LeafSpec when it
+            warnings.simplefilter("ignore", FutureWarning)  # copies the graph): nothing a user can act on
+            runner.export_policy_to_onnx(str(out_dir), "policy.onnx")
         result["onnx"] = out_dir / "policy.onnx"
     except (ImportError, RuntimeError) as err:  # onnx/onnxscript missing or an exporter failure: report it
         result["onnx"] = f"skipped: {type(err).__name__}: {err}"
