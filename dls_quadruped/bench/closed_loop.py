@@ -13,6 +13,10 @@ With ``--paths fused torch`` (``make bench-closed-loop``: B = 16 and 64) each ro
 robot-seconds per second of the two and their ratio, and robot-seconds per CPU-second of the process (what other
 jobs on shared cores do not inflate).
 
+With ``--students 1 2`` each ``rl_warm_start`` row runs with one student and with the same student twice (two
+sample groups sharing the M samples of one batched solve, issue 27 item 9): a multi-policy solve should cost
+what a single one does at equal M.
+
 Writes results/bench/closed_loop.json and prints a markdown table.
 """
 
@@ -64,11 +68,13 @@ def kernel_alone(samples: int, horizon: int, solves: int = 30) -> float:
 
 
 def run(controller: str, robots: int, seconds: float, samples: int, horizon: int, num_workers: int,
-        path: str = "fused") -> dict:
-    """One closed loop of ``robots`` robots for ``seconds``; ``path``: "fused" or "torch" (SamplingMPC.fused)."""
+        path: str = "fused", students: int = 1) -> dict:
+    """One closed loop of ``robots`` robots for ``seconds``; ``path``: "fused" or "torch" (SamplingMPC.fused);
+    ``students``: rl_warm_start with the student this many times (one sample group each)."""
     env = make_env(commands(robots, 0, None), seconds, seed=0, num_workers=num_workers)
     try:
-        cfg = ControllerConfig(controller, policy=DEFAULT_POLICY, student=DEFAULT_STUDENT,
+        student = DEFAULT_STUDENT if students == 1 or controller != "rl_warm_start" else (DEFAULT_STUDENT,) * students
+        cfg = ControllerConfig(controller, policy=DEFAULT_POLICY, student=student,
                                sampler=SamplerConfig(num_samples=samples, horizon=horizon))
         ctrl = make_controller(cfg, env)
         ctrl.mpc.fused = path == "fused"
@@ -81,7 +87,7 @@ def run(controller: str, robots: int, seconds: float, samples: int, horizon: int
         env.close()
     t = tr.timing
     wall = t["wall"]
-    return {"controller": controller, "path": path, "robots": robots, "seconds": seconds, "samples": samples, "horizon": horizon,
+    return {"controller": controller, "path": path, "students": students, "robots": robots, "seconds": seconds, "samples": samples, "horizon": horizon,
             "num_workers": num_workers, "robot_seconds_per_second": t["robot_seconds_per_second"],
             "robot_seconds_per_cpu_second": robots * seconds / cpu, "cpu_s": cpu,
             "wall_s": wall, "share": {k: t[k] / wall for k in ("kernel", "policy", "probe", "env_and_sim")}
@@ -101,23 +107,28 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--num-workers", type=int, nargs="+", default=[0], help="simulator processes (0: in-process)")
     p.add_argument("--paths", nargs="+", default=["fused"], choices=["fused", "torch"],
                    help="solve paths around the kernel, run back to back per row (SamplingMPC.fused)")
+    p.add_argument("--students", type=int, nargs="+", default=[1],
+                   help="rl_warm_start: run with the student this many times (sample groups), e.g. 1 2")
     p.add_argument("--out", type=Path, default=Path("results/bench"))
     args = p.parse_args(argv)
     rows = []
     load_start = os.getloadavg()
     bar = progress(total=len(args.threads) * len(args.num_workers) * len(args.robots) * len(args.controllers)
-                   * len(args.paths),
+                   * len(args.paths) * len(args.students),
                    desc="configurations", unit="config")
     for threads in args.threads:
         torch.set_num_threads(threads)
         kernel = kernel_alone(args.samples, args.horizon)
         for workers in args.num_workers:
             for robots in args.robots:
-                for ctrl, path in ((c, q) for c in args.controllers for q in args.paths):
-                    r = run(ctrl, robots, args.seconds, args.samples, args.horizon, workers, path)
+                for ctrl, path, n in ((c, q, n) for c in args.controllers for q in args.paths for n in args.students):
+                    if n > 1 and ctrl != "rl_warm_start":
+                        continue
+                    r = run(ctrl, robots, args.seconds, args.samples, args.horizon, workers, path, n)
                     r.update({"threads": threads, "kernel_alone_ms_B1": 1e3 * kernel})
                     rows.append(r)
-                    print(f"[bench.closed_loop] {ctrl} ({path}) B={robots} threads={threads} workers={workers}: "
+                    print(f"[bench.closed_loop] {ctrl} ({path}, {n} student group(s)) B={robots} threads={threads} "
+                          f"workers={workers}: "
                           f"{r['robot_seconds_per_second']:.2f} robot-s/s, kernel {100 * r['share']['kernel']:.0f} %, "
                           f"kernel alone (B=1) {1e3 * kernel:.2f} ms", flush=True)
                     bar.update(1)
@@ -128,16 +139,16 @@ def main(argv: list[str] | None = None) -> dict:
     write_json(res, args.out / "closed_loop.json", indent=1)
     print(f"{res['cpu']}, load average {[round(x, 2) for x in load_start]} -> "
           f"{[round(x, 2) for x in res['load_avg_at_end']]}")
-    print("| controller | path | B | threads | sim workers | robot-s/s | vs torch path | robot-s per CPU-s | vs torch path "
+    print("| controller | path | groups | B | threads | sim workers | robot-s/s | vs torch path | robot-s per CPU-s | vs torch path "
           "| kernel | rest of solve | policy | probe | env+sim | kernel alone B=1 [ms] |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    key = lambda r: (r["controller"], r["robots"], r["threads"], r["num_workers"])
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    key = lambda r: (r["controller"], r["students"], r["robots"], r["threads"], r["num_workers"])
     torch_rows = {key(r): r for r in rows if r["path"] == "torch"}
     for r in rows:
         s, ref = r["share"], torch_rows.get(key(r))
         speed, speed_cpu = (f"{r[k] / ref[k]:.2f}x" if ref else "-"
                             for k in ("robot_seconds_per_second", "robot_seconds_per_cpu_second"))
-        print(f"| {r['controller']} | {r['path']} | {r['robots']} | {r['threads']} | {r['num_workers']} | "
+        print(f"| {r['controller']} | {r['path']} | {r['students']} | {r['robots']} | {r['threads']} | {r['num_workers']} | "
               f"{r['robot_seconds_per_second']:.2f} | {speed} | {r['robot_seconds_per_cpu_second']:.2f} | {speed_cpu} | "
               f"{100 * s['kernel']:.0f} % | "
               f"{100 * s['solve_without_kernel']:.0f} % | {100 * s['policy']:.0f} % | {100 * s['probe']:.0f} % | "

@@ -17,3 +17,10 @@ def test_closed_loop_bench_profile_adds_up(tmp_path: Path) -> None:
         assert all(0.0 <= v <= 1.0 for v in share.values())
         assert abs(sum(share.values()) - 1.0) < 1e-6  # kernel + rest of solve + policy + probe + env/sim = wall
         assert row["robot_seconds_per_second"] > 0 and row["kernel_alone_ms_B1"] > 0
+
+
+def test_closed_loop_bench_one_and_two_student_groups(tmp_path: Path) -> None:
+    res = main(["--robots", "2", "--seconds", "0.1", "--samples", "200", "--controllers", "rl_warm_start",
+                "naive_warm_start", "--students", "1", "2", "--out", str(tmp_path)])
+    groups = [(r["controller"], r["students"]) for r in res["rows"]]
+    assert groups == [("rl_warm_start", 1), ("rl_warm_start", 2), ("naive_warm_start", 1)]  # no 2-group naive row
