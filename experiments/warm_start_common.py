@@ -43,7 +43,7 @@ import torch
 
 from dls_quadruped.cli import ArgumentParser
 from dls_quadruped.closed_loop.__main__ import commands, run_controllers
-from dls_quadruped.closed_loop.controllers import ControllerConfig
+from dls_quadruped.closed_loop.controllers import GROUNDS, ControllerConfig
 from dls_quadruped.closed_loop.metrics import summarize
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.core.progress import progress
@@ -73,6 +73,18 @@ class Cell:
     shares: tuple[float, ...] | None = None       # their shares (None: equal)
     policy: str | None = None                     # rl_baseline: this expert (else --policy)
     scenario: str = "simple"                      # closed_loop scenario (simple, survival, survival_sweep)
+    ground: str | None = None                     # ground the MPC plans on (controllers.GROUNDS); None: flat on
+                                                  # the simple scenario, stance_feet (blind) on the others
+
+    def __post_init__(self) -> None:
+        if self.ground is not None and self.ground not in GROUNDS:
+            raise ValueError(f"cell {self.name!r}: ground must be one of {list(GROUNDS)} or None, got {self.ground!r}")
+
+    def plan_ground(self) -> str:
+        """The ground the cell's MPC plans on (``ground``, or the scenario's default)."""
+        if self.ground is not None:
+            return self.ground
+        return "flat" if self.scenario == "simple" else "stance_feet"
 
 
 def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
@@ -153,7 +165,7 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
             continue
         cfg = ControllerConfig(cell.controller, policy=policy, student=student, sampler=sampler,
                                optimise=cell.optimise, naive_share=cell.naive_share, shares=cell.shares,
-                               ground="flat" if cell.scenario == "simple" else "stance_feet", seed=args.seed)
+                               ground=cell.plan_ground(), seed=args.seed)
         t0 = time.monotonic()
         traces = run_controllers([cfg], commands(args.episodes, args.seed, cell.vx), args.seconds, args.seed,
                                  args.num_workers, sampler_seeds=args.sampler_seeds,
@@ -161,7 +173,7 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
         summary = summarize(traces, replicas=traces.replicas)
         student_txt = [str(x) for x in student] if isinstance(student, tuple) else str(student) if student else None
         summary.update({"cell": cell.name, "student": student_txt, "row": cell.row, "policy": str(policy),
-                        "scenario": cell.scenario, "shares": list(cell.shares) if cell.shares else None,
+                        "scenario": cell.scenario, "ground": cell.plan_ground(), "shares": list(cell.shares) if cell.shares else None,
                         "sampler": cell.sampler, "optimise": list(cell.optimise), "vx": cell.vx,
                         "naive_share": cell.naive_share, "git_commit": _commit(),
                         "seconds_wall": time.monotonic() - t0})

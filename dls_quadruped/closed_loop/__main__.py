@@ -133,9 +133,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--vx", type=float, default=None, help="fixed forward command [m/s] instead of the simple task")
     p.add_argument("--scenario", choices=SCENARIOS, default="simple",
                    help="simple (flat, no disturbance) or the eval suite's survival / survival_sweep (terrain, pushes, "
-                        "friction, wrench, noise; the MPC stays terrain-blind)")
+                        "friction, wrench, noise; the MPC is terrain-blind unless --ground terrain)")
     p.add_argument("--ground", choices=("auto", *GROUNDS), default="auto",
-                   help="ground the MPC plans on: auto = flat for simple, stance_feet (flat at its feet's height) else")
+                   help="ground the MPC plans on: auto = flat for simple, stance_feet (flat at its feet's height) else; "
+                        "terrain = the terrain map (CoM reference above the terrain under the base, touch-downs at "
+                        "the terrain height under the reference footholds)")
     p.add_argument("--samples", type=positive_int, default=10000, help="M, samples per robot")
     p.add_argument("--sampler-seeds", type=positive_int, default=1,
                    help="independent sampler noise streams per episode for the MPC controllers (robots in parallel)")

@@ -49,9 +49,32 @@ from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
 CONTROLLERS = ("rl_warm_start", "naive_warm_start", "rl_baseline", "student")
 """Controller names (thesis 7.3.1 plus the student alone)."""
 NEEDS_STUDENT = ("rl_warm_start", "student")
-GROUNDS = ("flat", "stance_feet")
+GROUNDS = ("flat", "stance_feet", "terrain")
 """Ground the MPC plans on: ``flat`` = z = 0 (the simple task); ``stance_feet`` = flat at the height its stance
-feet stand on (``mpc.baseline.stance_ground_z``, terrain-blind: no map, as in the thesis)."""
+feet stand on (``mpc.baseline.stance_ground_z``, terrain-blind: no map, as in the thesis); ``terrain`` = the
+env's terrain map (``env.scene.terrain.height_at``, past the thesis): the CoM reference above the terrain under
+the base, each leg's touch-down at the terrain height under its reference foothold (``mpc.baseline.mpc_inputs``)."""
+
+
+def ground_inputs(ground: str, state, height_fn=None) -> dict:
+    """The ``mpc_inputs`` / ``ModelBasedBaseline.step`` keywords of one ground (one of ``GROUNDS``): the one place
+    the MPC controllers and the initial-cost probe turn a ground name into what the solve sees.
+
+    Args:
+        state: robot state (B robots); height_fn: ``(x_w, y_w) -> z_w`` the terrain map, needed for ``terrain``.
+
+    Returns:
+        {} for ``flat``, {"ground_z": (B,)} for ``stance_feet``, {"height_fn": height_fn} for ``terrain``.
+    """
+    if ground == "flat":
+        return {}
+    if ground == "stance_feet":
+        return {"ground_z": stance_ground_z(state)}
+    if ground == "terrain":
+        if height_fn is None:
+            raise ValueError("ground 'terrain' needs the terrain map (env.scene.terrain.height_at)")
+        return {"height_fn": height_fn}
+    raise ValueError(f"ground must be one of {list(GROUNDS)}, got {ground!r}")
 NEEDS_POLICY = ("rl_baseline",)
 
 
@@ -74,7 +97,7 @@ class ControllerConfig:
         seed: seed of the MPC's noise.
         horizon_cost_every: record the chosen sample's cost per horizon step (Fig. 28) at every k-th solve
             (an eager re-rollout, ~1.5 ms per solve).
-        ground: MPC controllers: the ground the MPC plans on, one of ``GROUNDS``.
+        ground: MPC controllers: the ground the MPC plans on, one of ``GROUNDS`` (``terrain``: the env's map).
     """
 
     name: str
@@ -269,6 +292,7 @@ class MPCController(Controller):
                 self.students.append(module)
             self.shares = cfg.group_shares()
             self.default = warm_start.nominal_trot(b, self.sampler_cfg)
+        self.height_fn = env.scene.terrain.height_at if cfg.ground == "terrain" else None
         self._solves = 0
         self._student_ws: list[torch.Tensor] | None = None
         self._student_ok: list[torch.Tensor] = [torch.ones(b, dtype=torch.bool)]
@@ -311,15 +335,15 @@ class MPCController(Controller):
     def _solve(self, substep: int) -> MPCResult:
         state = self.env.state
         cmd = self.env.command_manager.command.cpu()
-        ground_z = stance_ground_z(state) if self.cfg.ground == "stance_feet" else None
+        ground = ground_inputs(self.cfg.ground, state, self.height_fn)
         if self.cfg.name == "naive_warm_start":
-            result, _ = self.baseline.step(state, cmd, ground_z)
+            result, _ = self.baseline.step(state, cmd, **ground)
             return result
         if self._student_ws is None:
             raise RuntimeError("rl_warm_start: prepare(obs) must run before physics()")
         p_h = heuristic_footholds_h(state, cmd, self.baseline_cfg)
         srbd, refs, frame = mpc_inputs(state, cmd, p_h, self.baseline_cfg.com_height, self.sampler_cfg, self.mpc.model,
-                                       ground_z)
+                                       **ground)
         ws = [self._student_warm_start(substep, k) for k in range(len(self.students))]
         if self.cfg.naive_share > 0.0:
             ws.append(self.mpc.naive_warm_start(ws[0]))

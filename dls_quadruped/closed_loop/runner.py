@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from dls_quadruped.closed_loop.controllers import Controller
+from dls_quadruped.closed_loop.controllers import GROUNDS, Controller, ground_inputs
 from dls_quadruped.core.progress import progress
 from dls_quadruped.envs.mdp.kernels import motor_power
 from dls_quadruped.eval.rollout import base_velocity
@@ -27,7 +27,6 @@ from dls_quadruped.mpc.baseline import (
     BaselineConfig,
     heuristic_footholds_h,
     mpc_inputs,
-    stance_ground_z,
 )
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import STATE_TERMS, initial_cost, state_cost_terms
@@ -107,16 +106,22 @@ class InitialCostProbe:
     the same references as the MPC controllers (CoM height reference, commanded velocity and yaw rate,
     flat attitude; the foothold reference does not enter the state cost)."""
 
-    def __init__(self, sampler: SamplerConfig, baseline: BaselineConfig | None = None, ground: str = "flat"):
+    def __init__(self, sampler: SamplerConfig, baseline: BaselineConfig | None = None, ground: str = "flat",
+                 height_fn=None):
+        if ground not in GROUNDS:
+            raise ValueError(f"ground must be one of {list(GROUNDS)}, got {ground!r}")
+        if ground == "terrain" and height_fn is None:
+            raise ValueError("ground 'terrain' needs the terrain map (env.scene.terrain.height_at)")
         self.sampler = sampler
         self.baseline = baseline or BaselineConfig(sampler=sampler)
         self.model = robot_srbd_model()
-        self.ground = ground  # "flat" (z = 0) or "stance_feet": the ground the MPC controllers plan on
+        self.ground = ground  # one of GROUNDS: the ground the MPC controllers plan on
+        self.height_fn = height_fn  # ground "terrain": (x_w, y_w) -> z_w
 
     def _inputs(self, state, cmd: torch.Tensor):
         p_h = heuristic_footholds_h(state, cmd, self.baseline)
-        ground_z = stance_ground_z(state) if self.ground == "stance_feet" else None
-        return mpc_inputs(state, cmd, p_h, self.baseline.com_height, self.sampler, self.model, ground_z)
+        return mpc_inputs(state, cmd, p_h, self.baseline.com_height, self.sampler, self.model,
+                          **ground_inputs(self.ground, state, self.height_fn))
 
     def __call__(self, state, cmd: torch.Tensor) -> torch.Tensor:
         """(B,) initial cost."""
@@ -140,7 +145,8 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     steps = int(num_steps or env.max_episode_length)
     cpu = lambda t: t.detach().cpu()
     sampler = controller.cfg.sampler
-    probe = InitialCostProbe(sampler, ground=controller.cfg.ground)  # every controller's cost on the same ground
+    ground = controller.cfg.ground  # every controller's cost on the ground its MPC plans on
+    probe = InitialCostProbe(sampler, ground=ground, height_fn=env.scene.terrain.height_at if ground == "terrain" else None)
     solves = getattr(controller, "solves_per_step", 0)
     horizon = sampler.horizon
     nan = np.nan

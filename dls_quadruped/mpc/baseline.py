@@ -27,6 +27,7 @@ import mujoco
 import numpy as np
 import torch
 
+from dls_quadruped.control.latent_action import TerrainHeightFn
 from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.mpc import warm_start
@@ -131,8 +132,8 @@ class ModelBasedBaseline:
             return flat.repeat(1, horizon)
         return fit_spline(flat[:, None, :].expand(-1, horizon, 8), constrained=True).reshape(self.num_robots, -1)
 
-    def step(self, state: RobotState, cmd_vel_h: torch.Tensor,
-             ground_z: torch.Tensor | None = None) -> tuple[MPCResult, Refs]:
+    def step(self, state: RobotState, cmd_vel_h: torch.Tensor, ground_z: torch.Tensor | None = None,
+             height_fn: TerrainHeightFn | None = None) -> tuple[MPCResult, Refs]:
         """One MPC solve: returns the result (first action in the world frame) and the references used.
 
         The warm start is the naive one (previous solution shifted); the blocks that are not optimised
@@ -156,14 +157,15 @@ class ModelBasedBaseline:
             if "p" not in cfg.optimise or first:
                 w[:, self.slices["p"]] = p_block
         srbd, refs, frame = mpc_inputs(state, cmd_vel_h, p_h, cfg.com_height, self.sampler_cfg, self.mpc.model,
-                                       ground_z)
+                                       ground_z, height_fn)
         result = self.mpc.solve(srbd, refs, warm_starts=warm_starts, proportions=proportions,
                                 phase=state.phase, **frame)
         return result, refs
 
 
 def mpc_inputs(state: RobotState, cmd_vel_h: torch.Tensor, p_h: torch.Tensor, com_height: float,
-               sampler: SamplerConfig, model, ground_z: torch.Tensor | None = None) -> tuple:
+               sampler: SamplerConfig, model, ground_z: torch.Tensor | None = None,
+               height_fn: TerrainHeightFn | None = None) -> tuple:
     """The SRBD state, the cost references and the horizontal frame of one solve.
 
     Args:
@@ -172,10 +174,16 @@ def mpc_inputs(state: RobotState, cmd_vel_h: torch.Tensor, p_h: torch.Tensor, co
         com_height: [m] CoM height reference above the ground;
         ground_z: (B,) [m] height of the flat ground the MPC assumes under each robot (None: z = 0):
             the CoM reference, the reference footholds and the touch-downs are placed on it.
+        height_fn: the terrain map ``(x_w, y_w) -> z_w`` (``Terrain.height_at``), instead of ``ground_z``:
+            the CoM reference is ``com_height`` above the terrain under the base, and each leg's reference
+            foothold and touch-down height is the terrain under that leg's reference foothold (the kernel
+            takes one height per leg for the whole horizon: ``SamplingMPC.solve``'s ``terrain_z_w``).
 
     Returns:
-        (SRBDState, Refs, {"base_xy_w": (B, 2), "base_yaw": (B,)[, "terrain_z_w": (B, 4) with ground_z]}).
+        (SRBDState, Refs, {"base_xy_w": (B, 2), "base_yaw": (B,)[, "terrain_z_w": (B, 4) with a ground]}).
     """
+    if ground_z is not None and height_fn is not None:
+        raise ValueError("mpc_inputs: give ground_z (flat ground) or height_fn (terrain map), not both")
     b = state.base_pos_w.shape[0]
     srbd = srbd_state_from_base(state.base_pos_w, state.base_quat_w, state.base_lin_vel_w,
                                 state.base_ang_vel_b, state.foot_pos_w, model)
@@ -197,6 +205,12 @@ def mpc_inputs(state: RobotState, cmd_vel_h: torch.Tensor, p_h: torch.Tensor, co
         com_ref = com_ref + z
         foothold_w = torch.cat([foothold_w[..., :2], foothold_w[..., 2:] + z[:, None, None]], dim=-1)
         frame["terrain_z_w"] = z[:, None].expand(b, 4).contiguous()
+    elif height_fn is not None:
+        com_ref = com_ref + height_fn(base_xy[:, 0], base_xy[:, 1]).float()  # terrain under the base
+        xy = foothold_w[..., :2].float()
+        z_legs = height_fn(xy[..., 0], xy[..., 1]).float()  # (B, 4) under the reference footholds
+        foothold_w = torch.cat([foothold_w[..., :2], foothold_w[..., 2:] + z_legs[..., None]], dim=-1)
+        frame["terrain_z_w"] = z_legs.contiguous()
     refs = Refs(com_height_w=com_ref, lin_vel_w=v_ref_w, yaw_rate=cmd[:, 2].clone(), foothold_w=foothold_w)
     return srbd, refs, frame
 
