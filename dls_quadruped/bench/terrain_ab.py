@@ -1,13 +1,16 @@
 """Rough-task RL throughput with two terrain implementations side by side, in one process.
 
-Builds three envs — ``base``, ``rough`` with a terrain module given as a file (e.g. an older
-``sim/terrain.py`` from git), and ``rough`` with the current one — and steps them in turn, a few RL
-steps per env per round with random actions (std 1), so machine load hits all three alike; prints
-and writes (``results/bench/terrain_ab.json``) the median RL steps/s and the ratio to base. The
-other module must provide ``TerrainConfig`` and ``build_scene(cfg) -> (model, terrain)`` with
+Builds the envs ``base``, ``rough_whole_terrain`` (every robot on the whole terrain:
+``scene.terrain_regions: false``), ``rough`` (per-robot terrain regions, the default, ``sim/regions.py``)
+and, with ``--baseline-terrain``, ``rough`` with a terrain module given as a file (e.g. an older
+``sim/terrain.py`` from git), and steps them in turn, a few RL steps per env per round with random
+actions (std 1), so machine load hits all of them alike; prints and writes
+(``results/bench/terrain_ab.json``) the median RL steps/s and the ratio to base. The other module
+must provide ``TerrainConfig`` and ``build_scene(cfg) -> (model, terrain)`` with
 ``terrain.height_at``/``tile_origins_w``/``num_rows``/``num_cols``; config fields it lacks keep its
 defaults. Usage::
 
+    python -m dls_quadruped.bench.terrain_ab --sizes 1024
     git show 705da13:dls_quadruped/sim/terrain.py > /tmp/old_terrain.py
     python -m dls_quadruped.bench.terrain_ab --baseline-terrain /tmp/old_terrain.py --sizes 1024 4096
 """
@@ -24,9 +27,11 @@ from pathlib import Path
 import torch
 
 import dls_quadruped.envs.managers.scene as scene_module
+from dls_quadruped.bench.machine import cpu_model
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.core.progress import progress
+from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
 
 
@@ -42,8 +47,9 @@ def load_terrain_module(path: Path):
     return module
 
 
-def make_env(task: str, n: int, terrain_module=None) -> LocomotionEnv:
-    """A ``LocomotionEnv``; with ``terrain_module``, its scene is built by that module instead."""
+def make_env(task: str, n: int, terrain_module=None, overrides: dict | None = None) -> LocomotionEnv:
+    """A ``LocomotionEnv`` (task file + ``overrides``); with ``terrain_module``, its scene is built by that
+    module instead."""
     current = scene_module.build_scene
     if terrain_module is not None:
         fields = terrain_module.TerrainConfig.__dataclass_fields__
@@ -54,15 +60,18 @@ def make_env(task: str, n: int, terrain_module=None) -> LocomotionEnv:
 
         scene_module.build_scene = build
     try:
-        return LocomotionEnv(task, num_envs=n, verbose=False)
+        return LocomotionEnv(load_task(task, overrides), num_envs=n, verbose=False)
     finally:
         scene_module.build_scene = current
 
 
 def measure(n: int, rounds: int, steps: int, baseline) -> dict[str, dict[str, float]]:
     """Median RL steps/s per env over interleaved rounds."""
-    envs = {"base": make_env("base", n), "rough_baseline_terrain": make_env("rough", n, baseline),
+    envs = {"base": make_env("base", n),
+            "rough_whole_terrain": make_env("rough", n, overrides={"scene": {"terrain_regions": False}}),
             "rough": make_env("rough", n)}
+    if baseline is not None:
+        envs["rough_baseline_terrain"] = make_env("rough", n, baseline, {"scene": {"terrain_regions": False}})
     gen = torch.Generator().manual_seed(0)
     rates: dict[str, list[float]] = {k: [] for k in envs}
     try:
@@ -86,23 +95,23 @@ def measure(n: int, rounds: int, steps: int, baseline) -> dict[str, dict[str, fl
 
 def main(argv: list[str] | None = None) -> dict:
     parser = ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--baseline-terrain", type=Path, required=True, help="a terrain.py to compare against")
+    parser.add_argument("--baseline-terrain", type=Path, help="a terrain.py to compare against as well")
     parser.add_argument("--sizes", type=int, nargs="+", default=[1024, 4096])
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--steps", type=int, default=3, help="RL steps per env per round")
     parser.add_argument("--out", type=Path, default=Path("results/bench"))
     args = parser.parse_args(argv)
-    if not args.baseline_terrain.is_file():
+    if args.baseline_terrain is not None and not args.baseline_terrain.is_file():
         parser.error(f"--baseline-terrain {args.baseline_terrain}: no such file")
     torch.set_num_threads(1)
-    baseline = load_terrain_module(args.baseline_terrain)
-    result = {"baseline_terrain": str(args.baseline_terrain), "load_avg_before": os.getloadavg(), "rows": {}}
+    baseline = None if args.baseline_terrain is None else load_terrain_module(args.baseline_terrain)
+    result = {"baseline_terrain": None if baseline is None else str(args.baseline_terrain), "cpu": cpu_model(),
+              "load_avg_before": os.getloadavg(), "rounds": args.rounds, "steps": args.steps, "rows": {}}
     for n in args.sizes:
         result["rows"][n] = measure(n, args.rounds, args.steps, baseline)
         r = result["rows"][n]
-        print(f"N={n}: base {r['base']['median']:,.0f}, rough (baseline terrain) {r['rough_baseline_terrain']['median']:,.0f} "
-              f"({r['rough_baseline_terrain']['ratio_to_base']:.2f} x base), rough {r['rough']['median']:,.0f} "
-              f"({r['rough']['ratio_to_base']:.2f} x base) RL steps/s", flush=True)
+        print(f"N={n}: " + ", ".join(f"{k} {v['median']:,.0f} ({v['ratio_to_base']:.2f} x base)" for k, v in r.items())
+              + " RL steps/s", flush=True)
     result["load_avg_after"] = os.getloadavg()
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(result, args.out / "terrain_ab.json")

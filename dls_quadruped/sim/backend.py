@@ -37,6 +37,7 @@ import torch
 
 from dls_quadruped.control.lowlevel import LowLevelConfig
 from dls_quadruped.core.state import RobotState
+from dls_quadruped.sim.regions import RegionConfig
 from dls_quadruped.sim.shard import STATE_SPECS, Shard, SharedBuffers
 
 _BOOL_FIELDS = ("base_contact", "diverged")
@@ -59,6 +60,9 @@ class SimConfig:
     """Longest wait for a worker's answer before it is declared hung (a step takes milliseconds)."""
     start_timeout_s: float = 600.0
     """Longest wait for a worker to build its shard (imports and model loading on a busy machine)."""
+    regions: RegionConfig | None = None
+    """Per-robot terrain regions of a tiled terrain (``sim/regions.py``): each robot collides only with the
+    geoms near it; None: every robot on the whole model (a plane, or tests that compare the two)."""
 
 
 def _execute(shard: Shard, cmd: str, arg: Any) -> Any:
@@ -146,7 +150,7 @@ def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: 
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     torch.set_num_threads(1)
     try:
-        shard = Shard(model, buffers, cfg.control, nthread=1)
+        shard = Shard(model, buffers, cfg.control, nthread=1, regions=cfg.regions)
     except Exception as err:  # report construction errors to the parent instead of hanging it
         _reply(conn, ("error", repr(err)))
         return
@@ -259,7 +263,7 @@ class VecSim:
         self._shard: Shard | None = None
         self._init_commands()
         if workers == 0:
-            self._shard = Shard(model, self.buf, cfg.control, nthread=cfg.nthread)
+            self._shard = Shard(model, self.buf, cfg.control, nthread=cfg.nthread, regions=cfg.regions)
         else:
             check_main_guard()
             ctx = mp.get_context("spawn")

@@ -22,6 +22,7 @@ from mujoco.batch import Batch, SimulationError
 from dls_quadruped.control.dynamics import LegDynamics
 from dls_quadruped.control.lowlevel import LegTerms, LowLevelConfig, LowLevelController
 from dls_quadruped.robots.aliengo import constants as C
+from dls_quadruped.sim.regions import RegionConfig, RobotRegions
 
 MAX_ABS_QVEL = 1.0e3
 """Generalized velocities beyond this [m/s, rad/s] mark a robot as diverged."""
@@ -99,14 +100,18 @@ class Shard:
         buffers: the rows of the shared buffers that belong to this shard.
         ctrl_cfg: low-level controller configuration.
         nthread: threads of this shard's ``Batch`` (1 in a worker process).
+        regions: run each robot on the region model of the terrain cell it is in (``sim/regions.py``);
+            None runs every robot on ``model``.
     """
 
-    def __init__(self, model: mujoco.MjModel, buffers: SharedBuffers, ctrl_cfg: LowLevelConfig, nthread: int):
+    def __init__(self, model: mujoco.MjModel, buffers: SharedBuffers, ctrl_cfg: LowLevelConfig, nthread: int,
+                 regions: RegionConfig | None = None):
         self.model = model
         self.buf = buffers
         n = buffers.state["time"].shape[0]
         self.n = n
-        self.batch = Batch(model, n, nthread=nthread)
+        self.regions = RobotRegions(regions.build(model), model, n) if regions is not None else None
+        self.batch = Batch(model if self.regions is None else self.regions.models[0], n, nthread=nthread)
         self.qpos = self.batch.bind("qpos")
         self.qvel = self.batch.bind("qvel")
         self.ctrl = self.batch.bind("ctrl")
@@ -120,7 +125,10 @@ class Shard:
         self._sensor_slices = self._sensor_layout(model)
         self.diverged = np.zeros(n, dtype=bool)
         self.tau = torch.zeros(n, 12, dtype=torch.float64)
+        self._update_regions()
         self.batch.reset(keyframe=np.zeros(n, dtype=np.int32))
+        if self._update_regions():  # the keyframe's base is in another cell than qpos0's
+            self.batch.forward()
         self._terms = self._dynamics_terms()
         self.controller.reset(torch.arange(n), self._terms.foot_pos_w)
         self.publish()
@@ -147,6 +155,14 @@ class Shard:
         return out
 
     # ------------------------------------------------------------------ stepping
+    def _update_regions(self) -> bool:
+        """With terrain regions: every robot on the region model of its base's cell (``sim/regions.py``);
+        True if a model changed. Called before every physics step and after every state write."""
+        if self.regions is None or not self.regions.update(self.qpos[:, 0], self.qpos[:, 1]):
+            return False
+        self.batch.set_models(self.regions.models)
+        return True
+
     def _dynamics_terms(self) -> LegTerms:
         d = self.dynamics.compute(self.qpos, self.qvel)
         f = torch.from_numpy
@@ -166,6 +182,7 @@ class Shard:
             alive = np.flatnonzero(~self.diverged)
             if len(alive) == 0:
                 break
+            self._update_regions()
             try:
                 self.batch.step(ids=alive if len(alive) < self.n else None)
             except SimulationError as err:
@@ -193,6 +210,7 @@ class Shard:
         self.qpos[ids] = cmd["reset_qpos"][ids].numpy()
         self.qvel[ids] = cmd["reset_qvel"][ids].numpy()
         self.time[ids] = 0.0
+        self._update_regions()
         self.batch.forward(ids=ids)
         self.diverged[ids] = False
         self._terms = self._dynamics_terms()
@@ -215,11 +233,20 @@ class Shard:
         ``(len(ids), len(index), ...)``.
         """
         name, index = key if isinstance(key, tuple) else (key, None)
+        if self.regions is not None:  # Batch.expand is refused beside caller models: per-robot model copies
+            self.regions.set_field(name, ids, index, values)
+            self.batch.set_models(self.regions.models)
+            return
         field = self.batch.expand(name)
         if index is None:
             field[ids] = values
         else:
             field[np.ix_(ids, index)] = values
+
+    def robot_model_field(self, name: str) -> np.ndarray | None:
+        """(n, ...) per-robot values of a model field in ``model``'s layout (None: never set per robot
+        without regions)."""
+        return self.batch.expanded(name) if self.regions is None else self.regions.field(name)
 
     # ------------------------------------------------------------------ checkpoints
     def snapshot(self) -> dict:
@@ -247,6 +274,7 @@ class Shard:
         self.controller.load_state_dict(snap["controller"])
         self.diverged[:] = snap["diverged"]
         self.tau = snap["tau"].clone()
+        self._update_regions()
         self._terms = self._dynamics_terms()  # a pure function of (qpos, qvel), as after a step
 
     # ------------------------------------------------------------------ output

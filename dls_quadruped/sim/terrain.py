@@ -176,16 +176,29 @@ def generate_tiles(cfg: TerrainConfig) -> TileSet:
 class _Builder:
     """Adds static terrain geoms to an ``MjSpec`` world body (names ``terrain/<i>``)."""
 
-    def __init__(self, spec: mujoco.MjSpec, floor: mujoco.MjsGeom, bottom: float):
-        self.spec, self.bottom, self.count = spec, bottom, 0
+    def __init__(self, spec: mujoco.MjSpec, floor: mujoco.MjsGeom, bottom: float,
+                 window: tuple[float, float, float, float] | None = None):
+        self.spec, self.bottom, self.window = spec, bottom, window
+        self.count, self.index, self.num_meshes = 0, 0, 0  # geoms added, geoms asked for, meshes added
         self.hfields: dict[tuple[int, int], str] = {}  # (row, column) -> geom name of a rugged tile
         self.friction, self.material = list(floor.friction), floor.material
         self.contype, self.conaffinity = floor.contype, floor.conaffinity
 
+    def skips(self, x0: float, x1: float, y0: float, y1: float) -> bool:
+        """True when the xy rectangle [x0, x1] x [y0, y1] (world) misses the window: its geom is left out
+        (asked once per geom, which keeps its whole-terrain name ``terrain/<index>`` in every window)."""
+        if self.window is None:
+            return False
+        wx0, wx1, wy0, wy1 = self.window
+        out = x1 < wx0 or x0 > wx1 or y1 < wy0 or y0 > wy1
+        self.index += out
+        return out
+
     def _geom(self, gtype: mujoco.mjtGeom) -> mujoco.MjsGeom:
         geom = self.spec.worldbody.add_geom()
-        geom.name = f"{TERRAIN_GEOM_PREFIX}/{self.count}"
+        geom.name = f"{TERRAIN_GEOM_PREFIX}/{self.index}"
         self.count += 1
+        self.index += 1
         geom.type = gtype
         geom.friction, geom.material = self.friction, self.material
         geom.contype, geom.conaffinity = self.contype, self.conaffinity
@@ -193,6 +206,8 @@ class _Builder:
 
     def box(self, x0: float, x1: float, y0: float, y1: float, top: float) -> None:
         """Axis-aligned box over [x0, x1] x [y0, y1] (world) whose top face is at z = ``top``."""
+        if self.skips(x0, x1, y0, y1):
+            return
         geom = self._geom(mujoco.mjtGeom.mjGEOM_BOX)
         geom.size = [0.5 * (x1 - x0), 0.5 * (y1 - y0), 0.5 * (top - self.bottom)]
         geom.pos = [0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.5 * (top + self.bottom)]
@@ -202,13 +217,21 @@ class _Builder:
         bottom = top_xyz.copy()
         bottom[:, 2] = self.bottom
         mesh = self.spec.add_mesh()
-        mesh.name = f"{TERRAIN_GEOM_PREFIX}/mesh{self.count}"
+        mesh.name = f"{TERRAIN_GEOM_PREFIX}/mesh{self.num_meshes}"
+        self.num_meshes += 1
         mesh.uservert = np.concatenate([top_xyz, bottom]).ravel().tolist()
+        # the mesh stays even when its geom is left out: every window's model then has the same
+        # meshes, hence the same bounding-volume trees (MjData's layout, sim/regions.py)
+        if self.skips(top_xyz[:, 0].min(), top_xyz[:, 0].max(), top_xyz[:, 1].min(), top_xyz[:, 1].max()):
+            return
         geom = self._geom(mujoco.mjtGeom.mjGEOM_MESH)
         geom.meshname = mesh.name
 
-    def hfield(self, cx: float, cy: float, half: float, heights: np.ndarray) -> str:
-        """Height field over the square of side 2 ``half`` centred at (cx, cy); ``heights`` (G, G), row = y."""
+    def hfield(self, cx: float, cy: float, half: float, heights: np.ndarray) -> str | None:
+        """Height field over the square of side 2 ``half`` centred at (cx, cy); ``heights`` (G, G), row = y.
+        Returns its geom's name (None when outside the window)."""
+        if self.skips(cx - half, cx + half, cy - half, cy + half):
+            return None
         z_min, z_max = float(heights.min()), float(heights.max())
         z_range = max(z_max - z_min, 1e-3)
         hf = self.spec.add_hfield()
@@ -241,7 +264,8 @@ def _add_tile(b: _Builder, name: str, p: float, cx: float, cy: float, tiles: Til
     if name in ("slope_up", "slope_down") and p == 0.0:
         box(-half, half, -half, half, 0.0)  # a zero slope is flat: one box, not five coplanar pieces
     elif name == "rugged":
-        b.hfields[r, k] = b.hfield(cx, cy, half, tiles.rugged[r, k])
+        if (geom_name := b.hfield(cx, cy, half, tiles.rugged[r, k])) is not None:
+            b.hfields[r, k] = geom_name
     elif name == "slope_down":  # one frustum: platform on top, faces down to z = 0 at the edge
         top = p * (half - hp)
         corners = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], dtype=float)
@@ -392,23 +416,19 @@ def _triangulated(table: torch.Tensor, tile: torch.Tensor, gx: torch.Tensor, gy:
     return torch.where(u >= v, z_lower, z_upper)
 
 
-def build_scene(cfg: TerrainConfig, scene_path=C.SCENE_PATH) -> tuple[mujoco.MjModel, Terrain]:
-    """The AlienGo scene with this terrain: load ``scene_path``, swap the floor plane for the tiles.
+def terrain_spec(cfg: TerrainConfig, tiles: TileSet, scene_path=C.SCENE_PATH,
+                 window: tuple[float, float, float, float] | None = None) -> tuple[mujoco.MjSpec, _Builder]:
+    """The scene's spec with the tiles' geoms in place of the floor plane (a tiled ``cfg``, not flat).
 
-    Returns:
-        model: compiled MuJoCo model (one robot + ground).
-        terrain: the matching ``Terrain`` (rugged heights read back from the compiled model).
+    ``window`` = (x0, x1, y0, y1) [m, world] keeps only the geoms whose xy extent meets that rectangle,
+    in the same order as the whole terrain (``sim/regions.py``); None keeps every geom.
     """
     spec = mujoco.MjSpec.from_file(str(scene_path))
-    tiles = generate_tiles(cfg)
     R, K, L = cfg.num_rows, len(cfg.types), cfg.tile_size
-    if cfg.is_flat:
-        origins = np.concatenate([tiles.centres, np.zeros((R, K, 1))], axis=-1)
-        return spec.compile(), Terrain(cfg, tiles, origins, is_plane=True)
     floor = spec.geom(FLOOR_GEOM_NAME)
     lowest = min(0.0, float(tiles.rugged.min()), float(tiles.boxes.min()),
                  -float(tiles.param.max()) * max(cfg.num_steps, 0.5 * (L - cfg.platform)))
-    builder = _Builder(spec, floor, lowest - _DEPTH)
+    builder = _Builder(spec, floor, lowest - _DEPTH, window)
     spec.delete(floor)
     for r in range(R):
         for k, name in enumerate(cfg.types):
@@ -434,6 +454,22 @@ def build_scene(cfg: TerrainConfig, scene_path=C.SCENE_PATH) -> tuple[mujoco.MjM
             builder.box(gx, gx + bw, y0, y1, 0.0)
             builder.box(-gx - bw, -gx, y0, y1, 0.0)
         k = k_end + 1
+    return spec, builder
+
+
+def build_scene(cfg: TerrainConfig, scene_path=C.SCENE_PATH) -> tuple[mujoco.MjModel, Terrain]:
+    """The AlienGo scene with this terrain: load ``scene_path``, swap the floor plane for the tiles.
+
+    Returns:
+        model: compiled MuJoCo model (one robot + ground).
+        terrain: the matching ``Terrain`` (rugged heights read back from the compiled model).
+    """
+    tiles = generate_tiles(cfg)
+    R, K = cfg.num_rows, len(cfg.types)
+    if cfg.is_flat:
+        origins = np.concatenate([tiles.centres, np.zeros((R, K, 1))], axis=-1)
+        return mujoco.MjSpec.from_file(str(scene_path)).compile(), Terrain(cfg, tiles, origins, is_plane=True)
+    spec, builder = terrain_spec(cfg, tiles, scene_path)
     model = spec.compile()
     # MuJoCo stores height-field elevations as float32 fractions of the range: read back what it collides with
     for (r, k), name in builder.hfields.items():

@@ -90,13 +90,13 @@ def test_env_samples_within_and_across_the_thesis_ranges(name):
                                       "terrain": {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0}})
     env = LocomotionEnv(task, num_envs=n, verbose=False, seed=3)
     try:
-        model, batch = env.scene.model, env.scene.sim._shard.batch
+        model, shard = env.scene.model, env.scene.sim._shard
         feet = env.scene.friction_geom_ids
-        mu = torch.tensor(batch.expanded("geom_friction")[:, feet, 0])  # (n, 4)
+        mu = torch.tensor(shard.robot_model_field("geom_friction")[:, feet, 0])  # (n, 4)
         assert (mu == mu[:, :1]).all()  # one coefficient per robot, on its four feet
         _assert_spans(mu[:, 0], *want["friction"], "friction")
         trunk = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)
-        mass = torch.tensor(batch.expanded("body_mass"))  # (n, nbody)
+        mass = torch.tensor(shard.robot_model_field("body_mass"))  # (n, nbody)
         _assert_spans(mass.sum(dim=1) / model.body_mass.sum(), *want["mass_scale"], "mass")
         others = [b for b in range(model.nbody) if b != trunk]
         assert (mass[:, others] == torch.as_tensor(model.body_mass[others])).all()  # the payload sits on the trunk

@@ -21,16 +21,20 @@ from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.backend import SimConfig, VecSim
 from dls_quadruped.sim.height_scan import HeightScanConfig, scan_pattern
+from dls_quadruped.sim.regions import RegionConfig
 from dls_quadruped.sim.terrain import TerrainConfig, build_scene
 
 
 @dataclass(frozen=True)
 class SceneConfig:
     """num_workers: simulator worker processes (-1 one per core, 0 in-process);
-    max_init_level: envs start on rows U{0..max_init_level}."""
+    max_init_level: envs start on rows U{0..max_init_level};
+    terrain_regions: on a tiled terrain, each robot collides only with the geoms near it
+    (``sim/regions.py``: same contacts, 2-3x cheaper physics); false runs every robot on the whole terrain."""
 
     num_workers: int = field(default=-1, metadata={"min": -1})
     max_init_level: int = field(default=0, metadata={"min": 0})
+    terrain_regions: bool = True
 
 
 class SceneManager:
@@ -39,7 +43,8 @@ class SceneManager:
         self.cfg = dataclass_from_dict(SceneConfig, task.section("scene"), task, "scene")
         self.terrain_cfg = dataclass_from_dict(TerrainConfig, task.section("terrain"), task, "terrain")
         self.model, self.terrain = build_scene(self.terrain_cfg)
-        self.sim = VecSim(self.model, env.num_envs, SimConfig(num_workers=self.cfg.num_workers))
+        regions = RegionConfig(self.terrain_cfg) if self.cfg.terrain_regions and not self.terrain.is_plane else None
+        self.sim = VecSim(self.model, env.num_envs, SimConfig(num_workers=self.cfg.num_workers, regions=regions))
         self.scan_cfg = HeightScanConfig()
         dev = env.device
         self.scan_pattern = scan_pattern(self.scan_cfg, dev)
