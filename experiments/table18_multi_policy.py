@@ -19,11 +19,19 @@ episodes (paired):
   switching cost s added to every sample outside the last winner's group, and the same with the
   groups compared by a running average of their best cost (smoothing beta), on the simple task, the
   survival task and the three speeds.
+* Past the thesis (issue 27 item 6): the terrain-blind MPC (``stance_feet``) vs the terrain-aware one
+  (``terrain``: it plans on the terrain map) on the eval suite's stairs (``--scenario stairs`` of the
+  closed loop: a 6-step ``stairs_up`` flight per step height 5 / 10 / 15 / 20 cm, v_x ~ U[0.3, 0.5] m/s,
+  ``--episodes`` per height, 15 s at every scale unless ``--seconds``: the top is 2.5 m away), with base's warm start
+  and the naive one, beside base alone: per height, success (the base reached the top), survival and
+  the climbed fraction of the flight, and the paired aware - blind differences. ``--stairs`` runs
+  this part alone (``stairs.md``, ``stairs.png``).
 
 Students: ``docs/policies/<expert>_student_first_spline_h10.pt`` (``--policy-dir``); a missing one
 skips its cells with a note.
 
     python experiments/table18_multi_policy.py --scale small
+    python experiments/table18_multi_policy.py --scale small --stairs   # item 6: stairs, blind vs aware
 """
 
 from __future__ import annotations
@@ -35,6 +43,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
+from dls_quadruped.closed_loop.__main__ import STAIRS_HEIGHTS
+from dls_quadruped.core.json_io import write_json
+from dls_quadruped.eval import metrics as EM
 from experiments.warm_start_common import (
     REPO,
     Cell,
@@ -46,6 +57,7 @@ from experiments.warm_start_common import (
     run_cells,
     save,
     survival,
+    write_config,
 )
 
 WARM_STARTS = (("base",), ("speed",), ("rough",), ("base", "speed"), ("rough", "speed"))
@@ -55,6 +67,10 @@ SPEED_WARM_STARTS = (("base",), ("speed",), ("base", "speed"))
 ARBITRATION = {"s1000": {"switching_cost": 1000.0},
                "s300_b0.9": {"switching_cost": 300.0, "group_cost_smoothing": 0.9}}
 """base + speed with arbitration: tag -> SamplerConfig overrides (s in the cost units of eq. 3.2.1)."""
+STAIRS_SECONDS = 15.0
+"""[s] stairs episodes (the eval suite's): the top of the flight is 2.5 m from the start, 5-8 s at 0.3-0.5 m/s."""
+STAIRS_GROUNDS = (("blind", "stance_feet"), ("aware", "terrain"))
+"""(tag, ground the MPC plans on) of the stairs cells."""
 THESIS = {  # warm start: (RL reward, Δ %, initial cost, Δ %, survival %, Δ points) -- Table 18 (simple task)
     "base": (526.5, -0.6, 26.7, -57.3, 100, 0), "speed": (445.8, 6.4, 106.7, -69.7, 74, -26),
     "rough": (388.0, -12.3, 203.7, -32.8, 96, -2), "base + speed": (364.1, None, 91.9, None, 84, None),
@@ -77,6 +93,17 @@ def _alone_cell(name: str, policy_dir: Path, suffix: str = "", **kw) -> Cell:
                 row={"Warm start": f"{name} alone"}, **kw)
 
 
+def stairs_cells(policy_dir: Path) -> list[Cell]:
+    """Item 6: base's warm start and the naive one, each blind and aware, and base alone, on the stairs."""
+    kw = {"scenario": "stairs", "seconds": STAIRS_SECONDS}
+    out = []
+    for tag, ground in STAIRS_GROUNDS:
+        out.append(_ws_cell(("base",), policy_dir, f"_stairs_{tag}", ground=ground, **kw))
+        out.append(Cell(f"naive_stairs_{tag}", "naive_warm_start", ground=ground, row={"Warm start": "naive"}, **kw))
+    out.append(_alone_cell("base", policy_dir, "_stairs", **kw))
+    return out
+
+
 def cells(policy_dir: Path) -> list[Cell]:
     out = [_ws_cell(ws, policy_dir) for ws in WARM_STARTS] + [_alone_cell(n, policy_dir) for n in EXPERTS]
     out += [_ws_cell(ws, policy_dir, "_survival", scenario="survival") for ws in WARM_STARTS]
@@ -88,7 +115,7 @@ def cells(policy_dir: Path) -> list[Cell]:
         out += [_ws_cell(("base", "speed"), policy_dir, "", tag),
                 _ws_cell(("base", "speed"), policy_dir, "_survival", tag, scenario="survival")]
         out += [_ws_cell(("base", "speed"), policy_dir, f"_v{v:g}", tag, vx=v) for v in SPEEDS]
-    return out
+    return out + stairs_cells(policy_dir)
 
 
 def _deltas(results: dict, ws: tuple[str, ...], suffix: str, key: str, relative: bool, digits: int = 1,
@@ -247,15 +274,135 @@ def survival_rows(results: dict) -> list[dict]:
     return rows
 
 
+STAIRS_VARIANTS = (("base warm start, blind", "ws_base_stairs_blind"), ("base warm start, aware", "ws_base_stairs_aware"),
+                   ("naive, blind", "naive_stairs_blind"), ("naive, aware", "naive_stairs_aware"),
+                   ("base alone", "alone_base_stairs"))
+STAIRS_PAIRS = {"ws_base_stairs_aware": "ws_base_stairs_blind", "naive_stairs_aware": "naive_stairs_blind"}
+"""aware cell -> its blind twin: the paired aware - blind differences."""
+
+
+def _rate(r: dict, n: str) -> str:
+    lo, hi = r["ci95_episodes"]
+    return f"{100 * r['rate']:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] (n={n})"
+
+
+def _stairs_paired(results: dict, a: str, b: str, key: str, height: int | None) -> str:
+    """Paired a - b of per-episode ``key`` on the episodes of one height index (None: all), in points."""
+    sa, sb = results.get(a) or {}, results.get(b) or {}
+    if "stairs" not in sa or "stairs" not in sb:
+        return "-"
+    rows = np.asarray(sa["stairs"]["episode_row"])
+    sel = np.ones(len(rows), bool) if height is None else rows == height
+    d = EM.paired_difference(np.array(sa["per_episode"][key])[:, sel], np.array(sb["per_episode"][key])[:, sel])
+    return f"{100 * d['mean']:+.0f} [{100 * d['ci95'][0]:+.0f}, {100 * d['ci95'][1]:+.0f}]"
+
+
+def _pooled(s: dict, key: str) -> dict:
+    """``key`` (reached_top or survived) over every episode of a stairs cell: rate, Wilson with the episodes."""
+    v = np.asarray(s["per_episode"][key], dtype=float)
+    e = v.shape[1]
+    rate = float(np.nanmean(v))
+    return {"rate": rate, "ci95_episodes": list(EM.wilson_interval(rate * e, e))}
+
+
+def stairs_rows(results: dict) -> list[dict]:
+    """One row per controller and step height (and all heights): success, survival, climbed fraction,
+    and for an aware cell its paired difference from the blind one (points, mean over episodes [95 % CI])."""
+    rows = []
+    for label, name in STAIRS_VARIANTS:
+        s = results.get(name)
+        if not s or "skipped" in s:
+            rows.append({"Controller": label, "success": f"skipped: {s['skipped']}" if s else "-"})
+            continue
+        st, reps = s["stairs"], s.get("replicas", 1)
+        twin = STAIRS_PAIRS.get(name)
+        for g, r in enumerate([*st["per_height"], None]):
+            if r is None:
+                episodes = len(st["episode_row"])
+                top, sv = _pooled(s, "reached_top"), _pooled(s, "survived")
+                frac = np.asarray(s["per_episode"]["climbed_fraction"], dtype=float)
+                c = {"mean": float(np.nanmean(frac)), "ci95": EM.bootstrap_ci(frac, np.nanmean)}
+                height, g = "all", None
+            else:
+                episodes, top, sv, c = int(r["episodes"]), r["success"], r["survival"], r["climbed_fraction"]
+                height = f"{100 * r['step_height']:g}"
+            n = f"{episodes}x{reps}" if reps > 1 else f"{episodes}"
+            row = {"Controller": label, "step height [cm]": height, "success": _rate(top, n),
+                   "survival": _rate(sv, n),
+                   "climbed": f"{100 * c['mean']:.0f} % [{100 * c['ci95'][0]:.0f}, {100 * c['ci95'][1]:.0f}]"}
+            if twin:
+                row["Δ success aware - blind"] = _stairs_paired(results, name, twin, "reached_top", g)
+                row["Δ climbed aware - blind"] = _stairs_paired(results, name, twin, "climbed_fraction", g)
+                row["Δ survival aware - blind"] = _stairs_paired(results, name, twin, "survived", g)
+            rows.append(row)
+    return rows
+
+
+STAIRS_COLUMNS = ["Controller", "step height [cm]", "success", "survival", "climbed", "Δ success aware - blind",
+                  "Δ climbed aware - blind", "Δ survival aware - blind"]
+
+
+def stairs_figure(results: dict, path: Path) -> None:
+    """Success and climbed fraction vs step height, every stairs cell."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+    for i, (label, name) in enumerate(STAIRS_VARIANTS):
+        s = results.get(name) or {}
+        if "stairs" not in s:
+            continue
+        per = s["stairs"]["per_height"]
+        h = 100 * np.array([r["step_height"] for r in per])
+        style = "--" if "blind" in label else "-"
+        for ax, key in zip(axes, ("success", "survival", "climbed_fraction")):
+            v = np.array([100 * (r[key]["mean"] if key == "climbed_fraction" else r[key]["rate"]) for r in per])
+            ci = np.array([r[key]["ci95"] if key == "climbed_fraction" else r[key]["ci95_episodes"] for r in per])
+            ax.errorbar(h + 0.3 * (i - 2), v, yerr=[v - 100 * ci[:, 0], 100 * ci[:, 1] - v], fmt="o" + style,
+                        capsize=2, color=f"C{i // 2 if 'alone' not in label else 2}", label=label)
+    for ax, title in zip(axes, ("reached the top [%]", "survived [%]", "mean climbed fraction of the flight [%]")):
+        ax.set_xlabel("step height [cm]")
+        ax.set_title(title, fontsize=9)
+        ax.set_ylim(-5, 105)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.suptitle("stairs (6-step flight, v_x 0.3-0.5 m/s): MPC blind (stance_feet, dashed) vs aware "
+                 "(terrain map, solid); 95 % intervals, episodes as trials", fontsize=9)
+    save(fig, path)
+
+
+def write_stairs(args, results: dict) -> None:
+    from experiments.distill_common import write_table
+
+    seconds = args.seconds if args.seconds_given else STAIRS_SECONDS
+    write_table(stairs_rows(results), STAIRS_COLUMNS, args.out / "stairs",
+                f"Stairs, blind vs terrain-aware MPC ({args.scale}: {args.episodes} episodes per step height x "
+                f"{seconds:g} s, heights {', '.join(f'{100 * h:g}' for h in STAIRS_HEIGHTS)} cm, "
+                f"{args.sampler_seeds} sampler seeds per MPC episode; success and survival: Wilson 95 % with the "
+                f"episodes as trials; climbed: mean, two-level bootstrap; Δ: paired, points, mean over episodes "
+                f"[95 % CI])")
+    stairs_figure(results, args.out / "stairs.png")
+
+
 def _flags(p) -> None:
     p.add_argument("--policy-dir", type=Path, default=REPO / "docs" / "policies",
                    help="folder of <expert>_actor.pt and <expert>_student_first_spline_h10.pt")
+    p.add_argument("--stairs", action="store_true",
+                   help="run only the stairs cells (issue 27 item 6: blind vs terrain-aware MPC; --episodes per step "
+                        "height, 15 s) and write stairs.md/.csv and stairs.png")
 
 
 def main() -> None:
     args = parse_args(__doc__, "table18_multi_policy", _flags)
+    if args.stairs:
+        todo = stairs_cells(args.policy_dir)
+        results = run_cells(todo, args)
+        write_stairs(args, results)
+        write_json(results, args.out / "results_stairs.json", indent=1)
+        write_config(args, todo, {"results": dict(results), "part": "stairs"})
+        print((args.out / "stairs.md").read_text())
+        return
     todo = cells(args.policy_dir)
     results = run_cells(todo, args)
+    write_stairs(args, results)
     from experiments.distill_common import write_table
 
     write_table(survival_rows(results), ["Warm start", "survival", "Δ survival (paired, fraction)", "switches / s"],

@@ -72,9 +72,12 @@ class Cell:
     students: tuple[str, ...] = ()                # rl_warm_start: several student exports, one sample group each
     shares: tuple[float, ...] | None = None       # their shares (None: equal)
     policy: str | None = None                     # rl_baseline: this expert (else --policy)
-    scenario: str = "simple"                      # closed_loop scenario (simple, survival, survival_sweep)
+    scenario: str = "simple"                      # closed_loop scenario (simple, survival, survival_sweep, stairs;
+                                                  # stairs: --episodes per step height, closed_loop.STAIRS_HEIGHTS)
     ground: str | None = None                     # ground the MPC plans on (controllers.GROUNDS); None: flat on
                                                   # the simple scenario, stance_feet (blind) on the others
+    seconds: float | None = None                  # episode length [s] of this cell unless --seconds is given
+                                                  # (None: the scale's)
 
     def __post_init__(self) -> None:
         if self.ground is not None and self.ground not in GROUNDS:
@@ -106,6 +109,7 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     if extra is not None:
         extra(p)
     args = p.parse_args()
+    args.seconds_given = args.seconds is not None  # an explicit --seconds overrides a cell's own length too
     args.episodes = args.episodes or SCALES[args.scale]["episodes"]
     args.seconds = args.seconds or SCALES[args.scale]["seconds"]
     return args
@@ -167,7 +171,8 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
                                optimise=cell.optimise, naive_share=cell.naive_share, shares=cell.shares,
                                ground=cell.plan_ground(), seed=args.seed)
         t0 = time.monotonic()
-        traces = run_controllers([cfg], commands(args.episodes, args.seed, cell.vx), args.seconds, args.seed,
+        seconds = args.seconds if getattr(args, "seconds_given", False) else cell.seconds or args.seconds
+        traces = run_controllers([cfg], commands(args.episodes, args.seed, cell.vx, cell.scenario), seconds, args.seed,
                                  args.num_workers, sampler_seeds=args.sampler_seeds,
                                  scenario=cell.scenario)[cell.controller]
         summary = summarize(traces, replicas=traces.replicas)
@@ -175,7 +180,7 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
         summary.update({"cell": cell.name, "student": student_txt, "row": cell.row, "policy": str(policy),
                         "scenario": cell.scenario, "ground": cell.plan_ground(), "shares": list(cell.shares) if cell.shares else None,
                         "sampler": cell.sampler, "optimise": list(cell.optimise), "vx": cell.vx,
-                        "naive_share": cell.naive_share, "git_commit": _commit(),
+                        "naive_share": cell.naive_share, "seconds": seconds, "git_commit": _commit(),
                         "seconds_wall": time.monotonic() - t0})
         if len(cell.students) > 1:  # Fig. 34: the winning group of every solve of robot 0 (-1: none)
             summary["winner_trace_robot0"] = traces.winner[..., 0].reshape(-1).tolist()

@@ -4,6 +4,7 @@
         --episodes 8 --seconds 15 [--sampler-seeds 3] [--samples 10000] [--vx 0.5] [--optimise F,f] [--out DIR]
     python -m dls_quadruped.closed_loop --controllers rl_warm_start --students base,speed [--shares 0.5,0.5] \\
         [--switching-cost 50] [--group-cost-smoothing 0.9]
+    python -m dls_quadruped.closed_loop --scenario stairs --ground terrain --episodes 4 [--heights 0.05,0.1,0.15,0.2]
 
 Every controller gets a fresh env with the same seed and the same scheduled episodes (commands,
 starting states, and any event or noise, ``envs/schedule.py``), so differences between controllers
@@ -13,6 +14,10 @@ a policy controller is deterministic and runs each episode once. Summaries are p
 then across episodes and seeds with 95 % intervals; ``paired`` holds every pair of controllers'
 differences on the same episodes (two-level bootstrap over episodes and seeds).
 ``--vx`` replaces the simple task's random commands by a fixed forward speed (Table 17).
+``--scenario stairs`` runs the eval suite's staircase test (``eval/stairs.py``, thesis Fig. 19): one
+``stairs_up`` row per step height of ``--heights``, ``--episodes`` per height (height-major), commands
+v_x ~ U[0.3, 0.5] m/s; the summary adds per height survival, success (the base reached the top level)
+and the climbed fraction of the flight, computed as the eval suite does.
 ``--students`` warm-starts one MPC with several students (thesis 7.4): each seeds its own group of
 samples (``--shares``, equal by default) in the same batched solve; a name ``X`` is the committed
 ``docs/policies/X_student_<p>_<F>_h<H>.pt``, anything else a path. ``--switching-cost`` and
@@ -133,7 +138,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--vx", type=float, default=None, help="fixed forward command [m/s] instead of the simple task")
     p.add_argument("--scenario", choices=SCENARIOS, default="simple",
                    help="simple (flat, no disturbance) or the eval suite's survival / survival_sweep (terrain, pushes, "
-                        "friction, wrench, noise; the MPC is terrain-blind unless --ground terrain)")
+                        "friction, wrench, noise) or stairs (one stairs_up row per --heights, no disturbance); the MPC "
+                        "is terrain-blind unless --ground terrain")
+    p.add_argument("--heights", type=_heights, default=None,
+                   help="stairs: step heights [m], comma-separated, positive, ascending and evenly spaced (one terrain "
+                        f"row each; default {','.join(f'{h:g}' for h in STAIRS_HEIGHTS)}); --episodes is then per height")
     p.add_argument("--ground", choices=("auto", *GROUNDS), default="auto",
                    help="ground the MPC plans on: auto = flat for simple, stance_feet (flat at its feet's height) else; "
                         "terrain = the terrain map (CoM reference above the terrain under the base, touch-downs at "
@@ -161,7 +170,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parts = args.encoding.split("-")
     if len(parts) != 2 or any(k not in ENCODING_KINDS for k in parts):
         p.error(f"argument --encoding: must be p-F with each of {list(ENCODING_KINDS)}, e.g. first-spline; got {args.encoding!r}")
-    if args.vx is None and args.episodes % 2:
+    if args.scenario == "stairs":
+        if args.vx is not None:
+            p.error(f"argument --vx: the stairs scenario draws its own forward commands (v_x ~ U[0.3, 0.5] m/s); "
+                    f"drop --vx {args.vx:g}")
+        args.heights = args.heights or STAIRS_HEIGHTS
+    elif args.heights is not None:
+        p.error(f"argument --heights: only for --scenario stairs, got --scenario {args.scenario}")
+    elif args.vx is None and args.episodes % 2:
         p.error(f"argument --episodes: the simple task pairs every command with its mirror image, so it must be even; "
                 f"got {args.episodes}")
     if not 0.0 <= args.naive_share < 1.0:
@@ -169,8 +185,38 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
-def commands(episodes: int, seed: int, vx: float | None) -> np.ndarray:
-    """(E, 3) commands: the simple task's (mirrored pairs) or a fixed forward speed."""
+SCENARIOS = ("simple", "survival", "survival_sweep", "stairs")
+"""Where the controllers run: ``simple`` = the base task on flat ground without noise or perturbation;
+``survival`` / ``survival_sweep`` = the eval suite's scenarios (``eval/survival.py``): their terrain
+rows, disturbances (friction, wrench, pushes), observation noise and terminations; ``stairs`` = the
+eval suite's staircase test (``eval/stairs.py``: a ``stairs_up`` column, one row per step height, every
+robot on its row's platform facing the flight, no noise or perturbation)."""
+STAIRS_HEIGHTS = (0.05, 0.10, 0.15, 0.20)
+"""[m] the closed loop's default stairs step heights (issue 27 item 6: 5-20 cm), one terrain row each."""
+
+
+def _heights(text: str) -> tuple[float, ...]:
+    try:
+        h = tuple(float(t) for t in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated step heights [m], got {text!r}") from None
+    d = np.diff(h)
+    if not all(x > 0 for x in h) or (d <= 0).any() or (len(h) > 2 and not np.allclose(d, d[0])):
+        raise argparse.ArgumentTypeError(f"step heights must be positive, ascending and evenly spaced (rows "
+                                         f"interpolate linearly), got {text!r}")
+    return h
+
+
+def commands(episodes: int, seed: int, vx: float | None, scenario: str = "simple",
+             heights: tuple[float, ...] = STAIRS_HEIGHTS) -> np.ndarray:
+    """(E, 3) commands: the simple task's (mirrored pairs) or a fixed forward speed; on ``stairs`` the eval
+    suite's (``eval.stairs.stairs_commands``): ``episodes`` per step height of ``heights``, height-major."""
+    if scenario == "stairs":
+        from dls_quadruped.eval.stairs import stairs_commands
+
+        if vx is not None:
+            raise ValueError(f"the stairs scenario draws its own forward commands; got vx {vx}")
+        return stairs_commands(tuple(heights), episodes, seed)[0]
     from dls_quadruped.eval.velocity_tracking import simple_commands
 
     if vx is None:
@@ -178,10 +224,12 @@ def commands(episodes: int, seed: int, vx: float | None) -> np.ndarray:
     return np.tile([vx, 0.0, 0.0], (episodes, 1))
 
 
-SCENARIOS = ("simple", "survival", "survival_sweep")
-"""Where the controllers run: ``simple`` = the base task on flat ground without noise or perturbation;
-``survival`` / ``survival_sweep`` = the eval suite's scenarios (``eval/survival.py``): their terrain
-rows, disturbances (friction, wrench, pushes), observation noise and terminations."""
+def stairs_rows(episodes: int, num_heights: int) -> np.ndarray:
+    """(E,) terrain row of each stairs episode: height-major, E / H episodes per height (``commands``' order)."""
+    if episodes % num_heights:
+        raise ValueError(f"the stairs scenario plays the same number of episodes per height: {episodes} episodes "
+                         f"are not a multiple of {num_heights} heights")
+    return np.repeat(np.arange(num_heights), episodes // num_heights)
 
 
 def _survival_layout(scenario: str) -> tuple[int, float, float]:
@@ -193,12 +241,14 @@ def _survival_layout(scenario: str) -> tuple[int, float, float]:
 
 
 def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int, replicas: int = 1,
-             scenario: str = "simple"):
+             scenario: str = "simple", heights: tuple[float, ...] = STAIRS_HEIGHTS):
     """The scenario's env with fixed commands and the Table-4 reward: E episodes (one per row of ``cmds``)
     played ``replicas`` times side by side (robot s E + e: episode e). ``simple``: the base task on flat
     ground, no noise or perturbation. ``survival`` / ``survival_sweep``: the eval suite's env of that
     scenario, every robot of episode e on the terrain tile and row the eval suite gives its env e, with the
-    same scheduled disturbances (so a controller meets what the policy alone meets there)."""
+    same scheduled disturbances (so a controller meets what the policy alone meets there). ``stairs``: the
+    eval suite's staircase env (``eval.stairs.stairs_task``, one row per step height of ``heights``), episode
+    e on row :func:`stairs_rows` (``cmds`` from :func:`commands` with the same heights)."""
     import torch
 
     from dls_quadruped.envs.env import LocomotionEnv
@@ -212,6 +262,11 @@ def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int, repl
     opts = EvalOptions(episodes=len(tiled), seed=seed, num_workers=num_workers, episode_length_s=seconds)
     if scenario == "simple":
         task = flat_task(tiled, opts)
+    elif scenario == "stairs":
+        from dls_quadruped.eval.stairs import stairs_task
+
+        rows = stairs_rows(e, len(heights))  # before building the env: a bad episode count is a one-line error
+        task = stairs_task(tiled, opts, tuple(heights))
     else:
         from dls_quadruped.eval import survival as SV
 
@@ -219,7 +274,11 @@ def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int, repl
     env = LocomotionEnv(task, num_envs=len(tiled), seed=seed, verbose=False)
     if replicas > 1:
         env.reset(seed=seed, episode_keys=torch.arange(len(tiled)) % e)
-    if scenario != "simple":
+    if scenario == "stairs":
+        from dls_quadruped.eval.sweep import place_on_rows
+
+        place_on_rows(env, rows[np.arange(len(tiled)) % e])
+    elif scenario != "simple":
         from dls_quadruped.eval import survival as SV
         from dls_quadruped.eval.sweep import place_on_rows
 
@@ -229,25 +288,30 @@ def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int, repl
 
 
 def terrain_of(env) -> dict:
-    """Each robot's terrain type name and row (difficulty level) in ``env``."""
+    """Each robot's terrain type name, row (difficulty level) and start height (its tile origin's z [m]) in ``env``."""
     types = list(env.cfg["terrain"]["types"])
     col = env.scene.terrain_types.cpu().numpy()
     return {"types": types, "type": col.tolist(), "row": env.scene.terrain_levels.cpu().numpy().tolist(),
-            "rows": int(env.scene.terrain.num_rows)}
+            "rows": int(env.scene.terrain.num_rows), "origin_z": env.scene.env_origins[:, 2].cpu().numpy().tolist()}
 
 
 def run_controllers(configs: list[ControllerConfig], cmds: np.ndarray, seconds: float, seed: int,
                     num_workers: int, record_robots: int = 1, sampler_seeds: int = 1,
-                    scenario: str = "simple") -> dict[str, ClosedLoopTraces]:
+                    scenario: str = "simple", heights: tuple[float, ...] = STAIRS_HEIGHTS) -> dict[str, ClosedLoopTraces]:
     """Each controller in a fresh env (same seed, scheduled episodes, ``scenario``); traces by name. MPC
     controllers play every episode with ``sampler_seeds`` noise streams (``ClosedLoopTraces.replicas``);
-    on a terrain scenario the traces carry each robot's terrain (``.terrain``, :func:`terrain_of`)."""
+    on a terrain scenario the traces carry each robot's terrain (``.terrain``, :func:`terrain_of`), on
+    ``stairs`` with ``terrain["stairs"]`` = {"heights", "steps"} (the summary's per-height success)."""
     out = {}
     for cfg in configs:
         replicas = sampler_seeds if cfg.uses_mpc else 1
-        env = make_env(cmds, seconds, seed, num_workers, replicas, scenario)
+        env = make_env(cmds, seconds, seed, num_workers, replicas, scenario, heights)
         try:
             terrain = terrain_of(env) if scenario != "simple" else None
+            if scenario == "stairs":
+                from dls_quadruped.eval.stairs import steps_per_flight
+
+                terrain["stairs"] = {"heights": [float(h) for h in heights], "steps": steps_per_flight()}
             controller = make_controller(cfg, env)
             out[cfg.name] = run_closed_loop(env, controller, record_robots=record_robots)
             out[cfg.name].replicas = replicas
@@ -332,9 +396,15 @@ def headline(summary: dict) -> str:
         lines.append(f"  |v_xy - cmd| median {s['vel_error']['median']:.3f} m/s; CoT median {s['cost_of_transport']['median']:.2f}; "
                      f"{tm['robot_seconds_per_second']:.2f} robot-s/s, kernel {100 * tm['kernel_share']:.0f} % of "
                      f"{tm['wall']:.1f} s wall")
+        for r in s.get("stairs", {}).get("per_height", []):
+            top, sv, c = r["success"], r["survival"], r["climbed_fraction"]
+            lines.append(f"  stairs h {100 * r['step_height']:4.1f} cm ({r['episodes']:g} episodes): top "
+                         f"{100 * top['rate']:.0f} % [{100 * top['ci95_episodes'][0]:.0f}, {100 * top['ci95_episodes'][1]:.0f}], "
+                         f"survival {100 * sv['rate']:.0f} %, climbed {100 * c['mean']:.0f} % of the flight")
     for pair, diffs in summary.get("paired", {}).items():
-        parts = [f"{k} {_difference(diffs[k], 3 if k in ('rl_reward', 'vel_error', 'survived') else 1)}"
-                 for k in ("rl_reward", "initial_cost", "rollout_cost", "survived") if k in diffs]
+        parts = [f"{k} {_difference(diffs[k], 3 if k in ('rl_reward', 'vel_error', 'survived', 'reached_top', 'climbed_fraction') else 1)}"
+                 for k in ("rl_reward", "initial_cost", "rollout_cost", "survived", "reached_top", "climbed_fraction")
+                 if k in diffs]
         lines.append(f"[closed_loop] paired, {pair} (mean over episodes [95 % CI]): " + "; ".join(parts))
     return "\n".join(lines)
 
@@ -365,20 +435,23 @@ def main(argv: list[str] | None = None) -> dict:
                                     seed=args.seed) for name in args.controllers]
     except ValueError as err:
         raise UserError(str(err)) from None
-    cmds = commands(args.episodes, args.seed, args.vx)
+    heights = args.heights or STAIRS_HEIGHTS
+    cmds = commands(args.episodes, args.seed, args.vx, args.scenario, heights)
     t0 = time.perf_counter()
     try:
         traces = run_controllers(configs, cmds, args.seconds, args.seed, args.num_workers, args.record_robots,
-                                 args.sampler_seeds, args.scenario)
+                                 args.sampler_seeds, args.scenario, heights)
     except (ValueError, FileNotFoundError) as err:  # student/MPC mismatch, wrong observation size, bad file
         raise UserError(str(err)) from None
     from dls_quadruped.bench.machine import cpu_model
 
     summaries, paired = summarize_all(traces)
     summary = {
-        "settings": {"controllers": list(args.controllers), "episodes": args.episodes, "seconds": args.seconds,
-                     "command": "simple task" if args.vx is None else f"forward {args.vx} m/s",
+        "settings": {"controllers": list(args.controllers), "episodes": len(cmds), "seconds": args.seconds,
+                     "command": ("stairs: v_x ~ U[0.3, 0.5] m/s" if args.scenario == "stairs" else
+                                 "simple task" if args.vx is None else f"forward {args.vx} m/s"),
                      "scenario": args.scenario, "ground": ground,
+                     "stairs_heights": list(heights) if args.scenario == "stairs" else None,
                      "samples": args.samples, "horizon": args.horizon, "dt": args.dt, "encoding": args.encoding,
                      "optimise": list(args.optimise), "naive_share": args.naive_share, "kernel": args.kernel,
                      "sampler_seeds": args.sampler_seeds,

@@ -97,6 +97,10 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
         "cost_of_transport": cost_of_transport(traces, settle_s),
         "survived": survived_env,
     }
+    stairs = (traces.terrain or {}).get("stairs")
+    if stairs is not None:
+        fraction, top = stairs_episodes(traces)
+        per_ep.update({"climbed_fraction": fraction, "reached_top": top.astype(float)})
     mpc = bool(np.isfinite(traces.rollout_cost).any())
     if mpc:
         per_ep.update({"winner_switches_per_s": winner_switches_per_s(traces.winner, traces.step_dt),
@@ -122,7 +126,7 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
         pooled.update({"rollout_cost": traces.rollout_state_cost, "rollout_cost_full": traces.rollout_cost,
                        "mpc_initial_cost": traces.mpc_initial_cost})
     for key, v in units.items():
-        if key == "survived":
+        if key in ("survived", "reached_top"):  # rates: ``survival`` and ``stairs`` hold them with their intervals
             continue
         out[key] = M.episode_summary(v)
         if key in pooled:
@@ -148,8 +152,58 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
         out["survival_per_type"] = _survival_by(survived_env, np.asarray(t["type"]), len(t["types"]), replicas,
                                                 labels=t["types"])
         out["survival_per_row"] = _survival_by(survived_env, np.asarray(t["row"]), t["rows"], replicas)
+    if stairs is not None:
+        out["stairs"] = stairs_summary(np.asarray(traces.terrain["row"]), stairs["heights"], stairs["steps"],
+                                       survived_env, per_ep["reached_top"], per_ep["climbed_fraction"], replicas)
     out["timing"] = dict(traces.timing)
     return out
+
+
+def stairs_episodes(traces: ClosedLoopTraces) -> tuple[np.ndarray, np.ndarray]:
+    """The stairs scenario's per-robot (climbed fraction, reached the top), as the eval suite computes them
+    (``eval.stairs.climbed_fraction``, ``reached_top``): the highest terrain level under the base over the
+    robot's first episode, above its platform (``terrain["origin_z"]``), over the flight steps x h of its row.
+
+    Needs ``traces.ground_z`` and ``traces.terrain`` with ``row``, ``origin_z`` and ``stairs`` = {"heights": one
+    step height per terrain row, "steps": steps per flight} (``closed_loop.__main__.run_controllers``)."""
+    from dls_quadruped.eval.stairs import climbed_fraction, reached_top
+
+    t = traces.terrain
+    if traces.ground_z is None or t is None or "stairs" not in t:
+        raise ValueError("stairs metrics need traces.ground_z and traces.terrain['stairs'] (the stairs scenario)")
+    flight = t["stairs"]["steps"] * np.asarray(t["stairs"]["heights"], dtype=float)[np.asarray(t["row"])]
+    ground_z = np.asarray(traces.ground_z, dtype=float)
+    valid = np.isfinite(ground_z)
+    fraction = climbed_fraction(np.where(valid, ground_z, 0.0), valid, np.asarray(t["origin_z"], dtype=float), flight)
+    return fraction, reached_top(fraction, flight)
+
+
+def stairs_summary(row: np.ndarray, heights, steps: int, survived: np.ndarray, top: np.ndarray,
+                   fraction: np.ndarray, replicas: int) -> dict:
+    """Per step height (terrain row): survival and success (reached the top) over its robots with Wilson's
+    interval, the episodes as the trials; the climbed fraction's mean over its robots with a two-level bootstrap
+    interval (episodes and sampler seeds, ``eval.metrics.bootstrap_ci``). Robot s E + e plays episode e
+    (``replicas`` S)."""
+    heights = [float(h) for h in heights]
+    per_height = []
+    episode_row = np.asarray(row).reshape(replicas, -1)[0]
+    frac = _units(fraction, replicas)
+    for g, (sv, tp) in enumerate(zip(_survival_by(survived, row, len(heights), replicas),
+                                     _survival_by(np.asarray(top, dtype=float), row, len(heights), replicas))):
+        per_height.append({"step_height": heights[g], "episodes": sv["episodes"], "robots": sv["robots"],
+                           "survival": {k: sv[k] for k in ("rate", "ci95_episodes")},
+                           "success": {k: tp[k] for k in ("rate", "ci95_episodes")},
+                           "climbed_fraction": _mean_bootstrap(frac[:, episode_row == g])})
+    return {"heights": heights, "steps_per_flight": int(steps), "episode_row": episode_row.tolist(),
+            "per_height": per_height}
+
+
+def _mean_bootstrap(units: np.ndarray) -> dict:
+    """{mean, ci95, episodes} of (S, E) per-robot values (NaN: no value)."""
+    units = np.asarray(units, dtype=float)
+    if not np.isfinite(units).any():
+        return {"mean": float("nan"), "ci95": [float("nan")] * 2, "episodes": int(units.shape[1])}
+    return {"mean": float(np.nanmean(units)), "ci95": M.bootstrap_ci(units, np.nanmean), "episodes": int(units.shape[1])}
 
 
 def _survival_by(survived: np.ndarray, group: np.ndarray, count: int, replicas: int,
@@ -169,7 +223,7 @@ def _survival_by(survived: np.ndarray, group: np.ndarray, count: int, replicas: 
 
 
 def compare(a: dict, b: dict, metrics: tuple[str, ...] = ("rl_reward", "initial_cost", "rollout_cost", "vel_error",
-                                                          "survived")) -> dict:
+                                                          "survived", "reached_top", "climbed_fraction")) -> dict:
     """Paired differences a - b of two summaries of the same episodes (``per_episode`` values): per metric
     {mean, ci95, relative, relative_ci95, episodes}; metrics missing from either side are left out."""
     pa, pb = a["per_episode"], b["per_episode"]

@@ -58,6 +58,8 @@ class ClosedLoopTraces:
         step_dt: [s] policy step; timing: wall-clock profile [s] (see :func:`run_closed_loop`).
         replicas: S sampler seeds per episode (env s E + e plays episode e; set by whoever built the env).
         terrain: on a terrain scenario, each robot's terrain type and row (``closed_loop.__main__.terrain_of``).
+        ground_z: (T, E) [m] terrain height under the base after the step (``env.scene.terrain.height_at``),
+            NaN after the end (the stairs scenario's climbed fraction, ``eval.stairs.climbed_fraction``).
     """
 
     controller: str
@@ -84,6 +86,7 @@ class ClosedLoopTraces:
     timing: dict = field(default_factory=dict)
     replicas: int = 1
     terrain: dict | None = None
+    ground_z: np.ndarray | None = None
 
     @property
     def rollout_state_cost(self) -> np.ndarray:
@@ -157,6 +160,7 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     power = np.full((steps, n), nan, np.float32)
     speed = np.full((steps, n), nan, np.float32)
     base_vel = np.full((steps, n, 3), nan, np.float32)
+    ground_z = np.full((steps, n), nan, np.float32)
     roll_cost = np.full((steps, max(solves, 1), n), nan, np.float32)
     roll_input = np.full_like(roll_cost, nan)
     mpc_init = np.full_like(roll_cost, nan)
@@ -211,6 +215,7 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
             vel = cpu(base_velocity(env))
             cmd = cpu(env.command_manager.command)
             base_vel[k] = np.where(ok[:, None], vel.numpy(), nan)
+            ground_z[k] = np.where(ok, cpu(env.scene.terrain.height_at(s.base_pos_w[:, 0], s.base_pos_w[:, 1])).numpy(), nan)
             vel_err[k] = np.where(ok, torch.linalg.vector_norm(vel[:, :2] - cmd[:, :2], dim=-1).numpy(), nan)
             power[k] = np.where(ok, cpu(motor_power(s.joint_torque, s.joint_vel)).numpy(), nan)
             speed[k] = np.where(ok, cpu(torch.linalg.vector_norm(s.base_lin_vel_w[:, :2], dim=-1)).numpy(), nan)
@@ -233,4 +238,5 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
         vel_error=vel_err,
         power=power, speed=speed, base_vel=base_vel, rollout_cost=roll_cost, rollout_input_cost=roll_input,
         mpc_initial_cost=mpc_init, step_costs=step_costs, step_input_costs=step_input, winner=winner, fell=fell.numpy(), length=length.numpy(), qpos=qpos,
-        mpc_fallbacks=mpc_fallbacks, student_fallbacks=student_fallbacks, step_dt=float(env.step_dt), timing=timing)
+        mpc_fallbacks=mpc_fallbacks, student_fallbacks=student_fallbacks, step_dt=float(env.step_dt), timing=timing,
+        ground_z=ground_z)

@@ -78,16 +78,26 @@ def climbed_fraction(ground_z: np.ndarray, valid: np.ndarray, start_z: np.ndarra
     return np.clip(np.where(np.isfinite(top), top - start_z, 0.0) / flight, 0.0, None)
 
 
-def evaluate(policy_path: Path, opts: EvalOptions) -> dict:
+def reached_top(fraction: np.ndarray, flight: np.ndarray) -> np.ndarray:
+    """(E,) success: the climbed fraction (:func:`climbed_fraction`) reached the top level within 1 mm."""
+    return np.asarray(fraction) >= 1.0 - 1e-3 / np.asarray(flight)
+
+
+def steps_per_flight() -> int:
+    """Steps from the platform to the top of a ``TILE`` m ``stairs_up`` tile."""
     from dls_quadruped.sim.terrain import TerrainConfig
 
+    return TerrainConfig(tile_size=TILE).num_steps
+
+
+def evaluate(policy_path: Path, opts: EvalOptions) -> dict:
     cmd, group = stairs_commands(HEIGHTS, opts.episodes, opts.seed)
     task = stairs_task(cmd, opts, HEIGHTS)
     rec, facts = S.run(task, policy_path, opts, len(cmd), ["ground_z"], rows=group)
-    steps = TerrainConfig(tile_size=TILE).num_steps
+    steps = steps_per_flight()
     h = np.asarray(HEIGHTS)[group]
     fraction = climbed_fraction(rec.probes["ground_z"], rec.valid, facts["env_origins"][:, 2], steps * h)
-    success = fraction >= 1.0 - 1e-3 / (steps * h)                           # within 1 mm of the top level
+    success = reached_top(fraction, steps * h)
     n = len(HEIGHTS)
     rows = [{"step_height": height, "success": s, "survival": v, "climbed_fraction": c}
             for height, s, v, c in zip(HEIGHTS, M.grouped_rate(success, group, n), S.survival_of(rec, group, n),

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -85,3 +87,22 @@ def test_table18_two_students_and_the_policies_alone(tmp_path: Path) -> None:
     table = (out / "table.md").read_text()
     assert "vs base:" in table and "vs speed:" in table
     assert "skipped: no student" in table  # rough's student is not there
+
+
+@pytest.mark.slow
+def test_table18_stairs_part_blind_vs_aware(tmp_path: Path) -> None:
+    """``--stairs`` (issue 27 item 6): base's and the naive warm start, blind and aware, and base alone on the
+    stairs; an explicit --seconds overrides the stairs cells' 15 s; per height success, survival and climbed
+    fraction, and the paired aware - blind differences (~25 s)."""
+    out = tmp_path / "t18s"
+    _run("table18_multi_policy.py", out, "--stairs", "--sampler-seeds", "1")
+    names = {p.stem for p in (out / "cells").glob("*.json")}
+    assert names == {"ws_base_stairs_blind", "ws_base_stairs_aware", "naive_stairs_blind", "naive_stairs_aware",
+                     "alone_base_stairs"}
+    cell = json.loads((out / "cells" / "naive_stairs_aware.json").read_text())
+    assert cell["ground"] == "terrain" and cell["scenario"] == "stairs" and cell["seconds"] == 0.2
+    assert [r["step_height"] for r in cell["stairs"]["per_height"]] == [0.05, 0.1, 0.15, 0.2]
+    assert cell["episodes"] == 2 * 4  # --episodes per height
+    table = (out / "stairs.md").read_text()
+    assert table.count("naive, aware |") == 5 and "Δ success aware - blind" in table
+    assert (out / "stairs.png").is_file() and not (out / "table.md").exists()
