@@ -28,7 +28,7 @@ from dls_quadruped.cli import (
 )
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.balance_run import BalanceRun, run_balance
-from dls_quadruped.sim.backend import SimConfig
+from dls_quadruped.sim.interface import SimConfig
 from dls_quadruped.viz.video import render_gif
 
 

@@ -33,7 +33,7 @@ from dls_quadruped.control.dynamics import LegDynamics
 from dls_quadruped.core.progress import progress
 from dls_quadruped.eval.balance_run import home_state
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import SimConfig, VecSim
+from dls_quadruped.sim.interface import SimConfig, make_backend
 
 
 def _standing_torques(model: mujoco.MjModel) -> np.ndarray:
@@ -82,7 +82,7 @@ def loop_physics(model: mujoco.MjModel, n: int, seconds: float) -> float:
 
 def full_backend(model: mujoco.MjModel, n: int, seconds: float, workers: int) -> float:
     """Full-backend physics steps per second (physics + Pinocchio + low-level control)."""
-    with VecSim(model, n, SimConfig(num_workers=workers)) as sim:
+    with make_backend("cpu", model, n, SimConfig(num_workers=workers)) as sim:
         sim.reset(torch.arange(n), **home_state(n, 0, 0.0))
         sim.step(4)  # warm-up
         steps, t0 = 0, time.perf_counter()

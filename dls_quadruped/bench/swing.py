@@ -27,7 +27,7 @@ from dls_quadruped.core.progress import progress
 from dls_quadruped.mpc.baseline import BaselineConfig, ModelBasedBaseline
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import SimConfig, VecSim
+from dls_quadruped.sim.interface import SimConfig, make_backend
 
 
 def _rms(x: np.ndarray) -> float:
@@ -47,7 +47,7 @@ def measure(vx: float = 0.5, seconds: float = 6.0, samples: int = 10_000, bandwi
     sim_cfg = SimConfig(num_workers=0, control=replace(LowLevelConfig(), target_bandwidth=bandwidth))
     track, touch, touch_xy, speed = [], [], [], []
     fallen = False
-    with VecSim(model, 1, sim_cfg) as sim:
+    with make_backend("cpu", model, 1, sim_cfg) as sim:
         controller = sim._shard.controller  # in-process shard (num_workers=0): read its swing reference
         state = sim.reset(torch.arange(1), **home_state(1, seed, 0.0))
         was_swing = np.zeros(4, dtype=bool)

@@ -15,11 +15,13 @@
 * ``student``: the student alone (the decoded first action of its horizon).
 
 The MPC controllers optimise the forces only by default (7.3.1); ``optimise`` adds f, d or p.
-Their action reaches the simulator through the env's own pipeline: the MPC's first action
+Their action reaches the simulator through the env's own action path: the MPC's first action
 ``(f, d, p_0, F_0)`` (frame H) is normalised with the current stance count (Table 5, the exact
-inverse of what the action manager applies) and handed to ``action_manager.process``, so the
+inverse of what the action manager applies) and handed to ``env.apply_action`` inside
+``env.step_controlled`` (the action manager, then the backend's physics steps), so the
 observation's last action, the action rewards and the terrain height of the touch-down targets see
-what was applied.
+what was applied. The MPC runs where its kernel runs (``cpp``: the CPU; the torch kernels: the env's
+device); inputs are moved there and the action back to the env's device.
 """
 
 from __future__ import annotations
@@ -275,38 +277,45 @@ class MPCController(Controller):
                              f"({env.physics_dt} s) dividing the policy step ({env.decimation} physics steps)")
         self.solves_per_step = env.decimation // self.mpc_decimation
         self.baseline_cfg = BaselineConfig(optimise=cfg.optimise, sampler=cfg.sampler)
+        # the C++ kernel computes on the CPU; the torch kernels where the env's tensors are
+        self.device = torch.device("cpu") if cfg.sampler.kernel == "cpp" else torch.device(env.device)
         if cfg.name == "naive_warm_start":
-            self.baseline = ModelBasedBaseline(b, self.baseline_cfg, device="cpu", seed=cfg.seed)
+            self.baseline = ModelBasedBaseline(b, self.baseline_cfg, device=self.device, seed=cfg.seed)
             self.mpc = self.baseline.mpc
             self.sampler_cfg = self.baseline.sampler_cfg
         else:
             self.sampler_cfg = optimised(cfg.sampler, cfg.optimise)
-            self.mpc = SamplingMPC(self.sampler_cfg, device="cpu", seed=cfg.seed)
+            self.mpc = SamplingMPC(self.sampler_cfg, device=self.device, seed=cfg.seed)
             self.students = []
             for path in cfg.students:
-                module, meta = _load_student(path, env)
+                module, meta = _load_student(path, env, str(self.device))
                 try:
                     warm_start.check_student_encoding(meta, self.sampler_cfg)
                 except ValueError as err:
                     raise ValueError(f"student {path}: {err}") from None
                 self.students.append(module)
             self.shares = cfg.group_shares()
-            self.default = warm_start.nominal_trot(b, self.sampler_cfg)
+            self.default = warm_start.nominal_trot(b, self.sampler_cfg).to(self.device)
         self.height_fn = env.scene.terrain.height_at if cfg.ground == "terrain" else None
         self._solves = 0
         self._student_ws: list[torch.Tensor] | None = None
-        self._student_ok: list[torch.Tensor] = [torch.ones(b, dtype=torch.bool)]
+        self._student_ok: list[torch.Tensor] = [torch.ones(b, dtype=torch.bool, device=self.device)]
 
     def kernel_seconds(self) -> float:
         return self.mpc.kernel_seconds
 
     def reset(self, robots: torch.Tensor) -> None:
-        self.mpc.reset(robots.cpu())
+        self.mpc.reset(robots.to(self.device))
+
+    def _state(self):
+        """The env's robot state where the MPC computes (the env's own tensors when on one device)."""
+        state = self.env.state
+        return state if state.base_pos_w.device == self.device else state.to(self.device)
 
     def prepare(self, obs: TensorDict) -> None:
         if self.cfg.name != "rl_warm_start":
             return
-        x = obs["policy"].cpu()
+        x = obs["policy"].to(self.device)
         self._student_ws, self._student_ok = [], []
         for path, student in zip(self.cfg.students, self.students):
             out = _call(f"student {path}", student, x)
@@ -315,7 +324,7 @@ class MPCController(Controller):
             self._student_ok.append(ok)
             self._student_ws.append(warm_start.from_student(torch.where(ok[:, None], out, torch.zeros_like(out)),
                                                             self.sampler_cfg))
-        self._query_phase = self.env.state.phase.cpu().clone()
+        self._query_phase = self.env.state.phase.to(self.device).clone()
 
     def _student_warm_start(self, substep: int, k: int = 0) -> torch.Tensor:
         """Student k's horizon shifted by ``substep`` MPC periods (as the naive warm start is shifted);
@@ -333,8 +342,8 @@ class MPCController(Controller):
         return ws
 
     def _solve(self, substep: int) -> MPCResult:
-        state = self.env.state
-        cmd = self.env.command_manager.command.cpu()
+        state = self._state()
+        cmd = self.env.command_manager.command.to(self.device)
         ground = ground_inputs(self.cfg.ground, state, self.height_fn)
         if self.cfg.name == "naive_warm_start":
             result, _ = self.baseline.step(state, cmd, **ground)
@@ -350,9 +359,9 @@ class MPCController(Controller):
         return self.mpc.solve(srbd, refs, ws, self.shares, phase=state.phase, **frame)
 
     def physics(self) -> torch.Tensor | None:
+        """One policy step: ``solves_per_step`` solves, each applied through ``env.apply_action`` for
+        ``mpc_decimation`` physics steps (inside ``env.step_controlled``)."""
         env = self.env
-        am = env.action_manager
-        prev = am.raw_action.clone()
         act_cfg = self.sampler_cfg.action
         for j in range(self.solves_per_step):
             self.mpc.record_step_costs = self._solves % self.cfg.horizon_cost_every == 0
@@ -360,18 +369,14 @@ class MPCController(Controller):
             tic = time.perf_counter()
             result = self._solve(j)
             self.solve_seconds += time.perf_counter() - tic
-            state = env.state
             action = LatentAction(result.f, result.d, result.p_h, result.F_h)
-            raw = normalise(action, state.contact_cmd.sum(dim=-1).cpu(), act_cfg)
-            am.process(raw.to(env.device))
-            env.scene.sim.step(self.mpc_decimation)
-            env.refresh_state()
+            raw = normalise(action, self._state().contact_cmd.sum(dim=-1), act_cfg)
+            env.apply_action(raw, self.mpc_decimation, replan=j > 0)
             self.records.append(SolveRecord(
                 best_cost=result.best_cost.cpu(), input_cost=result.best_input_cost.cpu(),
                 initial_cost=result.initial_cost.cpu(), step_costs=result.step_costs.cpu(),
                 step_input_costs=result.step_input_costs.cpu(), warm_start_index=result.warm_start_index.cpu(),
-                fallback=result.fallback.cpu(), student_fallback=~torch.stack(self._student_ok).all(dim=0)))
-        am.prev_raw_action[:] = prev  # the action rate of the policy step, as the policy controllers see it
+                fallback=result.fallback.cpu(), student_fallback=~torch.stack(self._student_ok).all(dim=0).cpu()))
         return None
 
 

@@ -1,7 +1,8 @@
 """Batched robot state as it comes out of the simulator backend.
 
-All tensors are float32 torch tensors on the CPU with leading dimension B (number of
-robots); the env layer moves them to its device. Quaternions are MuJoCo's (w, x, y, z).
+All tensors are float32 torch tensors on the backend's device (``SimBackend.device``, ``sim/interface.py``)
+with leading dimension B (number of robots); the env layer moves them to its device when the two differ.
+Quaternions are MuJoCo's (w, x, y, z).
 """
 
 from __future__ import annotations
@@ -54,6 +55,10 @@ class RobotState:
     def clone(self) -> RobotState:
         """Deep copy (the backend's tensors are live views that the next step overwrites)."""
         return RobotState(**{f.name: getattr(self, f.name).clone() for f in fields(self)})
+
+    def to(self, device: torch.device | str) -> RobotState:
+        """The state on ``device`` (copies; the same tensors where already there)."""
+        return RobotState(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
 
     def index(self, ids: torch.Tensor | slice) -> RobotState:
         """The state of a subset of robots."""

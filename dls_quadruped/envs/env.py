@@ -2,8 +2,8 @@
 
 Step order (IsaacLab's ``ManagerBasedRLEnv.step``):
 
-1. action manager: raw (B, 28) -> world references -> ``VecSim.set_references``;
-2. ``VecSim.step(decimation)``: 4 physics steps at 200 Hz, low-level control at every one;
+1. action manager: raw (B, 28) -> world references -> the backend's ``set_references``;
+2. the simulator backend's ``step(decimation)`` (``sim/interface.py``): 4 physics steps at 200 Hz, low-level control at every one;
 3. episode counters += 1; termination manager -> dones (terminated | time_outs);
 4. reward manager -> reward (weights x dt);
 5. reset the done envs: curriculum (reads their episode data) -> reset events (placement,
@@ -101,6 +101,7 @@ class LocomotionEnv(VecEnv):
         self.robot_weight = self.scene.sim.total_weight()
         self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
         self.common_step_counter = 0
+        self._controlled_steps: int | None = None  # physics steps of the step_controlled in progress
         self._vel_err_sum = torch.zeros(self.num_envs, device=self.device)  # sum over the episode of |v_xy - cmd_xy| [m/s]
         self._state = self._to_device(self.scene.sim.state)
         self.command_manager = CommandManager(self.task, self)
@@ -126,9 +127,11 @@ class LocomotionEnv(VecEnv):
 
     # ------------------------------------------------------------------ state
     def _to_device(self, state: RobotState) -> RobotState:
-        if self.device.type == "cpu":
+        """The backend's state on ``self.device``: the backend's live buffers themselves when both are on one
+        device (no copy), else a copy."""
+        if state.base_pos_w.device == self.device:
             return state
-        return RobotState(**{k: v.to(self.device) for k, v in vars(state).items()})
+        return state.to(self.device)
 
     @property
     def state(self) -> RobotState:
@@ -187,18 +190,53 @@ class LocomotionEnv(VecEnv):
         self.scene.sim.step(self.decimation)
         return self._finish_step(nonfinite)
 
+    def apply_action(self, raw: torch.Tensor, num_physics_steps: int, replan: bool = False) -> RobotState:
+        """Inside :meth:`step_controlled`: send a (B, 28) raw action through the action manager, run
+        ``num_physics_steps`` physics steps and refresh :attr:`state`; returns it.
+
+        A controller that re-plans several times per policy step (the closed-loop MPC at 100 Hz) calls this
+        once per plan, ``replan=True`` after the first, so that the action manager's previous action stays
+        the one before the policy step (the action-rate terms see the step's change, as for a policy).
+
+        Raises:
+            RuntimeError: outside ``step_controlled``, or more physics steps than one policy step has.
+        """
+        if self._controlled_steps is None:
+            raise RuntimeError("apply_action runs inside step_controlled(physics); use step(actions) otherwise")
+        if not isinstance(num_physics_steps, int) or num_physics_steps < 1:
+            raise ValueError(f"num_physics_steps must be an int >= 1, got {num_physics_steps!r}")
+        if self._controlled_steps + num_physics_steps > self.decimation:
+            raise RuntimeError(f"apply_action: {self._controlled_steps} + {num_physics_steps} physics steps exceed "
+                               f"the policy step's {self.decimation} (env.decimation)")
+        self.action_manager.process(raw.to(self.device), replan=replan)
+        self.scene.sim.step(num_physics_steps)
+        self._controlled_steps += num_physics_steps
+        self.refresh_state()
+        return self._state
+
     def step_controlled(self, physics: Callable[[], torch.Tensor | None]) -> tuple[TensorDict, torch.Tensor,
                                                                                    torch.Tensor, dict]:
         """One policy step whose physics a closed-loop controller runs itself.
 
-        ``physics()`` must advance the simulator by exactly ``decimation`` physics steps, sending its
-        references through ``action_manager.process`` (so the observation's last action, the action
-        rewards and the touch-down heights see what was applied) -- e.g. a sampling MPC that re-plans
-        at 100 Hz, twice per 50 Hz policy step (``dls_quadruped.closed_loop``). It may return a (B,)
-        bool mask of robots that had no finite action (terminated as ``nonfinite_action``, as in
-        :meth:`step`). Steps 3-7 of the module docstring follow unchanged.
+        ``physics()`` must advance the simulator by exactly ``decimation`` physics steps through
+        :meth:`apply_action` (so the observation's last action, the action rewards and the touch-down heights
+        see what was applied) -- e.g. a sampling MPC that re-plans at 100 Hz, twice per 50 Hz policy step
+        (``dls_quadruped.closed_loop``). It may return a (B,) bool mask of robots that had no finite action
+        (terminated as ``nonfinite_action``, as in :meth:`step`). Steps 3-7 of the module docstring follow
+        unchanged.
+
+        Raises:
+            RuntimeError: ``physics()`` ran another number of physics steps than ``decimation``.
         """
-        nonfinite = physics()
+        self._controlled_steps = 0
+        try:
+            nonfinite = physics()
+            steps = self._controlled_steps
+        finally:
+            self._controlled_steps = None
+        if steps != self.decimation:
+            raise RuntimeError(f"step_controlled: physics() ran {steps} physics steps through apply_action, "
+                               f"a policy step has {self.decimation} (env.decimation)")
         if nonfinite is None:
             nonfinite = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
         return self._finish_step(nonfinite.to(self.device))

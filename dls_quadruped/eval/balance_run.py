@@ -22,7 +22,7 @@ from dls_quadruped.control.latent_action import (
 )
 from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import SimConfig, VecSim
+from dls_quadruped.sim.interface import SimConfig, make_backend
 
 
 @dataclass
@@ -81,12 +81,14 @@ def run_balance(
     model: mujoco.MjModel | None = None,
     height_fn=flat_ground,
     origin_w: tuple[float, float] = (0.0, 0.0),
+    backend: str = "cpu",
 ) -> BalanceRun:
     """Stand for ``stand_seconds`` then trot for ``trot_seconds`` with the balance controller.
 
     On a terrain scene (``model`` from ``sim.terrain.build_scene``) pass ``height_fn =
     terrain.height_at`` so touch-down targets get the true terrain height, and spawn the robots
-    at ``origin_w`` (x, y) [m] on a flat patch at z = 0.
+    at ``origin_w`` (x, y) [m] on a flat patch at z = 0. ``backend``: the simulator (``sim/interface.py``); the
+    controller and the records read its state on the CPU.
     """
     model = model if model is not None else mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))
     decimation = int(round(1.0 / (high_level_hz * model.opt.timestep)))
@@ -96,17 +98,17 @@ def run_balance(
     rec: dict[str, list] = {k: [] for k in BalanceRun.__dataclass_fields__ if k != "summary"}
     n_stand = int(round(stand_seconds * high_level_hz))
     n_total = n_stand + int(round(trot_seconds * high_level_hz))
-    with VecSim(model, num_envs, sim_cfg) as sim:
+    with make_backend(backend, model, num_envs, sim_cfg) as sim:
         home = home_state(num_envs, seed, joint_noise, yaw)
         home["base_pos_w"] = home["base_pos_w"] + torch.tensor([*origin_w, 0.0], dtype=torch.float64)
-        state = sim.reset(torch.arange(num_envs), **home)
+        state = sim.reset(torch.arange(num_envs), **home).to("cpu")
         for k in range(n_total):
             trotting = k >= n_stand
             # standing has f = 0, so the phases keep their trot offsets until the trot starts
             action, _ = clip(ctrl(state, cmd, stand=not trotting), iface_cfg)
             p_td_w, F_w = to_world(action, state.base_pos_w.double(), _yaw(state), height_fn, iface_cfg)
             sim.set_references(action.f, action.d, p_td_w, F_w)
-            state = sim.step(decimation)
+            state = sim.step(decimation).to("cpu")
             rpy = rpy_from_rotmat(quat_to_rotmat(state.base_quat_w.double()))
             rec["time"].append((k + 1) * decimation * model.opt.timestep)
             rec["trotting"].append(trotting)

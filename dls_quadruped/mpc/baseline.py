@@ -37,7 +37,7 @@ from dls_quadruped.mpc.encodings import block_slices, fit_spline
 from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
 from dls_quadruped.mpc.srbd import com_height_reference, srbd_state_from_base
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import SimConfig, VecSim
+from dls_quadruped.sim.interface import SimConfig, make_backend
 
 
 @dataclass(frozen=True)
@@ -257,11 +257,13 @@ def run_baseline(
     device: str = "cpu",
     model: mujoco.MjModel | None = None,
     origin_w: tuple[float, float] = (0.0, 0.0),
+    backend: str = "cpu",
 ) -> BaselineRun:
     """Walk B robots on flat ground with the model-based baseline.
 
     ``model`` defaults to the scene's plane; a terrain scene (``sim.terrain.build_scene``) works
-    too, with the robots spawned at ``origin_w`` (x, y) [m] on a flat patch at z = 0.
+    too, with the robots spawned at ``origin_w`` (x, y) [m] on a flat patch at z = 0. ``backend``: the simulator
+    (``sim/interface.py``); the controller reads its state on the CPU.
     """
     from dls_quadruped.eval.balance_run import home_state
 
@@ -272,14 +274,14 @@ def run_baseline(
     rec: dict[str, list] = {k: [] for k in ("time", "base_vel_w", "base_height", "roll", "pitch", "contact",
                                             "best_cost", "initial_cost", "qpos")}
     fallen = np.zeros(num_robots, dtype=bool)
-    with VecSim(model, num_robots, SimConfig(num_workers=0)) as sim:
+    with make_backend(backend, model, num_robots, SimConfig(num_workers=0)) as sim:
         home = home_state(num_robots, seed, 0.0)
         home["base_pos_w"] = home["base_pos_w"] + torch.tensor([*origin_w, 0.0], dtype=torch.float64)
-        state = sim.reset(torch.arange(num_robots), **home)
+        state = sim.reset(torch.arange(num_robots), **home).to("cpu")
         for k in range(int(round(seconds / cfg.sampler.mpc_period))):
             result, _ = ctrl.step(state, cmd)
             sim.set_references(result.f, result.d, result.foot_target_w, result.force_w)
-            state = sim.step(decimation)
+            state = sim.step(decimation).to("cpu")
             rpy = rpy_from_rotmat(quat_to_rotmat(state.base_quat_w.double()))
             fallen |= (state.base_contact | state.diverged).numpy()
             rec["time"].append((k + 1) * cfg.sampler.mpc_period)

@@ -9,6 +9,9 @@ which hold the GIL, over the cores as well as the physics. With ``num_workers=0`
 single in-process shard is used (its ``Batch`` uses all threads), which is handy for
 debugging and gives bit-identical results.
 
+This is the ``cpu`` backend of the seam in ``sim/interface.py`` (``make_backend("cpu", ...)``); inputs may
+live on any device (they are copied to the CPU), the state lives on the CPU.
+
 Usage::
 
     sim = VecSim(mujoco.MjModel.from_xml_path(str(constants.SCENE_PATH)), num_envs=64)
@@ -28,41 +31,17 @@ import signal
 import sys
 import time
 import weakref
-from dataclasses import dataclass, field
 from typing import Any
 
 import mujoco
 import numpy as np
 import torch
 
-from dls_quadruped.control.lowlevel import LowLevelConfig
 from dls_quadruped.core.state import RobotState
-from dls_quadruped.sim.regions import RegionConfig
+from dls_quadruped.sim.interface import SimConfig
 from dls_quadruped.sim.shard import STATE_SPECS, Shard, SharedBuffers
 
 _BOOL_FIELDS = ("base_contact", "diverged")
-
-
-@dataclass(frozen=True)
-class SimConfig:
-    """Backend configuration.
-
-    Attributes:
-        num_workers: worker processes; 0 runs one shard in-process, -1 uses one per CPU core.
-        nthread: threads of the in-process ``Batch`` when ``num_workers == 0`` (0: all cores).
-        control: low-level controller gains.
-    """
-
-    num_workers: int = -1
-    nthread: int = 0
-    control: LowLevelConfig = field(default_factory=LowLevelConfig)
-    reply_timeout_s: float = 120.0
-    """Longest wait for a worker's answer before it is declared hung (a step takes milliseconds)."""
-    start_timeout_s: float = 600.0
-    """Longest wait for a worker to build its shard (imports and model loading on a busy machine)."""
-    regions: RegionConfig | None = None
-    """Per-robot terrain regions of a tiled terrain (``sim/regions.py``): each robot collides only with the
-    geoms near it; None: every robot on the whole model (a plane, or tests that compare the two)."""
 
 
 def _execute(shard: Shard, cmd: str, arg: Any) -> Any:
@@ -252,6 +231,7 @@ class VecSim:
         self.model = model
         self.num_envs = num_envs
         self.cfg = cfg
+        self.device = torch.device("cpu")
         self.physics_dt = float(model.opt.timestep)
         workers = cfg.num_workers if cfg.num_workers >= 0 else (os.cpu_count() or 1)
         workers = min(workers, num_envs)
@@ -390,10 +370,16 @@ class VecSim:
 
     @staticmethod
     def _ids(env_ids: torch.Tensor | np.ndarray | list[int]) -> torch.Tensor:
+        if isinstance(env_ids, torch.Tensor):
+            return env_ids.to("cpu", torch.long).reshape(-1)
         return torch.as_tensor(env_ids, dtype=torch.long).reshape(-1)
 
     def _check_rows(self, name: str, value: torch.Tensor, n: int, shape: tuple[int, ...]) -> torch.Tensor:
-        value = torch.as_tensor(value, dtype=torch.float64)
+        """``value`` as a float64 CPU tensor of shape (n, *shape) with finite entries (from any device)."""
+        if isinstance(value, torch.Tensor):
+            value = value.to("cpu", torch.float64)
+        else:
+            value = torch.as_tensor(value, dtype=torch.float64)
         if value.shape != (n, *shape):
             raise ValueError(f"{name} must have shape {(n, *shape)}, got {tuple(value.shape)}")
         if not torch.isfinite(value).all():
@@ -491,9 +477,13 @@ class VecSim:
         if name not in MODEL_FIELDS:
             raise ValueError(f"unknown model field {name!r}; allowed: mujoco.batch.MODEL_FIELDS")
         ids = self._ids(env_ids)
+        if isinstance(values, torch.Tensor):
+            values = values.detach().to("cpu", torch.float64).numpy()
         values = np.asarray(values, dtype=np.float64)
         if len(values) != len(ids):
             raise ValueError(f"values must have one row per env id ({len(ids)}), got {len(values)}")
+        if isinstance(index, torch.Tensor):
+            index = index.cpu().numpy()
         key = name if index is None else (name, np.asarray(index, dtype=np.int64))
         self._dispatch("model_field", ids, (key, values))
 

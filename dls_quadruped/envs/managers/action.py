@@ -1,7 +1,7 @@
 """Action manager: the latent action (f, d, p, F) of SPEC 5.
 
 Raw (B, 28) network output -> ``control.latent_action.ActionInterface`` (normalise, clip, frame H ->
-world, touch-down z from the terrain's exact height lookup) -> ``VecSim.set_references``.
+world, touch-down z from the terrain's exact height lookup) -> the simulator backend's ``set_references``.
 Task file: ``actions: {latent: {<LatentActionConfig field>: value, ...}}``.
 """
 
@@ -43,9 +43,13 @@ class ActionManager:
         self.violation = torch.zeros_like(self.raw_action)
         self.applied_physical = torch.zeros_like(self.raw_action)
 
-    def process(self, raw: torch.Tensor) -> None:
-        """Convert and send the references to the simulator (held for the ``decimation`` physics steps)."""
-        self.prev_raw_action[:] = self.raw_action
+    def process(self, raw: torch.Tensor, replan: bool = False) -> None:
+        """Convert and send the references to the simulator (held until the next call).
+
+        ``replan``: a second action within the same policy step (``LocomotionEnv.apply_action``): the previous
+        action stays the one before the policy step."""
+        if not replan:
+            self.prev_raw_action[:] = self.raw_action
         self.raw_action[:] = raw.to(self.raw_action)
         s = self.env.state
         num_stance = s.contact_cmd.sum(dim=-1)
@@ -53,7 +57,7 @@ class ActionManager:
         self.violation[:] = refs.violation
         self.applied_action[:] = self.raw_action - refs.violation
         self.applied_physical[:] = refs.action.to_vector()
-        self.env.scene.sim.set_references(refs.f.cpu(), refs.d.cpu(), refs.p_td_w.cpu(), refs.F_w.cpu())
+        self.env.scene.sim.set_references(refs.f, refs.d, refs.p_td_w, refs.F_w)
 
     def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
         for buf in (self.raw_action, self.prev_raw_action, self.applied_action, self.violation, self.applied_physical):

@@ -3,7 +3,7 @@
 Task file::
 
     terrain: {types: [flat, rugged, ...], num_rows: 10, ...}   # TerrainConfig fields
-    scene: {num_workers: -1, max_init_level: 0}
+    scene: {backend: cpu, num_workers: -1, max_init_level: 0}
 
 Each env owns a terrain tile: row = level (difficulty), column = type (envs spread evenly over
 the columns by their episode key, ``envs/schedule.py``). Robots reset onto their tile origin; the
@@ -19,19 +19,27 @@ import torch
 
 from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import SimConfig, VecSim
 from dls_quadruped.sim.height_scan import HeightScanConfig, scan_pattern
+from dls_quadruped.sim.interface import (
+    SimBackend,
+    SimConfig,
+    backend_names,
+    check_backend,
+    make_backend,
+)
 from dls_quadruped.sim.regions import RegionConfig
 from dls_quadruped.sim.terrain import TerrainConfig, build_scene
 
 
 @dataclass(frozen=True)
 class SceneConfig:
-    """num_workers: simulator worker processes (-1 one per core, 0 in-process);
+    """backend: the simulator (``sim/interface.py`` registry; ``cpu`` = MuJoCo's C batch + Pinocchio);
+    num_workers: simulator worker processes (-1 one per core, 0 in-process);
     max_init_level: envs start on rows U{0..max_init_level};
     terrain_regions: on a tiled terrain, each robot collides only with the geoms near it
     (``sim/regions.py``: same contacts, 2-3x cheaper physics); false runs every robot on the whole terrain."""
 
+    backend: str = "cpu"
     num_workers: int = field(default=-1, metadata={"min": -1})
     max_init_level: int = field(default=0, metadata={"min": 0})
     terrain_regions: bool = True
@@ -42,9 +50,15 @@ class SceneManager:
         self.env = env
         self.cfg = dataclass_from_dict(SceneConfig, task.section("scene"), task, "scene")
         self.terrain_cfg = dataclass_from_dict(TerrainConfig, task.section("terrain"), task, "terrain")
+        try:
+            check_backend(self.cfg.backend)
+        except ValueError:
+            raise task.error("scene.backend", f"unknown simulator backend {self.cfg.backend!r}; "
+                                              f"allowed: {list(backend_names())}") from None
         self.model, self.terrain = build_scene(self.terrain_cfg)
         regions = RegionConfig(self.terrain_cfg) if self.cfg.terrain_regions and not self.terrain.is_plane else None
-        self.sim = VecSim(self.model, env.num_envs, SimConfig(num_workers=self.cfg.num_workers, regions=regions))
+        self.sim: SimBackend = make_backend(self.cfg.backend, self.model, env.num_envs,
+                                            SimConfig(num_workers=self.cfg.num_workers, regions=regions))
         self.scan_cfg = HeightScanConfig()
         dev = env.device
         self.scan_pattern = scan_pattern(self.scan_cfg, dev)
@@ -83,7 +97,7 @@ class SceneManager:
 
     def reset_robots(self, env_ids: torch.Tensor, base_pos_w: torch.Tensor, base_quat_w: torch.Tensor,
                      joint_pos: torch.Tensor) -> None:
-        self.sim.reset(env_ids.cpu(), base_pos_w.cpu(), base_quat_w.cpu(), joint_pos.cpu())
+        self.sim.reset(env_ids, base_pos_w, base_quat_w, joint_pos)
 
     def close(self) -> None:
         self.sim.close()

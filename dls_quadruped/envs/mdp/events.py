@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 
 import mujoco
-import numpy as np
 import torch
 
 from dls_quadruped.core.rotations import quat_from_yaw
@@ -47,12 +46,12 @@ def randomize_friction(env, env_ids: torch.Tensor, friction_range: tuple[float, 
     priority 1, so a foot contact takes the foot geom's coefficient whatever the ground's: the
     value is written to the four foot geoms (``scene.friction_geom_ids``).
     """
-    model = env.scene.model
     ids = env.scene.friction_geom_ids
-    mu = _uniform(env, env_ids, (), friction_range, "randomize_friction").cpu().numpy()
-    values = np.repeat(model.geom_friction[None, ids].copy(), len(env_ids), axis=0)  # (n, 4, 3)
+    mu = _uniform(env, env_ids, (), friction_range, "randomize_friction")
+    nominal = torch.as_tensor(env.scene.model.geom_friction[ids], dtype=torch.float64, device=mu.device)
+    values = nominal.expand(len(env_ids), *nominal.shape).clone()  # (n, 4, 3)
     values[:, :, 0] = mu[:, None]
-    env.scene.sim.set_model_field("geom_friction", env_ids.cpu(), values, index=ids)
+    env.scene.sim.set_model_field("geom_friction", env_ids, values, index=ids)
 
 
 def randomize_base_mass(env, env_ids: torch.Tensor, scale_range: tuple[float, float]) -> None:
@@ -64,25 +63,26 @@ def randomize_base_mass(env, env_ids: torch.Tensor, scale_range: tuple[float, fl
     """
     model = env.scene.model
     bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)
-    scale = _uniform(env, env_ids, (), scale_range, "randomize_base_mass").cpu().numpy()
-    values = np.repeat(model.body_mass[None].copy(), len(env_ids), axis=0)
+    scale = _uniform(env, env_ids, (), scale_range, "randomize_base_mass")
+    nominal = torch.as_tensor(model.body_mass, dtype=torch.float64, device=scale.device)
+    values = nominal.expand(len(env_ids), *nominal.shape).clone()  # (n, nbody)
     robot_mass = float(model.body_subtreemass[bid])
     values[:, bid] += (scale - 1.0) * robot_mass
-    env.scene.sim.set_model_field("body_mass", env_ids.cpu(), values)
+    env.scene.sim.set_model_field("body_mass", env_ids, values)
 
 
 def external_wrench(env, env_ids: torch.Tensor, force_range: tuple[float, float],
                     torque_range: tuple[float, float]) -> None:
     """Constant force [N] and torque [N m] on the base, each world component U(range), until the next call."""
-    force = _uniform(env, env_ids, (3,), force_range, "external_wrench").cpu()
-    torque = _uniform(env, env_ids, (3,), torque_range, "external_wrench").cpu()
-    env.scene.sim.set_external_wrench(env_ids.cpu(), force, torque)
+    force = _uniform(env, env_ids, (3,), force_range, "external_wrench")
+    torque = _uniform(env, env_ids, (3,), torque_range, "external_wrench")
+    env.scene.sim.set_external_wrench(env_ids, force, torque)
 
 
 def push_robot(env, env_ids: torch.Tensor, velocity_range: tuple[float, float]) -> None:
     """Push: add U(velocity_range) [m/s] to the base x and y velocity (world frame)."""
     if len(env_ids) == 0:
         return
-    v = env.state.base_lin_vel_w[env_ids].cpu().clone()
-    v[:, :2] += _uniform(env, env_ids, (2,), velocity_range, "push_robot").cpu()
-    env.scene.sim.set_base_velocity(env_ids.cpu(), v)
+    v = env.state.base_lin_vel_w[env_ids].clone()
+    v[:, :2] += _uniform(env, env_ids, (2,), velocity_range, "push_robot")
+    env.scene.sim.set_base_velocity(env_ids, v)

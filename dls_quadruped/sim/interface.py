@@ -1,0 +1,195 @@
+"""The simulator seam: what every backend offers, its configuration, and the registry that builds one by name.
+
+Everything above ``sim/`` (the env's managers, the MDP terms, the closed loop, the eval suite) talks to the
+simulator only through :class:`SimBackend`, so a second backend (MuJoCo Warp on a GPU, issue 26) slots in
+without touching them. The contract:
+
+* **Inputs on any device, any float dtype.** ``set_references``, ``reset``, ``set_external_wrench``,
+  ``set_base_velocity`` and ``set_model_field`` accept torch tensors (or numpy arrays) wherever they live;
+  the backend moves them to where it computes. Row ids are ``(n,)`` integer tensors, lists or arrays.
+* **State on the backend's device.** ``state`` (and what ``step`` / ``reset`` return) is a
+  :class:`~dls_quadruped.core.state.RobotState` on :attr:`SimBackend.device`, live buffers that the next call
+  overwrites (``RobotState.clone`` to keep one). The env copies it to its own device only when the two differ.
+* **The host model is metadata.** ``model`` is the ``mujoco.MjModel`` the backend was built from (one MJCF, one
+  terrain for every backend): names, ids, nominal values such as ``geom_friction``. Per-robot values are
+  written with ``set_model_field``, never into ``model``.
+* **Snapshots are opaque.** ``snapshot()`` returns what ``restore`` of a backend of the same kind and number of
+  robots needs for a bit-identical next step (a checkpoint's episodes in progress).
+
+Backends are built with :func:`make_backend` from a name (``scene.backend`` in a task file)::
+
+    sim = make_backend("cpu", model, num_envs=64, cfg=SimConfig(num_workers=0))
+
+``cpu`` is :class:`dls_quadruped.sim.backend.VecSim` (MuJoCo's C batch + Pinocchio, worker processes). A new
+backend registers a factory with :func:`register_backend`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol, Self, runtime_checkable
+
+import mujoco
+import numpy as np
+import torch
+
+from dls_quadruped.control.lowlevel import LowLevelConfig
+from dls_quadruped.core.state import RobotState
+from dls_quadruped.sim.regions import RegionConfig
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Backend configuration (a backend ignores what does not apply to it).
+
+    Attributes:
+        num_workers: worker processes (``cpu``); 0 runs one shard in-process, -1 uses one per CPU core.
+        nthread: threads of the in-process ``Batch`` when ``num_workers == 0`` (0: all cores).
+        control: low-level controller gains.
+    """
+
+    num_workers: int = -1
+    nthread: int = 0
+    control: LowLevelConfig = field(default_factory=LowLevelConfig)
+    reply_timeout_s: float = 120.0
+    """Longest wait for a worker's answer before it is declared hung (a step takes milliseconds)."""
+    start_timeout_s: float = 600.0
+    """Longest wait for a worker to build its shard (imports and model loading on a busy machine)."""
+    regions: RegionConfig | None = None
+    """Per-robot terrain regions of a tiled terrain (``sim/regions.py``): each robot collides only with the
+    geoms near it; None: every robot on the whole model (a plane, or tests that compare the two)."""
+
+
+IdsLike = torch.Tensor | np.ndarray | list[int]
+ArrayLike = torch.Tensor | np.ndarray
+
+
+@runtime_checkable
+class SimBackend(Protocol):
+    """N AlienGo robots simulated and controlled by the low-level controller as one batch (see the module
+    docstring for the device contract). Usable as a context manager (``close`` on exit)."""
+
+    model: mujoco.MjModel
+    """The host model the backend was built from: names, ids and nominal values (read-only metadata)."""
+    num_envs: int
+    physics_dt: float
+    """[s] one physics (= low-level control) step."""
+    device: torch.device
+    """Where ``state`` lives."""
+    state: RobotState
+    """The latest state of every robot (live buffers)."""
+
+    def total_weight(self) -> float:
+        """m g of the robot [N]."""
+        ...
+
+    def set_references(self, freq: ArrayLike, duty: ArrayLike, p_td_w: ArrayLike, F_w: ArrayLike) -> None:
+        """World-frame latent references of every robot, held until the next call: freq (N, 4) [Hz], duty (N, 4),
+        p_td_w (N, 4, 3) [m] touch-down targets, F_w (N, 4, 3) [N] stance forces."""
+        ...
+
+    def step(self, num_physics_steps: int = 1) -> RobotState:
+        """Advance every valid robot by ``num_physics_steps`` physics steps, low-level control at each."""
+        ...
+
+    def reset(self, env_ids: IdsLike, base_pos_w: ArrayLike, base_quat_w: ArrayLike, joint_pos: ArrayLike,
+              joint_vel: ArrayLike | None = None, base_lin_vel_w: ArrayLike | None = None,
+              base_ang_vel_b: ArrayLike | None = None, phase: ArrayLike | None = None) -> RobotState:
+        """Reset robots ``env_ids`` to the given state (velocities default to zero, phases to trot); their
+        wrench is cleared and they stand until their next references."""
+        ...
+
+    def set_external_wrench(self, env_ids: IdsLike, force_w: ArrayLike, torque_w: ArrayLike) -> None:
+        """Constant external force [N] and torque [N m] on the base (world frame) until changed."""
+        ...
+
+    def set_base_velocity(self, env_ids: IdsLike, lin_vel_w: ArrayLike) -> RobotState:
+        """Set the base linear velocity (world frame) of robots ``env_ids``: a push."""
+        ...
+
+    def set_model_field(self, name: str, env_ids: IdsLike, values: ArrayLike,
+                        index: np.ndarray | list[int] | None = None) -> None:
+        """Per-robot model values (``geom_friction``, ``body_mass``, ...), optionally only rows ``index`` of the
+        field's first dimension."""
+        ...
+
+    def snapshot(self) -> dict:
+        """The whole simulation state, for a checkpoint (opaque to the caller)."""
+        ...
+
+    def restore(self, snap: dict) -> RobotState:
+        """Load :meth:`snapshot` output of a backend of the same kind and number of robots."""
+        ...
+
+    def close(self) -> None:
+        """Free workers and device memory (idempotent)."""
+        ...
+
+    def __enter__(self) -> Self: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+BackendFactory = Callable[[mujoco.MjModel, int, SimConfig], SimBackend]
+
+
+@dataclass(frozen=True)
+class BackendSpec:
+    """A registered backend: its factory and a line for ``--help`` and error messages."""
+
+    name: str
+    factory: BackendFactory
+    description: str
+
+
+_BACKENDS: dict[str, BackendSpec] = {}
+
+
+def register_backend(name: str, factory: BackendFactory, description: str) -> None:
+    """Make ``factory(model, num_envs, cfg)`` available as backend ``name`` (e.g. from a plugin module).
+
+    Raises:
+        ValueError: ``name`` is empty or already registered.
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"backend name must be a non-empty string, got {name!r}")
+    if name in _BACKENDS:
+        raise ValueError(f"backend {name!r} is already registered")
+    _BACKENDS[name] = BackendSpec(name, factory, description)
+
+
+def unregister_backend(name: str) -> None:
+    """Remove backend ``name`` (tests that register a temporary one); unknown names are ignored."""
+    _BACKENDS.pop(name, None)
+
+
+def backend_names() -> tuple[str, ...]:
+    """The registered backends, in registration order."""
+    return tuple(_BACKENDS)
+
+
+def check_backend(name: Any) -> str:
+    """``name`` if it is a registered backend, else a one-line ``ValueError`` naming the allowed ones."""
+    if name not in _BACKENDS:
+        allowed = ", ".join(f"{s.name} ({s.description})" for s in _BACKENDS.values())
+        raise ValueError(f"unknown simulator backend {name!r}; allowed: {allowed}")
+    return name
+
+
+def make_backend(name: str, model: mujoco.MjModel, num_envs: int, cfg: SimConfig = SimConfig()) -> SimBackend:
+    """Build backend ``name`` for ``num_envs`` robots of ``model``.
+
+    Raises:
+        ValueError: an unknown name (the message lists the registered ones).
+    """
+    return _BACKENDS[check_backend(name)].factory(model, num_envs, cfg)
+
+
+def _cpu_backend(model: mujoco.MjModel, num_envs: int, cfg: SimConfig) -> SimBackend:
+    from dls_quadruped.sim.backend import VecSim
+
+    return VecSim(model, num_envs, cfg)
+
+
+register_backend("cpu", _cpu_backend, "MuJoCo C batch + Pinocchio on the CPU, one worker process per core")
