@@ -202,13 +202,21 @@ class RobotRegions:
         self.cell = np.full(n, -1, dtype=np.int64)
         self.models: list[mujoco.MjModel] = [regions.models[0]] * n
         self.custom = np.zeros(n, dtype=bool)
+        self._copied_from: list[mujoco.MjModel | None] = [None] * n  # the template of robot i's private copy
         self.fields: dict[str, tuple[np.ndarray | None, np.ndarray]] = {}  # name -> (rows, (n, ...) values)
 
     def _model(self, i: int) -> mujoco.MjModel:
+        """Robot i's model: its cell's template, or (per-robot values) a private copy of it with those values
+        written in. A private copy already made from the same template is rewritten in place: copying a
+        region model (every mesh included) costs ~1 ms, and a reset that redraws a robot's friction and mass
+        would otherwise copy it again."""
         template = self.regions.models[self.cell[i]]
         if not self.custom[i]:
             return template
-        m = copy.copy(template)
+        m = self.models[i]
+        if m is template or self._copied_from[i] is not template:
+            m = copy.copy(template)
+            self._copied_from[i] = template
         for name, (rows, values) in self.fields.items():
             field = getattr(m, name)
             if rows is None:

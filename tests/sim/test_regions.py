@@ -126,3 +126,33 @@ def test_same_motion_and_contact_forces_as_the_whole_terrain(scene):
     for a, b in zip(whole, region):
         for k in a:
             torch.testing.assert_close(b[k], a[k], rtol=0, atol=1e-5, msg=k)
+
+
+def test_redrawn_values_rewrite_the_robots_private_copy(scene):
+    """A robot whose friction is drawn again keeps its private model copy (rewritten in place, no ~1 ms copy);
+    another cell gives it a fresh copy of that cell's template; the values are the latest drawn."""
+    from dls_quadruped.sim.regions import RobotRegions
+
+    model, _, regions = scene
+    rr = RobotRegions(regions, model, 2)
+    centres = np.array([regions.grid.window(c) for c in (0, 1)])
+    x = 0.5 * (centres[:, 0] + centres[:, 1])
+    y = 0.5 * (centres[:, 2] + centres[:, 3])
+    rr.update(x, y)
+    foot = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, g) for g in C.FOOT_GEOM_NAMES])
+    first = np.repeat(model.geom_friction[None, foot].copy(), 2, axis=0)
+    first[:, :, 0] = [[0.5], [0.7]]
+    rr.set_field("geom_friction", np.arange(2), foot, first)
+    copy0 = rr.models[0]
+    assert copy0 is not regions.models[rr.cell[0]]  # a private copy
+    second = first.copy()
+    second[0, :, 0] = 0.9
+    rr.set_field("geom_friction", np.array([0]), foot, second[:1])
+    assert rr.models[0] is copy0  # rewritten in place
+    rows = regions.robot_geom_ids(foot)
+    np.testing.assert_array_equal(rr.models[0].geom_friction[rows, 0], 0.9)
+    np.testing.assert_array_equal(rr.models[1].geom_friction[rows, 0], 0.7)
+    np.testing.assert_array_equal(rr.field("geom_friction")[:, foot, 0], [[0.9] * 4, [0.7] * 4])
+    rr.update(x[::-1].copy(), y[::-1].copy())  # the robots swap cells: fresh copies of the other templates
+    assert rr.models[0] is not copy0
+    np.testing.assert_array_equal(rr.models[0].geom_friction[rows, 0], 0.9)
