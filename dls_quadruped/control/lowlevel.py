@@ -27,7 +27,8 @@ the Bezier reference runs to the tracked position and carries the target's veloc
 (terrain height under it) is used as given. ``target_bandwidth = 0`` restores the reference to the raw
 target at rest.
 
-Everything is batched over B robots in float64 torch (the simulator state is float64).
+Everything is batched over B robots in float64 torch (the simulator state is float64), on the CPU or on
+the device given (``device``: the Warp backends, ``sim/warp_backend.py``).
 """
 
 from __future__ import annotations
@@ -96,30 +97,35 @@ class LowLevelController:
         num_robots: B.
         cfg: gains and limits.
         dt: physics (= control) step [s].
+        device: where the buffers live and ``compute`` runs; its inputs (terms, references, ids) must be
+            there too. Default the CPU (the ``cpu`` backend); the Warp backends pass theirs.
     """
 
-    def __init__(self, num_robots: int, cfg: LowLevelConfig = LowLevelConfig(), dt: float = 0.005):
+    def __init__(self, num_robots: int, cfg: LowLevelConfig = LowLevelConfig(), dt: float = 0.005,
+                 device: torch.device | str = "cpu"):
         self.cfg = cfg
         self.dt = dt
+        self.device = torch.device(device)
         dtype = torch.float64
-        self.phase = trot_phases(num_robots, dtype=dtype)
-        self.p_lo_w = torch.zeros(num_robots, 4, 3, dtype=dtype)
-        self.contact = torch.ones(num_robots, 4, dtype=torch.bool)
-        self._kp = torch.tensor(cfg.kp_swing, dtype=dtype)
-        self._kd = torch.tensor(cfg.kd_swing, dtype=dtype)
-        self._tau_limit = torch.as_tensor(C.TORQUE_LIMITS, dtype=dtype).view(4, 3)
-        self._eye = torch.eye(3, dtype=dtype) * cfg.jacobian_damping**2
+        dev = self.device
+        self.phase = trot_phases(num_robots, device=dev, dtype=dtype)
+        self.p_lo_w = torch.zeros(num_robots, 4, 3, dtype=dtype, device=dev)
+        self.contact = torch.ones(num_robots, 4, dtype=torch.bool, device=dev)
+        self._kp = torch.tensor(cfg.kp_swing, dtype=dtype, device=dev)
+        self._kd = torch.tensor(cfg.kd_swing, dtype=dtype, device=dev)
+        self._tau_limit = torch.as_tensor(C.TORQUE_LIMITS, dtype=dtype).view(4, 3).to(dev)
+        self._eye = torch.eye(3, dtype=dtype, device=dev) * cfg.jacobian_damping**2
         # alpha-beta tracker of the horizontal touch-down targets: observer x' = v + 2 w r, v' = w^2 r
         # (r = target - x, critically damped) discretised per step as alpha = 2 w dt, beta = (w dt)^2
-        self.target_xy_w = torch.zeros(num_robots, 4, 2, dtype=dtype)
-        self.target_vel_xy_w = torch.zeros(num_robots, 4, 2, dtype=dtype)
-        self._fresh = torch.ones(num_robots, dtype=torch.bool)  # tracker starts at the first target
+        self.target_xy_w = torch.zeros(num_robots, 4, 2, dtype=dtype, device=dev)
+        self.target_vel_xy_w = torch.zeros(num_robots, 4, 2, dtype=dtype, device=dev)
+        self._fresh = torch.ones(num_robots, dtype=torch.bool, device=dev)  # tracker starts at the first target
         self._alpha = 2.0 * cfg.target_bandwidth * dt
         self._beta = (cfg.target_bandwidth * dt) ** 2
         if cfg.target_bandwidth < 0 or self._alpha >= 1.0:
             raise ValueError(f"LowLevelConfig.target_bandwidth must be in [0, 1 / (2 dt)) = [0, {0.5 / dt:g}) rad/s, "
                              f"got {cfg.target_bandwidth!r}")
-        self.p_ref_w = torch.zeros(num_robots, 4, 3, dtype=dtype)  # last swing reference (for logging)
+        self.p_ref_w = torch.zeros(num_robots, 4, 3, dtype=dtype, device=dev)  # last swing reference (for logging)
 
     def reset(self, ids: torch.Tensor, foot_pos_w: torch.Tensor, phase: torch.Tensor | None = None) -> None:
         """Reset the gait phase (default: trot offsets) and lift-off positions of robots ``ids``.
@@ -129,7 +135,8 @@ class LowLevelController:
             foot_pos_w: (n, 4, 3) [m] current foot positions (the lift-off point of a first swing).
             phase: (n, 4) phases in [0, 1), or None for the trot offsets.
         """
-        self.phase[ids] = trot_phases(len(ids), dtype=self.phase.dtype) if phase is None else phase.to(self.phase)
+        self.phase[ids] = (trot_phases(len(ids), device=self.device, dtype=self.phase.dtype) if phase is None
+                           else phase.to(self.phase))
         self.p_lo_w[ids] = foot_pos_w.to(self.p_lo_w)
         self.contact[ids] = True
         self._fresh[ids] = True

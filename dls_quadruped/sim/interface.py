@@ -20,8 +20,10 @@ Backends are built with :func:`make_backend` from a name (``scene.backend`` in a
 
     sim = make_backend("cpu", model, num_envs=64, cfg=SimConfig(num_workers=0))
 
-``cpu`` is :class:`dls_quadruped.sim.backend.VecSim` (MuJoCo's C batch + Pinocchio, worker processes). A new
-backend registers a factory with :func:`register_backend`.
+``cpu`` is :class:`dls_quadruped.sim.backend.VecSim` (MuJoCo's C batch + Pinocchio, worker processes);
+``warp-cpu`` and ``cuda`` are :class:`dls_quadruped.sim.warp_backend.WarpSim` (MuJoCo Warp on Warp's CPU device or
+on a CUDA GPU, the optional ``[gpu]`` extra, docs/gpu.md). A new backend registers a factory with
+:func:`register_backend`.
 """
 
 from __future__ import annotations
@@ -58,7 +60,14 @@ class SimConfig:
     """Longest wait for a worker to build its shard (imports and model loading on a busy machine)."""
     regions: RegionConfig | None = None
     """Per-robot terrain regions of a tiled terrain (``sim/regions.py``): each robot collides only with the
-    geoms near it; None: every robot on the whole model (a plane, or tests that compare the two)."""
+    geoms near it; None: every robot on the whole model (a plane, or tests that compare the two). The Warp
+    backends ignore it (every robot on the whole model, MuJoCo Warp's broadphase culls)."""
+    nconmax: int | None = None
+    """Warp backends: contacts allocated per robot (None: MuJoCo Warp's default for the model, 48 on a plane,
+    128 with height fields). Lower it to fit more robots in GPU memory, raise it if MuJoCo Warp warns of an
+    overflow (docs/gpu.md)."""
+    njmax: int | None = None
+    """Warp backends: constraint rows allocated per robot (None: MuJoCo Warp's default for the model)."""
 
 
 IdsLike = torch.Tensor | np.ndarray | list[int]
@@ -131,6 +140,10 @@ class SimBackend(Protocol):
     def __exit__(self, *exc: object) -> None: ...
 
 
+class BackendUnavailableError(RuntimeError):
+    """A registered backend that cannot run here: its optional packages or its device are missing."""
+
+
 BackendFactory = Callable[[mujoco.MjModel, int, SimConfig], SimBackend]
 
 
@@ -182,6 +195,8 @@ def make_backend(name: str, model: mujoco.MjModel, num_envs: int, cfg: SimConfig
 
     Raises:
         ValueError: an unknown name (the message lists the registered ones).
+        BackendUnavailableError: the backend's packages or device are missing (one line: what, and how to
+            install it).
     """
     return _BACKENDS[check_backend(name)].factory(model, num_envs, cfg)
 
@@ -193,3 +208,31 @@ def _cpu_backend(model: mujoco.MjModel, num_envs: int, cfg: SimConfig) -> SimBac
 
 
 register_backend("cpu", _cpu_backend, "MuJoCo C batch + Pinocchio on the CPU, one worker process per core")
+
+
+def _warp_backend(device: str) -> BackendFactory:
+    """Factory of the MuJoCo Warp backend on ``device``; imports MuJoCo Warp only when a backend is built."""
+
+    def factory(model: mujoco.MjModel, num_envs: int, cfg: SimConfig) -> SimBackend:
+        name = "warp-cpu" if device == "cpu" else device
+        try:
+            from dls_quadruped.sim.warp_backend import WarpSim
+        except ImportError as err:
+            if err.name not in ("warp", "mujoco_warp") and not (err.name or "").startswith(("warp.", "mujoco_warp.")):
+                raise
+            raise BackendUnavailableError(
+                f"simulator backend {name!r} needs MuJoCo Warp ({err.name} is not installed): "
+                "pip install -e .[gpu] (or make install-gpu); docs/gpu.md") from None
+        try:
+            return WarpSim(model, num_envs, cfg, device=device)
+        except RuntimeError as err:
+            if "needs a CUDA" in str(err):
+                raise BackendUnavailableError(str(err)) from None
+            raise
+
+    return factory
+
+
+register_backend("warp-cpu", _warp_backend("cpu"),
+                 "MuJoCo Warp on Warp's CPU device, float32 (optional [gpu] extra; for checks, slow)")
+register_backend("cuda", _warp_backend("cuda"), "MuJoCo Warp on a CUDA GPU, float32 (optional [gpu] extra)")

@@ -1,0 +1,447 @@
+"""MuJoCo Warp backend (issue 26): N AlienGo robots as N worlds of one MuJoCo Warp model, with the low-level
+controller in torch on the same device, and no host round trip per physics step.
+
+Registered in ``sim/interface.py`` as ``warp-cpu`` (Warp's CPU device: correctness checks on any machine) and
+``cuda`` (Warp on the first CUDA device); ``pip install -e .[gpu]`` installs ``mujoco-warp`` (docs/gpu.md).
+
+Design:
+
+* **One model.** The ``mujoco.MjModel`` the CPU backend gets (``sim/terrain.py build_scene``) is put on the
+  device once (``mujoco_warp.put_model``) with ``nworld = N`` worlds in one ``Data``; per-robot model values
+  (``geom_friction``, ``body_mass``, any field MuJoCo Warp can batch) become ``(N, ...)`` arrays the first time
+  one is written, shared ``(1, ...)`` arrays until then.
+* **Zero-copy views.** ``qpos``, ``qvel``, ``ctrl``, ``time``, ``xfrc_applied``, ``sensordata``, ``M`` and
+  ``qfrc_bias`` are read and written through ``warp.to_torch`` views of MuJoCo Warp's arrays; the controller's
+  buffers, the references and the published state are torch tensors on the same device. On CUDA the MuJoCo
+  Warp kernels run on torch's current stream, so torch and Warp work is ordered without synchronisation.
+* **One physics step** is MuJoCo's two-phase step: the position/velocity stages (``step1``: kinematics,
+  collision, ``M``, ``qfrc_bias``, position/velocity sensors) already ran on the current state, so
+  :class:`~dls_quadruped.control.torch_dynamics.TorchLegDynamics` builds the controller's leg terms from
+  MuJoCo Warp's own ``M`` (CSR, its row/column pairs read from the model) and ``qfrc_bias``; the controller's
+  torques go to ``ctrl``; ``step2`` (actuation, constraint solver, acceleration sensors such as the foot
+  contact forces, integration) advances the state; divergence is checked in torch; ``step1`` runs on the new
+  state. The foot-contact sensors are copied after the last ``step2`` of a :meth:`WarpSim.step` (``step1``
+  zeroes them).
+* **Divergence** without a host sync: after every step, a robot with a non-finite ``qpos``/``qvel`` or
+  ``|qvel| > shard.MAX_ABS_QVEL`` is flagged ``diverged`` and frozen at the model's home keyframe with zero
+  velocity, its clock stopped and its torques zero, until it is reset (the CPU backend's semantics); its
+  published contact forces are zero, so no NaN reaches the state.
+
+Differences from the CPU backend (``sim/backend.py``): MuJoCo Warp computes in float32 (the controller runs in
+float64 on the float32 state); its constraint solver is MuJoCo's algorithm, not its bits, and allocates
+``nconmax`` contacts and ``njmax`` constraint rows per world (``SimConfig``); terrain regions
+(``SimConfig.regions``) are not used -- every robot sees the whole terrain and MuJoCo Warp's broadphase
+culls far geoms; the controller's leg dynamics come from MuJoCo's mass matrix and bias forces (the CPU
+backend uses Pinocchio: the same quantities, ``tests/control/test_torch_dynamics.py``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from contextlib import ExitStack
+from typing import Any, Self
+
+import mujoco
+import numpy as np
+import torch
+import warp as wp
+
+wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no banner, no module-load lines
+
+import mujoco_warp as mjw
+
+from dls_quadruped.control.lowlevel import LegTerms, LowLevelController
+from dls_quadruped.control.torch_dynamics import TorchLegDynamics
+from dls_quadruped.core.state import RobotState
+from dls_quadruped.robots.aliengo import constants as C
+from dls_quadruped.sim.interface import SimConfig
+from dls_quadruped.sim.shard import MAX_ABS_QVEL, STATE_SPECS
+
+_BOOL_FIELDS = ("base_contact", "diverged")
+
+WARP_STATE_FIELDS = ("time", "qpos", "qvel", "act", "history", "qacc_warmstart", "ctrl", "qfrc_applied",
+                     "xfrc_applied", "eq_active", "mocap_pos", "mocap_quat", "userdata", "plastic")
+"""MuJoCo Warp ``Data`` fields that ``step1``/``step2`` read without computing them (MuJoCo's integration
+state, ``shard.MJ_STATE_FIELDS``): a snapshot's part of the simulation."""
+
+
+def warp_device_for(name: str) -> str:
+    """The Warp device of a backend device name (``cpu`` or ``cuda``/``cuda:k``), checked.
+
+    Raises:
+        RuntimeError: ``cuda`` without a CUDA device for Warp, or without a CUDA build of torch (one line).
+    """
+    if name == "cpu":
+        return "cpu"
+    if not name.startswith("cuda"):
+        raise ValueError(f"Warp backend device must be 'cpu' or 'cuda[:k]', got {name!r}")
+    wp.init()
+    if wp.get_cuda_device_count() == 0:
+        raise RuntimeError("simulator backend 'cuda' needs a CUDA GPU and driver, and Warp found none; "
+                           "use scene.backend: warp-cpu (or cpu) on this machine")
+    if not torch.cuda.is_available():
+        raise RuntimeError("simulator backend 'cuda' needs a CUDA build of torch (torch.cuda.is_available() is "
+                           "False); install one (https://pytorch.org/get-started/locally/), then pip install -e .[gpu]")
+    return "cuda:0" if name == "cuda" else name
+
+
+class WarpSim:
+    """N robots as the N worlds of one MuJoCo Warp model, controlled by the low-level controller on the device.
+
+    Args:
+        model: the scene (one AlienGo, free joint first, legs in ``constants.JOINT_NAMES`` order, the ground).
+        num_envs: number of robots N.
+        cfg: backend configuration (``control``, ``nconmax``, ``njmax``; ``num_workers``, ``nthread`` and
+            ``regions`` do not apply).
+        device: ``"cpu"`` (Warp's CPU device) or ``"cuda"``/``"cuda:k"``.
+    """
+
+    def __init__(self, model: mujoco.MjModel, num_envs: int, cfg: SimConfig | None = None, device: str = "cpu"):
+        cfg = SimConfig() if cfg is None else cfg
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self.model = model
+        self.num_envs = n = num_envs
+        self.cfg = cfg
+        self.physics_dt = float(model.opt.timestep)
+        self.wp_device = warp_device_for(device)
+        self.device = torch.device(self.wp_device)
+        self._closed = False
+        self.base_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)
+        if model.nkey < 1:
+            raise ValueError("the scene needs a home keyframe (key 0): the reset pose of the CPU backend")
+        with self._scope():
+            self.m = mjw.put_model(model)
+            self.d = mjw.make_data(model, nworld=n, nconmax=cfg.nconmax, njmax=cfg.njmax)
+        self._batched: set[str] = set()
+        v = wp.to_torch
+        self._qpos, self._qvel, self._time = v(self.d.qpos), v(self.d.qvel), v(self.d.time)
+        self._ctrl, self._xfrc = v(self.d.ctrl), v(self.d.xfrc_applied)
+        self._sensordata, self._M, self._qfrc_bias = v(self.d.sensordata), v(self.d.M), v(self.d.qfrc_bias)
+        self._qacc_warmstart = v(self.d.qacc_warmstart)
+        self._overflow = v(self.d.overflow)
+        self._warned_overflow = False
+        rows, cols = self._csr_pairs(model)
+        self.dynamics = TorchLegDynamics(model, qM_pairs=(rows, cols))
+        self.controller = LowLevelController(n, cfg.control, dt=self.physics_dt, device=self.device)
+        self._sensor_slices = self._sensor_layout(model)
+        self._contact_sensors = torch.zeros_like(self._sensordata)
+        dev, f64 = self.device, torch.float64
+        self._key_qpos = torch.as_tensor(model.key_qpos[0], dtype=self._qpos.dtype, device=dev)
+        self.command = {k: torch.zeros((n, *s), dtype=f64, device=dev)
+                        for k, s in (("freq", (4,)), ("duty", (4,)), ("p_td_w", (4, 3)), ("F_w", (4, 3)))}
+        self.wrench_w = torch.zeros(n, 6, dtype=self._xfrc.dtype, device=dev)
+        self.diverged = torch.zeros(n, dtype=torch.bool, device=dev)
+        self.tau = torch.zeros(n, 12, dtype=f64, device=dev)
+        self.buf = {k: torch.zeros((n, *s), dtype=torch.float32, device=dev)
+                    for k, s in STATE_SPECS.items() if k not in _BOOL_FIELDS}
+        self.buf.update({k: torch.zeros(n, dtype=torch.bool, device=dev) for k in _BOOL_FIELDS})
+        self.state = RobotState(**self.buf)
+        self._standing_references(slice(None))
+        # every robot at the home keyframe, as the CPU backend starts
+        ids = torch.arange(n, device=dev)
+        with self._scope():
+            self._qpos.copy_(self._key_qpos.expand(n, -1))
+            self._qvel.zero_()
+            mjw.forward(self.m, self.d)
+        self._contact_sensors.copy_(self._sensordata)
+        self._terms = self._dynamics_terms()
+        self.controller.reset(ids, self._terms.foot_pos_w)
+        self._publish()
+
+    # ------------------------------------------------------------------ plumbing
+    def _scope(self) -> ExitStack:
+        """Warp's device, and on CUDA torch's current stream, for MuJoCo Warp calls."""
+        stack = ExitStack()
+        stack.enter_context(wp.ScopedDevice(self.wp_device))
+        if self.device.type == "cuda":
+            stack.enter_context(wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(self.device))))
+        return stack
+
+    @staticmethod
+    def _csr_pairs(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+        """(row, column) of each element of the CSR inertia ``M`` (MuJoCo Warp's ``d.M``, the model's CSR layout)."""
+        rows = np.repeat(np.arange(model.nv), model.M_rownnz)
+        return rows, np.asarray(model.M_colind)
+
+    @staticmethod
+    def _sensor_layout(model: mujoco.MjModel) -> dict[str, slice]:
+        out = {}
+        for name in (*(f"{leg}_foot_contact" for leg in C.LEG_NAMES), "trunk_contact",
+                     *(f"{leg}_thigh_contact" for leg in C.LEG_NAMES)):
+            s = model.sensor(name)
+            out[name] = slice(int(s.adr[0]), int(s.adr[0] + s.dim[0]))
+        return out
+
+    def _dynamics_terms(self) -> LegTerms:
+        """The controller's leg terms at the current state (``step1`` or ``forward`` ran on it), in float64."""
+        f64 = torch.float64
+        return self.dynamics.terms(self._qpos.to(f64), self._qvel.to(f64), self._M, self._qfrc_bias)
+
+    def _ids(self, env_ids: Any) -> torch.Tensor:
+        ids = torch.as_tensor(env_ids).reshape(-1).to(self.device, torch.long)
+        if len(ids) and (int(ids.min()) < 0 or int(ids.max()) >= self.num_envs):
+            raise ValueError(f"env_ids must be in [0, {self.num_envs}), got min {int(ids.min())} max {int(ids.max())}")
+        return ids
+
+    def _check_rows(self, name: str, value: Any, n: int, shape: tuple[int, ...]) -> torch.Tensor:
+        """``value`` as a float64 tensor on the device of shape (n, *shape) with finite entries."""
+        value = torch.as_tensor(value).to(self.device, torch.float64)
+        if value.shape != (n, *shape):
+            raise ValueError(f"{name} must have shape {(n, *shape)}, got {tuple(value.shape)}")
+        finite = torch.isfinite(value).reshape(n, -1).all(dim=1)
+        if not bool(finite.all()):
+            rows = torch.nonzero(~finite).flatten().tolist()
+            raise ValueError(f"{name} has non-finite values in rows {rows[:10]}")
+        return value
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError("the Warp simulator is closed")
+
+    def _standing_references(self, rows: slice | torch.Tensor) -> None:
+        """Standing on all four legs (f = 0, d = 1), the weight shared (``VecSim._standing_references``)."""
+        c = self.command
+        c["freq"][rows] = 0.0
+        c["duty"][rows] = 1.0
+        c["p_td_w"][rows] = 0.0
+        c["F_w"][rows] = 0.0
+        c["F_w"][rows, :, 2] = self.total_weight() / 4.0
+
+    def total_weight(self) -> float:
+        """m g of the robot in this model [N]."""
+        return float(self.model.body_subtreemass[1] * -self.model.opt.gravity[2])
+
+    # ------------------------------------------------------------------ public API
+    def set_references(self, freq: Any, duty: Any, p_td_w: Any, F_w: Any) -> None:
+        """World-frame latent references of every robot, held until the next call (``SimBackend``)."""
+        n, c = self.num_envs, self.command
+        c["freq"].copy_(self._check_rows("freq", freq, n, (4,)))
+        c["duty"].copy_(self._check_rows("duty", duty, n, (4,)))
+        c["p_td_w"].copy_(self._check_rows("p_td_w", p_td_w, n, (4, 3)))
+        c["F_w"].copy_(self._check_rows("F_w", F_w, n, (4, 3)))
+
+    def step(self, num_physics_steps: int = 1) -> RobotState:
+        """Advance every robot by ``num_physics_steps`` physics steps, low-level control at each (module doc)."""
+        self._check_open()
+        if num_physics_steps < 1:
+            raise ValueError(f"num_physics_steps must be >= 1, got {num_physics_steps}")
+        c = self.command
+        with self._scope():
+            self._xfrc[:, self.base_body] = self.wrench_w
+            for _ in range(num_physics_steps):
+                tau = self.controller.compute(self._terms, c["freq"], c["duty"], c["p_td_w"], c["F_w"])
+                self.tau = tau.masked_fill(self.diverged[:, None], 0.0)
+                self._ctrl.copy_(self.tau)
+                time_before = self._time.clone()
+                mjw.step2(self.m, self.d)
+                self._freeze_diverged(time_before)
+                self._contact_sensors.copy_(self._sensordata)  # step1 zeroes the acceleration-stage sensors
+                mjw.step1(self.m, self.d)
+                self._terms = self._dynamics_terms()
+        self._check_overflow()
+        return self._publish()
+
+    def _freeze_diverged(self, time_before: torch.Tensor) -> None:
+        """Flag robots whose state blew up; hold every flagged robot at the keyframe, at rest, clock stopped."""
+        qpos, qvel = self._qpos, self._qvel
+        bad = ~torch.isfinite(qpos).all(dim=1) | ~torch.isfinite(qvel).all(dim=1)
+        bad |= qvel.abs().amax(dim=1) > MAX_ABS_QVEL
+        self.diverged |= bad
+        div = self.diverged[:, None]
+        qpos.copy_(torch.where(div, self._key_qpos, qpos))
+        qvel.masked_fill_(div, 0.0)
+        self._qacc_warmstart.masked_fill_(div, 0.0)
+        self._time.copy_(torch.where(self.diverged, time_before, self._time))
+
+    def _check_overflow(self) -> None:
+        """Warn once when a world ran out of contact or constraint rows (one host read per ``step`` call)."""
+        if self._warned_overflow or not bool((self._overflow != 0).any()):
+            return
+        self._warned_overflow = True
+        warnings.warn(f"MuJoCo Warp ran out of contacts or constraint rows in some worlds (nconmax "
+                      f"{self.d.naconmax // self.num_envs}, njmax {self.d.njmax} per robot): contacts were dropped; "
+                      "raise SimConfig.nconmax / njmax (docs/gpu.md)", RuntimeWarning, stacklevel=3)
+
+    def reset(self, env_ids: Any, base_pos_w: Any, base_quat_w: Any, joint_pos: Any, joint_vel: Any = None,
+              base_lin_vel_w: Any = None, base_ang_vel_b: Any = None, phase: Any = None) -> RobotState:
+        """Reset robots ``env_ids`` (velocities default to zero, phases to trot); their wrench is cleared and
+        they stand until their next references (``SimBackend.reset``)."""
+        self._check_open()
+        ids = self._ids(env_ids)
+        n = len(ids)
+        if n == 0:
+            return self.state
+        dev, f64 = self.device, torch.float64
+        zeros3 = torch.zeros(n, 3, dtype=f64, device=dev)
+        quat = self._check_rows("base_quat_w", base_quat_w, n, (4,))
+        qpos = torch.cat([self._check_rows("base_pos_w", base_pos_w, n, (3,)), quat / quat.norm(dim=1, keepdim=True),
+                          self._check_rows("joint_pos", joint_pos, n, (12,))], dim=1)
+        qvel = torch.cat(
+            [zeros3 if base_lin_vel_w is None else self._check_rows("base_lin_vel_w", base_lin_vel_w, n, (3,)),
+             zeros3 if base_ang_vel_b is None else self._check_rows("base_ang_vel_b", base_ang_vel_b, n, (3,)),
+             torch.zeros(n, 12, dtype=f64, device=dev) if joint_vel is None
+             else self._check_rows("joint_vel", joint_vel, n, (12,))], dim=1)
+        phase = None if phase is None else self._check_rows("phase", phase, n, (4,))
+        mask = torch.zeros(self.num_envs, dtype=torch.bool, device=dev)
+        mask[ids] = True
+        with self._scope():
+            mjw.reset_data(self.m, self.d, reset=wp.from_torch(mask))
+            self._qpos[ids] = qpos.to(self._qpos.dtype)
+            self._qvel[ids] = qvel.to(self._qvel.dtype)
+            self._time[ids] = 0.0
+            mjw.forward(self.m, self.d)  # every stage, sensors included: the reset robots' published forces
+        self._contact_sensors[ids] = self._sensordata[ids]
+        self.diverged[ids] = False
+        self.wrench_w[ids] = 0.0
+        self._standing_references(ids)
+        self._terms = self._dynamics_terms()
+        self.controller.reset(ids, self._terms.foot_pos_w[ids], phase)
+        self.tau[ids] = 0.0
+        return self._publish()
+
+    def set_external_wrench(self, env_ids: Any, force_w: Any, torque_w: Any) -> None:
+        """Constant external force [N] and torque [N m] on the base (world frame) until changed."""
+        ids = self._ids(env_ids)
+        n = len(ids)
+        self.wrench_w[ids] = torch.cat([self._check_rows("force_w", force_w, n, (3,)),
+                                        self._check_rows("torque_w", torque_w, n, (3,))], dim=1).to(self.wrench_w)
+
+    def set_base_velocity(self, env_ids: Any, lin_vel_w: Any) -> RobotState:
+        """Set the base linear velocity (world frame) of robots ``env_ids``: a push."""
+        self._check_open()
+        ids = self._ids(env_ids)
+        self._qvel[ids, 0:3] = self._check_rows("lin_vel_w", lin_vel_w, len(ids), (3,)).to(self._qvel.dtype)
+        with self._scope():
+            mjw.step1(self.m, self.d)  # qfrc_bias (and the velocity stage) at the new velocity
+        self._terms = self._dynamics_terms()
+        return self._publish()
+
+    def _batched_field(self, name: str) -> torch.Tensor:
+        """A torch view (N, ...) of model field ``name``, made per-world on first use."""
+        spec = {f.name: f.type for f in dataclasses.fields(mjw.Model)}.get(name)
+        shape = getattr(spec, "shape", ())
+        if not shape or shape[0] != "*":
+            batchable = sorted(f.name for f in dataclasses.fields(mjw.Model)
+                               if getattr(f.type, "shape", ()) and f.type.shape[0] == "*")
+            raise ValueError(f"model field {name!r} cannot be set per robot on MuJoCo Warp; allowed: "
+                             f"{', '.join(batchable[:12])}, ...")
+        arr = getattr(self.m, name)
+        if name not in self._batched:
+            if arr.shape[0] != self.num_envs:
+                host = arr.numpy()
+                tiled = np.repeat(host[:1], self.num_envs, axis=0)
+                with self._scope():
+                    arr = wp.array(tiled, dtype=arr.dtype, device=self.wp_device)
+                setattr(self.m, name, arr)
+            self._batched.add(name)
+        return wp.to_torch(arr)
+
+    def set_model_field(self, name: str, env_ids: Any, values: Any, index: Any = None) -> None:
+        """Per-robot model values, e.g. ``geom_friction`` (n, ngeom, 3) or, with ``index``, (n, len(index), 3);
+        ``body_mass`` (n, nbody). The controller's dynamics read MuJoCo's own mass matrix, so a changed mass is
+        modelled (the CPU backend's Pinocchio model stays nominal)."""
+        self._check_open()
+        field = self._batched_field(name)
+        ids = self._ids(env_ids)
+        values = torch.as_tensor(values).to(self.device, field.dtype)
+        if len(values) != len(ids):
+            raise ValueError(f"values must have one row per env id ({len(ids)}), got {len(values)}")
+        if index is None:
+            if values.shape[1:] != field.shape[1:]:
+                raise ValueError(f"{name} values must be (n, {', '.join(map(str, field.shape[1:]))}), "
+                                 f"got {tuple(values.shape)}")
+            field[ids] = values
+        else:
+            idx = torch.as_tensor(np.asarray(index.cpu() if isinstance(index, torch.Tensor) else index),
+                                  dtype=torch.long, device=self.device)
+            field[ids[:, None], idx[None, :]] = values
+        with self._scope():  # positions and the mass matrix of the new model (a mass changes M)
+            mjw.step1(self.m, self.d)
+        self._terms = self._dynamics_terms()
+
+    def snapshot(self) -> dict:
+        """The whole simulation state (MuJoCo Warp's integration state, per-robot model fields, the controller,
+        divergence flags, last torques, contact sensors, published state and commands), as torch clones."""
+        mj = {}
+        for f in WARP_STATE_FIELDS:
+            arr = getattr(self.d, f, None)
+            if arr is not None and arr.size > 0:
+                mj[f] = wp.to_torch(arr).clone()
+        return {"mj": mj, "model": {k: wp.to_torch(getattr(self.m, k)).clone() for k in sorted(self._batched)},
+                "controller": self.controller.state_dict(), "diverged": self.diverged.clone(),
+                "tau": self.tau.clone(), "contact_sensors": self._contact_sensors.clone(),
+                "state": {k: v.clone() for k, v in self.buf.items()},
+                "command": {**{k: v.clone() for k, v in self.command.items()}, "wrench_w": self.wrench_w.clone()}}
+
+    def restore(self, snap: dict) -> RobotState:
+        """Load :meth:`snapshot` output of a Warp backend of as many robots: the next ``step`` is bit-identical.
+
+        Raises:
+            ValueError: a snapshot of another number of robots.
+        """
+        self._check_open()
+        n = int(snap["diverged"].shape[0])
+        if n != self.num_envs:
+            raise ValueError(f"simulator snapshot of {n} robots, this simulator has {self.num_envs}")
+        for f, v in snap["mj"].items():
+            wp.to_torch(getattr(self.d, f)).copy_(v)
+        for k, v in snap["model"].items():
+            self._batched_field(k).copy_(v)
+        self.controller.load_state_dict(snap["controller"])
+        self.diverged.copy_(snap["diverged"])
+        self.tau = snap["tau"].to(self.tau).clone()
+        self._contact_sensors.copy_(snap["contact_sensors"])
+        for k, v in self.buf.items():
+            v.copy_(snap["state"][k])
+        for k, v in self.command.items():
+            v.copy_(snap["command"][k])
+        self.wrench_w.copy_(snap["command"]["wrench_w"])
+        with self._scope():
+            mjw.step1(self.m, self.d)
+        self._terms = self._dynamics_terms()
+        return self.state
+
+    def close(self) -> None:
+        """Free the device arrays (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self.m = self.d = None
+        self._qpos = self._qvel = self._time = self._ctrl = self._xfrc = None
+        self._sensordata = self._M = self._qfrc_bias = self._qacc_warmstart = self._overflow = None
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ output
+    def _publish(self) -> RobotState:
+        """Write the current state into the published float32 buffers (in place: ``state`` stays live)."""
+        s, qpos, qvel = self.buf, self._qpos, self._qvel
+        s["base_pos_w"].copy_(qpos[:, 0:3])
+        s["base_quat_w"].copy_(qpos[:, 3:7])
+        s["base_lin_vel_w"].copy_(qvel[:, 0:3])
+        s["base_ang_vel_b"].copy_(qvel[:, 3:6])
+        s["joint_pos"].copy_(qpos[:, 7:19])
+        s["joint_vel"].copy_(qvel[:, 6:18])
+        s["joint_torque"].copy_(self.tau)
+        s["foot_pos_w"].copy_(self._terms.foot_pos_w)
+        s["foot_vel_w"].copy_(self._terms.foot_vel_w)
+        sd = torch.where(self.diverged[:, None], 0.0, self._contact_sensors)
+        for i, leg in enumerate(C.LEG_NAMES):
+            # the netforce sensor reports the foot's force on the ground: negate for the reaction
+            sl = self._sensor_slices[f"{leg}_foot_contact"]
+            s["foot_force_w"][:, i] = -sd[:, sl.start + 1: sl.stop]
+        body = sd[:, self._sensor_slices["trunk_contact"].start] > 0
+        for leg in C.LEG_NAMES:
+            body |= sd[:, self._sensor_slices[f"{leg}_thigh_contact"].start] > 0
+        s["base_contact"].copy_(body)
+        s["phase"].copy_(self.controller.phase)
+        s["contact_cmd"].copy_(self.controller.phase < self.command["duty"])
+        s["time"].copy_(self._time)
+        s["diverged"].copy_(self.diverged)
+        return self.state
