@@ -393,11 +393,13 @@ def _flags(p) -> None:
 def main() -> None:
     args = parse_args(__doc__, "table18_multi_policy", _flags)
     if args.stairs:
+        args.seconds = args.seconds if args.seconds_given else STAIRS_SECONDS  # what the cells run (config.json)
         todo = stairs_cells(args.policy_dir)
         results = run_cells(todo, args)
         write_stairs(args, results)
         write_json(results, args.out / "results_stairs.json", indent=1)
-        write_config(args, todo, {"results": dict(results), "part": "stairs"})
+        write_config(args, todo, {"results": dict(results), "part": "stairs", "episodes_per_step_height": args.episodes,
+                                  "step_heights": list(STAIRS_HEIGHTS)})
         print((args.out / "stairs.md").read_text())
         return
     todo = cells(args.policy_dir)
