@@ -14,7 +14,7 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym lint clean
+.PHONY: install install-gpu test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym lint clean
 
 $(STAMP): setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -23,6 +23,11 @@ $(STAMP): setup.py
 	touch $(STAMP)
 
 install: $(STAMP)
+
+# the optional MuJoCo Warp backends (scene.backend: cuda / warp-cpu; docs/gpu.md); on a GPU machine install a
+# CUDA torch wheel first (TORCH_INDEX above)
+install-gpu: $(STAMP)
+	$(PY) -m pip install -q -e ".[dev,gpu]"
 
 test: $(STAMP)
 	$(PY) -m pytest
@@ -106,6 +111,9 @@ INIT_FROM ?=
 INIT_STD ?=
 # simulator worker processes (empty: the task's scene.num_workers, one per core; 0 = in-process)
 TRAIN_WORKERS ?=
+# simulator backend (empty: the task's scene.backend, cpu); BACKEND=cuda DEVICE=cuda runs MuJoCo Warp on the GPU
+# (make install-gpu; docs/gpu.md)
+BACKEND ?=
 CHECKPOINT ?=
 PLAY_SECONDS ?= 10
 
@@ -116,7 +124,8 @@ train: $(STAMP)
 		--device $(DEVICE) $(if $(SEED),--seed $(SEED),) $(if $(RESUME),--resume,) $(if $(INIT_FROM),--init-from $(INIT_FROM),) \
 		$(if $(INIT_STD),--init-std $(INIT_STD),) \
 		$(if $(RESUME_FROM),--resume-from $(RESUME_FROM),) $(if $(CHECKPOINT_COPY),--checkpoint-copy $(CHECKPOINT_COPY),) \
-		$(if $(TRAIN_WORKERS),--num-workers $(TRAIN_WORKERS),) $(if $(UPDATE_THREADS),--update-threads $(UPDATE_THREADS),)
+		$(if $(TRAIN_WORKERS),--num-workers $(TRAIN_WORKERS),) $(if $(UPDATE_THREADS),--update-threads $(UPDATE_THREADS),) \
+		$(if $(BACKEND),--backend $(BACKEND),)
 
 play: $(STAMP)
 	$(PY) -m dls_quadruped.learning.play --task $(TASK) --seconds $(PLAY_SECONDS) $(if $(CHECKPOINT),--checkpoint $(CHECKPOINT),)

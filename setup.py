@@ -23,6 +23,13 @@ setup(
         # gymnasium's ArrayConversion wrapper (numpy view of the torch gymnasium env, docs/gymnasium.md) needs it
         "array-api-compat>=1.11",
     ],
-    # onnxruntime: the tests run the exported ONNX policies and compare them with the TorchScript ones
-    extras_require={"dev": ["pytest>=8", "ruff>=0.5", "onnx>=1.16", "onnxscript>=0.1", "onnxruntime>=1.18"]},
+    extras_require={
+        # onnxruntime: the tests run the exported ONNX policies and compare them with the TorchScript ones
+        "dev": ["pytest>=8", "ruff>=0.5", "onnx>=1.16", "onnxscript>=0.1", "onnxruntime>=1.18"],
+        # the MuJoCo Warp simulator backends (scene.backend: cuda / warp-cpu, sim/warp_backend.py, docs/gpu.md);
+        # optional: it pulls warp-lang (~100 MB) and compiles kernels on first use, the CPU backend needs none of it.
+        # Pinned: the backend uses MuJoCo Warp's two-phase step, its CSR mass matrix and batched model fields,
+        # whose names and layouts change between releases.
+        "gpu": ["mujoco-warp==4.0.0"],
+    },
 )

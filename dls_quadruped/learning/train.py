@@ -106,6 +106,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help=f"also save when this many minutes passed since the last save ({DEFAULT_SAVE_EVERY_MIN})")
     p.add_argument("--num-workers", type=non_negative_int, default=None,
                    help="simulator worker processes (scene.num_workers; 0 = in-process)")
+    p.add_argument("--backend", default=None,
+                   help="simulator backend (scene.backend, sim/interface.py): cpu, or cuda with --device cuda for "
+                        "MuJoCo Warp on the GPU (the [gpu] extra, docs/gpu.md); default: the task's")
     p.add_argument("--update-threads", type=non_negative_int, default=None,
                    help="torch threads of the PPO update (default: every core, shared among torchrun's processes "
                         "on the machine; the simulator workers idle then; 0: the trainer's own count)")
@@ -226,8 +229,8 @@ def main(argv: list[str] | None = None) -> Path:
 
 
 def _train(args: argparse.Namespace, ranks: Ranks) -> Path:
-    overrides = {"scene": {"num_workers": args.num_workers}} if args.num_workers is not None else None
-    task = load_task(args.task, overrides=overrides)
+    scene = {k: v for k, v in (("num_workers", args.num_workers), ("backend", args.backend)) if v is not None}
+    task = load_task(args.task, overrides={"scene": scene} if scene else None)
     if args.init_from is not None and args.resume:
         raise UserError("--init-from starts a new run and --resume continues one; give only one of them")
     if args.resume_from is not None and (args.resume or args.init_from is not None):

@@ -2,7 +2,7 @@
 controller in torch on the same device, and no host round trip per physics step.
 
 Registered in ``sim/interface.py`` as ``warp-cpu`` (Warp's CPU device: correctness checks on any machine) and
-``cuda`` (Warp on the first CUDA device); ``pip install -e .[gpu]`` installs ``mujoco-warp`` (docs/gpu.md).
+``cuda`` (Warp on torch's current CUDA device); ``pip install -e .[gpu]`` installs ``mujoco-warp`` (docs/gpu.md).
 
 Design:
 
@@ -83,7 +83,8 @@ def warp_device_for(name: str) -> str:
     if not torch.cuda.is_available():
         raise RuntimeError("simulator backend 'cuda' needs a CUDA build of torch (torch.cuda.is_available() is "
                            "False); install one (https://pytorch.org/get-started/locally/), then pip install -e .[gpu]")
-    return "cuda:0" if name == "cuda" else name
+    # plain "cuda": torch's current device (torchrun's ranks set theirs, learning/distributed.py)
+    return f"cuda:{torch.cuda.current_device()}" if name == "cuda" else name
 
 
 class WarpSim:

@@ -272,3 +272,17 @@ def test_env_runs_on_warp_cpu(mjw):
         assert not env.scene.sim.state.diverged.any()
     finally:
         env.close()
+
+
+@pytest.mark.slow
+def test_train_runs_on_the_warp_backend(mjw, tmp_path):
+    """``train --backend warp-cpu`` (``make train BACKEND=...``): one PPO iteration, 4 robots, a checkpoint whose
+    resolved task names the backend."""
+    from dls_quadruped.envs.config import load_task
+    from dls_quadruped.learning import train
+    from dls_quadruped.learning.runner import latest_checkpoint
+
+    run_dir = train.main(["--task", "base", "--num-envs", "4", "--num-workers", "0", "--backend", "warp-cpu",
+                          "--iterations", "1", "--save-interval", "1", "--log-root", str(tmp_path)])
+    assert latest_checkpoint(run_dir) is not None
+    assert load_task(str(run_dir / "task.yaml")).section("scene")["backend"] == "warp-cpu"
