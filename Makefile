@@ -14,7 +14,7 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install install-gpu test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym lint clean
+.PHONY: install install-gpu test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
 
 $(STAMP): setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -52,7 +52,13 @@ demo: $(STAMP)
 demo-balance: $(STAMP)
 	$(PY) -m dls_quadruped.demo --num-envs $(NUM_ENVS) --seconds $(SECONDS_PER_PHASE) --out $(OUT)/demo_balance
 
-bench: bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop
+# `make bench DEVICE=cuda` runs the device benchmark instead (issue 26: env steps/s per N, MPC solve, closed loop on
+# the GPU; docs/gpu.md); `make bench-device DEVICE=cpu BACKEND=warp-cpu` runs it anywhere
+bench: $(if $(filter cuda%,$(DEVICE)),bench-device,bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop)
+
+bench-device: $(STAMP)
+	$(PY) -m dls_quadruped.bench.device --device $(or $(DEVICE),cuda) $(if $(BACKEND),--backend $(BACKEND),) \
+		--out $(OUT)/bench
 
 bench-env: $(STAMP)
 	$(PY) -m dls_quadruped.bench.env --out $(OUT)/bench

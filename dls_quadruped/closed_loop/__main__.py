@@ -241,14 +241,16 @@ def _survival_layout(scenario: str) -> tuple[int, float, float]:
 
 
 def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int, replicas: int = 1,
-             scenario: str = "simple", heights: tuple[float, ...] = STAIRS_HEIGHTS):
+             scenario: str = "simple", heights: tuple[float, ...] = STAIRS_HEIGHTS, device: str = "cpu",
+             backend: str = "cpu"):
     """The scenario's env with fixed commands and the Table-4 reward: E episodes (one per row of ``cmds``)
     played ``replicas`` times side by side (robot s E + e: episode e). ``simple``: the base task on flat
     ground, no noise or perturbation. ``survival`` / ``survival_sweep``: the eval suite's env of that
     scenario, every robot of episode e on the terrain tile and row the eval suite gives its env e, with the
     same scheduled disturbances (so a controller meets what the policy alone meets there). ``stairs``: the
     eval suite's staircase env (``eval.stairs.stairs_task``, one row per step height of ``heights``), episode
-    e on row :func:`stairs_rows` (``cmds`` from :func:`commands` with the same heights)."""
+    e on row :func:`stairs_rows` (``cmds`` from :func:`commands` with the same heights). ``device``: the env's
+    torch device; ``backend``: the simulator (``sim/interface.py``, e.g. ``cuda`` with ``device="cuda"``)."""
     import torch
 
     from dls_quadruped.envs.env import LocomotionEnv
@@ -271,7 +273,9 @@ def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int, repl
         from dls_quadruped.eval import survival as SV
 
         task = SV.survival_task(tiled, opts, *_survival_layout(scenario))
-    env = LocomotionEnv(task, num_envs=len(tiled), seed=seed, verbose=False)
+    if backend != "cpu":
+        task.data.setdefault("scene", {})["backend"] = backend
+    env = LocomotionEnv(task, num_envs=len(tiled), device=device, seed=seed, verbose=False)
     if replicas > 1:
         env.reset(seed=seed, episode_keys=torch.arange(len(tiled)) % e)
     if scenario == "stairs":
