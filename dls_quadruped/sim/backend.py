@@ -129,7 +129,8 @@ def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: 
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     torch.set_num_threads(1)
     try:
-        shard = Shard(model, buffers, cfg.control, nthread=1, regions=cfg.regions)
+        shard = Shard(model, buffers, cfg.control, nthread=1, regions=cfg.regions,
+                      leg_dynamics=cfg.leg_dynamics)
     except Exception as err:  # report construction errors to the parent instead of hanging it
         _reply(conn, ("error", repr(err)))
         return
@@ -243,7 +244,8 @@ class VecSim:
         self._shard: Shard | None = None
         self._init_commands()
         if workers == 0:
-            self._shard = Shard(model, self.buf, cfg.control, nthread=cfg.nthread, regions=cfg.regions)
+            self._shard = Shard(model, self.buf, cfg.control, nthread=cfg.nthread, regions=cfg.regions,
+                                leg_dynamics=cfg.leg_dynamics)
         else:
             check_main_guard()
             ctx = mp.get_context("spawn")

@@ -68,6 +68,32 @@ class SimConfig:
     overflow (docs/gpu.md)."""
     njmax: int | None = None
     """Warp backends: constraint rows allocated per robot (None: MuJoCo Warp's default for the model)."""
+    leg_dynamics: str = "pinocchio"
+    """``cpu``: where the low-level controller's leg terms (leg blocks of M, leg bias, foot Jacobians) come from
+    at every physics step (:data:`LEG_DYNAMICS`): ``pinocchio`` (one Pinocchio call per robot, on the nominal
+    robot model) or ``mujoco`` (MuJoCo's own mass matrix and bias forces of each robot's model, computed by a
+    persistent ``Batch`` with the step, plus batched torch kinematics, ``control/torch_dynamics.py``). The two
+    agree to round-off, but ``mujoco`` follows per-robot model values (``body_mass``, ...) that Pinocchio's
+    nominal model ignores. Not faster on the 2-core development VM (0.82-1.04x, docs/benchmarks.md "Leg dynamics
+    from MuJoCo"). The Warp backends always use MuJoCo's terms."""
+
+    def __post_init__(self):
+        check_leg_dynamics(self.leg_dynamics)
+
+
+LEG_DYNAMICS: dict[str, str] = {
+    "pinocchio": "Pinocchio on the nominal robot model, one call per robot (the default)",
+    "mujoco": "MuJoCo's mass matrix and bias forces of each robot's model + batched torch kinematics",
+}
+"""Allowed values of :attr:`SimConfig.leg_dynamics`, with a line each."""
+
+
+def check_leg_dynamics(name: Any) -> str:
+    """``name`` if it is one of :data:`LEG_DYNAMICS`, else a one-line ``ValueError`` naming the allowed ones."""
+    if not isinstance(name, str) or name not in LEG_DYNAMICS:
+        allowed = ", ".join(f"{k} ({v})" for k, v in LEG_DYNAMICS.items())
+        raise ValueError(f"unknown leg_dynamics {name!r}; allowed: {allowed}")
+    return name
 
 
 IdsLike = torch.Tensor | np.ndarray | list[int]

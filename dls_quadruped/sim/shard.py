@@ -1,13 +1,28 @@
-"""One shard of robots: a ``mujoco.batch.Batch`` + Pinocchio dynamics + the low-level controller.
+"""One shard of robots: a ``mujoco.batch.Batch`` + the leg dynamics + the low-level controller.
 
 A shard runs the whole physics/control loop for a contiguous block of robots. The
 backend (``sim/backend.py``) runs one shard in-process or one per worker process;
 shards talk to the backend only through the shared buffers in :class:`SharedBuffers`,
 so the same code serves both modes.
 
-Per physics step (200 Hz): Pinocchio terms at the current state (one library call per
-robot: Pinocchio gives nothing batched) -> low-level torques (batched torch) ->
-``Batch.step`` on the robots that are still valid.
+Per physics step (200 Hz): leg terms at the current state -> low-level torques (batched torch) ->
+``Batch.step`` on the robots that are still valid. Two sources of the leg terms
+(``SimConfig.leg_dynamics``):
+
+* ``pinocchio`` (default): one Pinocchio call per robot (Pinocchio gives nothing batched), on the
+  nominal robot model.
+* ``mujoco``: the batch is persistent (one ``MjData`` per robot) and steps with
+  ``stage=mjSTAGE_VEL``, so after each step MuJoCo's mass matrix ``M`` and bias forces ``qfrc_bias``
+  are those of the new state (the position and velocity stages of the next step, which the
+  persistent batch then continues from instead of recomputing them); ``TorchLegDynamics`` reads the
+  leg blocks from them and adds batched torch foot kinematics. No Pinocchio call in the loop. M and
+  the bias come from each robot's own model, so per-robot ``body_mass`` etc. reach the controller.
+  Whenever the state or a robot's model changes outside a step (reset, restore, push, divergence,
+  terrain-region switch, ``set_model_field``), ``Batch.forward(ids, stage=mjSTAGE_VEL)`` recomputes
+  those stages first, so no step and no term uses stale M/bias. The stepped state is bit-identical
+  to the default path's given the same torques; the position-stage sensors (contact flags), which
+  ``stage=mjSTAGE_VEL`` moves to the new state, are published one substep behind as ``mj_step``
+  leaves them, so the published state matches the default path too.
 """
 
 from __future__ import annotations
@@ -21,6 +36,7 @@ from mujoco.batch import Batch, SimulationError
 
 from dls_quadruped.control.dynamics import LegDynamics
 from dls_quadruped.control.lowlevel import LegTerms, LowLevelConfig, LowLevelController
+from dls_quadruped.control.torch_dynamics import TorchLegDynamics
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.regions import RegionConfig, RobotRegions
 
@@ -102,33 +118,53 @@ class Shard:
         nthread: threads of this shard's ``Batch`` (1 in a worker process).
         regions: run each robot on the region model of the terrain cell it is in (``sim/regions.py``);
             None runs every robot on ``model``.
+        leg_dynamics: ``pinocchio`` or ``mujoco`` (``SimConfig.leg_dynamics``, the module doc).
     """
 
     def __init__(self, model: mujoco.MjModel, buffers: SharedBuffers, ctrl_cfg: LowLevelConfig, nthread: int,
-                 regions: RegionConfig | None = None):
+                 regions: RegionConfig | None = None, leg_dynamics: str = "pinocchio"):
+        if leg_dynamics not in ("pinocchio", "mujoco"):
+            raise ValueError(f"unknown leg_dynamics {leg_dynamics!r}; allowed: pinocchio, mujoco")
         self.model = model
         self.buf = buffers
         n = buffers.state["time"].shape[0]
         self.n = n
+        self.mujoco_terms = leg_dynamics == "mujoco"
         self.regions = RobotRegions(regions.build(model), model, n) if regions is not None else None
-        self.batch = Batch(model if self.regions is None else self.regions.models[0], n, nthread=nthread)
+        self.batch = Batch(model if self.regions is None else self.regions.models[0], n, nthread=nthread,
+                           persistent=self.mujoco_terms)
+        self._step_stage = mujoco.mjtStage.mjSTAGE_VEL if self.mujoco_terms else mujoco.mjtStage.mjSTAGE_NONE
         self.qpos = self.batch.bind("qpos")
         self.qvel = self.batch.bind("qvel")
         self.ctrl = self.batch.bind("ctrl")
         self.time = self.batch.bind("time")
         self.xfrc = self.batch.bind("xfrc_applied")
         self.sensordata = self.batch.bind("sensordata")
-        self.dynamics = LegDynamics(model_path=C.MJCF_PATH)
+        if self.mujoco_terms:
+            self.dynamics: LegDynamics | TorchLegDynamics = TorchLegDynamics(model)
+            self._M = self.batch.bind("M")  # MuJoCo 4's sparse inertia (data.M)
+            self._bias = self.batch.bind("qfrc_bias")
+            self._qM_adr = self.dynamics.qM_adr  # (4, 3, 3) leg-block addresses in M
+            self._leg_dof = self.dynamics.params.dof_adr  # (4, 3)
+            # position/velocity-stage sensors (contact flags): published one substep behind, as mj_step leaves them
+            stage = model.sensor_needstage
+            cols = [np.arange(model.sensor_adr[i], model.sensor_adr[i] + model.sensor_dim[i])
+                    for i in range(model.nsensor) if stage[i] < int(mujoco.mjtStage.mjSTAGE_ACC)]
+            self._lagged_cols = np.concatenate(cols) if cols else np.zeros(0, dtype=np.int64)
+        else:
+            self.dynamics = LegDynamics(model_path=C.MJCF_PATH)
         self.controller = LowLevelController(n, ctrl_cfg, dt=model.opt.timestep)
         self.base_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)
         self.joint_qpos_adr = self._joint_adr(model)
         self._sensor_slices = self._sensor_layout(model)
         self.diverged = np.zeros(n, dtype=bool)
         self.tau = torch.zeros(n, 12, dtype=torch.float64)
-        self._update_regions()
+        self._update_regions(forward=False)  # the reset's mj_forward follows
         self.batch.reset(keyframe=np.zeros(n, dtype=np.int32))
-        if self._update_regions():  # the keyframe's base is in another cell than qpos0's
+        if self._update_regions(forward=False):  # the keyframe's base is in another cell than qpos0's
             self.batch.forward()
+        # mujoco path: the sensor values publish() shows (the batch's, lagged columns one substep behind)
+        self._sensors = np.array(self.sensordata) if self.mujoco_terms else None
         self._terms = self._dynamics_terms()
         self.controller.reset(torch.arange(n), self._terms.foot_pos_w)
         self.publish()
@@ -155,17 +191,42 @@ class Shard:
         return out
 
     # ------------------------------------------------------------------ stepping
-    def _update_regions(self) -> bool:
+    def _update_regions(self, forward: bool = True) -> bool:
         """With terrain regions: every robot on the region model of its base's cell (``sim/regions.py``);
-        True if a model changed. Called before every physics step and after every state write."""
-        if self.regions is None or not self.regions.update(self.qpos[:, 0], self.qpos[:, 1]):
+        True if a model changed. Called before every physics step and after every state write. On the
+        mujoco path the robots that changed model get their position/velocity stages recomputed on it
+        (the persistent batch would otherwise continue from contacts found on the old model)."""
+        if self.regions is None:
+            return False
+        before = self.regions.cell.copy() if self.mujoco_terms else None
+        if not self.regions.update(self.qpos[:, 0], self.qpos[:, 1]):
             return False
         self.batch.set_models(self.regions.models)
+        if self.mujoco_terms and forward:
+            self._forward_vel(np.flatnonzero(self.regions.cell != before))
         return True
 
+    def _forward_vel(self, ids: np.ndarray | None = None) -> None:
+        """mujoco path: recompute the position and velocity stages (M, qfrc_bias, contacts) of robots ``ids``
+        (None: all) at their current state and model, after a write that a step did not make. Robots MuJoCo
+        refuses are marked diverged."""
+        if ids is not None and len(ids) == 0:
+            return
+        try:
+            self.batch.forward(ids=ids, stage=mujoco.mjtStage.mjSTAGE_VEL)
+        except SimulationError as err:
+            self.diverged[err.ids if ids is None else ids[err.ids]] = True
+
     def _dynamics_terms(self) -> LegTerms:
-        d = self.dynamics.compute(self.qpos, self.qvel)
         f = torch.from_numpy
+        if self.mujoco_terms:
+            # M and qfrc_bias are those of the current state (step(stage=mjSTAGE_VEL) or _forward_vel);
+            # fancy indexing copies the read-only outputs' leg entries into writable arrays for torch
+            kin = self.dynamics.kinematics(f(self.qpos), f(self.qvel))
+            return LegTerms(M_leg=f(self._M[:, self._qM_adr]), h_leg=f(self._bias[:, self._leg_dof]),
+                            J_leg=kin.J_leg, Jdot_qdot=kin.Jdot_qdot, foot_pos_w=kin.foot_pos_w,
+                            foot_vel_w=kin.foot_vel_w)
+        d = self.dynamics.compute(self.qpos, self.qvel)
         return LegTerms(f(d.M_leg), f(d.h_leg), f(d.J_leg), f(d.Jdot_qdot), f(d.foot_pos_w), f(d.foot_vel_w))
 
     def step(self, num_steps: int) -> None:
@@ -183,10 +244,18 @@ class Shard:
             if len(alive) == 0:
                 break
             self._update_regions()
+            if self.mujoco_terms:
+                lagged = self.sensordata[:, self._lagged_cols]  # at the state before this step (a copy)
             try:
-                self.batch.step(ids=alive if len(alive) < self.n else None)
+                self.batch.step(ids=alive if len(alive) < self.n else None, stage=self._step_stage)
             except SimulationError as err:
-                self.diverged[err.ids if len(alive) == self.n else alive[err.ids]] = True
+                failed = err.ids if len(alive) == self.n else alive[err.ids]
+                self.diverged[failed] = True
+                if self.mujoco_terms:  # their derived fields are not of their (kept) state
+                    self._forward_vel(np.sort(failed))
+            if self.mujoco_terms:
+                self._sensors[:] = self.sensordata
+                self._sensors[:, self._lagged_cols] = lagged
             self._check_divergence()
             self._terms = self._dynamics_terms()
         self.publish()
@@ -196,9 +265,11 @@ class Shard:
         bad |= np.abs(self.qvel).max(axis=1) > MAX_ABS_QVEL
         if bad.any():
             self.diverged |= bad
-            # keep the arrays finite so Pinocchio and the controller stay well defined
+            # keep the arrays finite so the leg terms and the controller stay well defined
             self.qpos[bad] = self.model.key_qpos[0]
             self.qvel[bad] = 0.0
+            if self.mujoco_terms:
+                self._forward_vel(np.flatnonzero(bad))
 
     # ------------------------------------------------------------------ commands
     def reset(self, ids: np.ndarray) -> None:
@@ -211,8 +282,10 @@ class Shard:
         self.qvel[ids] = cmd["reset_qvel"][ids].numpy()
         self.time[ids] = 0.0
         self._update_regions()
-        self.batch.forward(ids=ids)
+        self.batch.forward(ids=ids)  # mj_forward: M and qfrc_bias of the new state for the mujoco path too
         self.diverged[ids] = False
+        if self.mujoco_terms:
+            self._sensors[ids] = self.sensordata[ids]
         self._terms = self._dynamics_terms()
         tids = torch.from_numpy(ids)
         self.controller.reset(tids, self._terms.foot_pos_w[tids], cmd["reset_phase"][tids])
@@ -222,11 +295,15 @@ class Shard:
     def set_lin_vel(self, ids: np.ndarray) -> None:
         """Override the base linear velocity (world frame) of robots ``ids`` (pushes)."""
         self.qvel[ids, 0:3] = self.buf.command["set_lin_vel_w"][ids].numpy()
+        if self.mujoco_terms:
+            self._forward_vel(np.sort(np.asarray(ids)))
         self._terms = self._dynamics_terms()
         self.publish()
 
     def set_model_field(self, key: str | tuple[str, np.ndarray | None], ids: np.ndarray, values: np.ndarray) -> None:
-        """Per-robot model values (randomisation) through ``Batch.expand``; the controller keeps the nominal model.
+        """Per-robot model values (randomisation) through ``Batch.expand``. With ``leg_dynamics="pinocchio"`` the
+        controller keeps the nominal model; with ``"mujoco"`` its M and bias follow the robot's model (the
+        stages of ``ids`` are recomputed here, and their terms with them).
 
         ``key`` is the field name, or ``(name, index)`` to write only the rows ``index`` of the
         field's first dimension (e.g. four foot geoms of ``geom_friction``): ``values`` is then
@@ -236,12 +313,15 @@ class Shard:
         if self.regions is not None:  # Batch.expand is refused beside caller models: per-robot model copies
             self.regions.set_field(name, ids, index, values)
             self.batch.set_models(self.regions.models)
-            return
-        field = self.batch.expand(name)
-        if index is None:
-            field[ids] = values
         else:
-            field[np.ix_(ids, index)] = values
+            field = self.batch.expand(name)
+            if index is None:
+                field[ids] = values
+            else:
+                field[np.ix_(ids, index)] = values
+        if self.mujoco_terms:
+            self._forward_vel(np.unique(np.asarray(ids)))
+            self._terms = self._dynamics_terms()
 
     def robot_model_field(self, name: str) -> np.ndarray | None:
         """(n, ...) per-robot values of a model field in ``model``'s layout (None: never set per robot
@@ -275,7 +355,9 @@ class Shard:
         self.diverged[:] = snap["diverged"]
         self.tau = snap["tau"].clone()
         self._update_regions()
-        self._terms = self._dynamics_terms()  # a pure function of (qpos, qvel), as after a step
+        if self.mujoco_terms:  # M, qfrc_bias and contacts of the restored state and models, as a step leaves them
+            self._forward_vel()
+        self._terms = self._dynamics_terms()  # a pure function of (qpos, qvel) (and the models: mujoco), as after a step
 
     # ------------------------------------------------------------------ output
     def publish(self) -> None:
@@ -291,7 +373,7 @@ class Shard:
         s["joint_torque"][:] = self.tau
         s["foot_pos_w"][:] = self._terms.foot_pos_w
         s["foot_vel_w"][:] = self._terms.foot_vel_w
-        sd = self.sensordata
+        sd = self.sensordata if self._sensors is None else self._sensors
         for i, leg in enumerate(C.LEG_NAMES):
             # the netforce sensor reports the foot's force on the ground: negate for the reaction
             sl = self._sensor_slices[f"{leg}_foot_contact"]

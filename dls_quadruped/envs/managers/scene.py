@@ -3,7 +3,7 @@
 Task file::
 
     terrain: {types: [flat, rugged, ...], num_rows: 10, ...}   # TerrainConfig fields
-    scene: {backend: cpu, num_workers: -1, max_init_level: 0}
+    scene: {backend: cpu, num_workers: -1, max_init_level: 0, leg_dynamics: pinocchio}
 
 Each env owns a terrain tile: row = level (difficulty), column = type (envs spread evenly over
 the columns by their episode key, ``envs/schedule.py``). Robots reset onto their tile origin; the
@@ -21,6 +21,7 @@ from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.height_scan import HeightScanConfig, scan_pattern
 from dls_quadruped.sim.interface import (
+    LEG_DYNAMICS,
     SimBackend,
     SimConfig,
     backend_names,
@@ -37,12 +38,15 @@ class SceneConfig:
     num_workers: simulator worker processes (-1 one per core, 0 in-process);
     max_init_level: envs start on rows U{0..max_init_level};
     terrain_regions: on a tiled terrain, each robot collides only with the geoms near it
-    (``sim/regions.py``: same contacts, 2-3x cheaper physics); false runs every robot on the whole terrain."""
+    (``sim/regions.py``: same contacts, 2-3x cheaper physics); false runs every robot on the whole terrain;
+    leg_dynamics: ``cpu`` backend, where the low-level controller's leg terms come from (``SimConfig.leg_dynamics``):
+    ``pinocchio`` (default) or ``mujoco`` (MuJoCo's M and bias forces of each robot's own model)."""
 
     backend: str = "cpu"
     num_workers: int = field(default=-1, metadata={"min": -1})
     max_init_level: int = field(default=0, metadata={"min": 0})
     terrain_regions: bool = True
+    leg_dynamics: str = "pinocchio"
 
 
 class SceneManager:
@@ -55,10 +59,14 @@ class SceneManager:
         except ValueError:
             raise task.error("scene.backend", f"unknown simulator backend {self.cfg.backend!r}; "
                                               f"allowed: {list(backend_names())}") from None
+        if self.cfg.leg_dynamics not in LEG_DYNAMICS:
+            raise task.error("scene.leg_dynamics", f"unknown leg_dynamics {self.cfg.leg_dynamics!r}; "
+                                                   f"allowed: {list(LEG_DYNAMICS)}")
         self.model, self.terrain = build_scene(self.terrain_cfg)
         regions = RegionConfig(self.terrain_cfg) if self.cfg.terrain_regions and not self.terrain.is_plane else None
         self.sim: SimBackend = make_backend(self.cfg.backend, self.model, env.num_envs,
-                                            SimConfig(num_workers=self.cfg.num_workers, regions=regions))
+                                            SimConfig(num_workers=self.cfg.num_workers, regions=regions,
+                                                      leg_dynamics=self.cfg.leg_dynamics))
         self.scan_cfg = HeightScanConfig()
         dev = env.device
         self.scan_pattern = scan_pattern(self.scan_cfg, dev)
