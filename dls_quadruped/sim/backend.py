@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from dls_quadruped.core.state import RobotState
-from dls_quadruped.sim.interface import SimConfig
+from dls_quadruped.sim.interface import SimConfig, robot_weight, standing_references
 from dls_quadruped.sim.shard import STATE_SPECS, Shard, SharedBuffers
 
 _BOOL_FIELDS = ("base_contact", "diverged")
@@ -268,22 +268,12 @@ class VecSim:
         self.buf.command["reset_qpos"][:] = torch.from_numpy(self.model.key_qpos[0])
 
     def _standing_references(self, rows: slice | torch.Tensor) -> None:
-        """References of ``rows``: standing on all four legs (f = 0, d = 1), the weight shared, no foothold.
-
-        Also what a reset robot holds until its first ``set_references``: the state published at the
-        reset reads the duty (``contact_cmd = phase < d``), so a robot must not start its episode with
-        the last duty of its previous one.
-        """
-        c = self.buf.command
-        c["freq"][rows] = 0.0
-        c["duty"][rows] = 1.0
-        c["p_td_w"][rows] = 0.0
-        c["F_w"][rows] = 0.0
-        c["F_w"][rows, :, 2] = self.total_weight() / 4.0
+        """References of ``rows``: standing (:func:`~dls_quadruped.sim.interface.standing_references`)."""
+        standing_references(self.buf.command, rows, self.total_weight())
 
     def total_weight(self) -> float:
         """m g of the robot in this model [N]."""
-        return float(self.model.body_subtreemass[1] * -self.model.opt.gravity[2])
+        return robot_weight(self.model)
 
     def _make_state(self) -> RobotState:
         s = self.buf.state

@@ -100,6 +100,24 @@ IdsLike = torch.Tensor | np.ndarray | list[int]
 ArrayLike = torch.Tensor | np.ndarray
 
 
+def robot_weight(model: mujoco.MjModel) -> float:
+    """m g of the robot (the subtree of body 1, the trunk) in ``model`` [N]."""
+    return float(model.body_subtreemass[1] * -model.opt.gravity[2])
+
+
+def standing_references(command: dict[str, torch.Tensor], rows: slice | torch.Tensor, weight: float) -> None:
+    """Write the standing references into ``command``'s ``rows``: all four legs in stance (f = 0, d = 1),
+    the weight shared equally, no foothold. Every backend gives these to a robot at construction and at
+    its reset, until its first ``set_references`` (the state published at a reset reads the duty,
+    ``contact_cmd = phase < d``, so a robot must not start an episode with its previous episode's duty)."""
+    command["freq"][rows] = 0.0
+    command["duty"][rows] = 1.0
+    command["p_td_w"][rows] = 0.0
+    command["F_w"][rows] = 0.0
+    command["F_w"][rows, :, 2] = weight / 4.0
+
+
+
 @runtime_checkable
 class SimBackend(Protocol):
     """N AlienGo robots simulated and controlled by the low-level controller as one batch (see the module

@@ -84,6 +84,16 @@ MJ_STATE_FIELDS = ("time", "qpos", "qvel", "act", "history", "qacc_warmstart", "
 it would differ in the last bits)."""
 
 
+def contact_sensor_layout(model: mujoco.MjModel) -> dict[str, slice]:
+    """Where each contact sensor of the AlienGo scene (four feet, trunk, four thighs) lies in ``sensordata``."""
+    out = {}
+    for name in (*(f"{leg}_foot_contact" for leg in C.LEG_NAMES), "trunk_contact",
+                 *(f"{leg}_thigh_contact" for leg in C.LEG_NAMES)):
+        s = model.sensor(name)
+        out[name] = slice(int(s.adr[0]), int(s.adr[0] + s.dim[0]))
+    return out
+
+
 @dataclass
 class SharedBuffers:
     """Named float tensors for all robots; shards use row slices of them."""
@@ -156,7 +166,7 @@ class Shard:
         self.controller = LowLevelController(n, ctrl_cfg, dt=model.opt.timestep)
         self.base_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)
         self.joint_qpos_adr = self._joint_adr(model)
-        self._sensor_slices = self._sensor_layout(model)
+        self._sensor_slices = contact_sensor_layout(model)
         self.diverged = np.zeros(n, dtype=bool)
         self.tau = torch.zeros(n, 12, dtype=torch.float64)
         self._update_regions(forward=False)  # the reset's mj_forward follows
@@ -180,15 +190,6 @@ class Shard:
                 f"{C.JOINT_NAMES} order (qpos addresses 7..18); got nq={model.nq}, addresses {adr.tolist()}"
             )
         return adr
-
-    @staticmethod
-    def _sensor_layout(model: mujoco.MjModel) -> dict[str, slice]:
-        out = {}
-        for name in (*(f"{leg}_foot_contact" for leg in C.LEG_NAMES), "trunk_contact",
-                     *(f"{leg}_thigh_contact" for leg in C.LEG_NAMES)):
-            s = model.sensor(name)
-            out[name] = slice(int(s.adr[0]), int(s.adr[0] + s.dim[0]))
-        return out
 
     # ------------------------------------------------------------------ stepping
     def _update_regions(self, forward: bool = True) -> bool:

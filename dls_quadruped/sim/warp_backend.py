@@ -55,8 +55,8 @@ from dls_quadruped.control.lowlevel import LegTerms, LowLevelController
 from dls_quadruped.control.torch_dynamics import TorchLegDynamics
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.interface import SimConfig
-from dls_quadruped.sim.shard import MAX_ABS_QVEL, STATE_SPECS
+from dls_quadruped.sim.interface import SimConfig, robot_weight, standing_references
+from dls_quadruped.sim.shard import MAX_ABS_QVEL, STATE_SPECS, contact_sensor_layout
 
 _BOOL_FIELDS = ("base_contact", "diverged")
 
@@ -126,7 +126,7 @@ class WarpSim:
         rows, cols = self._csr_pairs(model)
         self.dynamics = TorchLegDynamics(model, qM_pairs=(rows, cols))
         self.controller = LowLevelController(n, cfg.control, dt=self.physics_dt, device=self.device)
-        self._sensor_slices = self._sensor_layout(model)
+        self._sensor_slices = contact_sensor_layout(model)
         self._contact_sensors = torch.zeros_like(self._sensordata)
         dev, f64 = self.device, torch.float64
         self._key_qpos = torch.as_tensor(model.key_qpos[0], dtype=self._qpos.dtype, device=dev)
@@ -166,15 +166,6 @@ class WarpSim:
         rows = np.repeat(np.arange(model.nv), model.M_rownnz)
         return rows, np.asarray(model.M_colind)
 
-    @staticmethod
-    def _sensor_layout(model: mujoco.MjModel) -> dict[str, slice]:
-        out = {}
-        for name in (*(f"{leg}_foot_contact" for leg in C.LEG_NAMES), "trunk_contact",
-                     *(f"{leg}_thigh_contact" for leg in C.LEG_NAMES)):
-            s = model.sensor(name)
-            out[name] = slice(int(s.adr[0]), int(s.adr[0] + s.dim[0]))
-        return out
-
     def _dynamics_terms(self) -> LegTerms:
         """The controller's leg terms at the current state (``step1`` or ``forward`` ran on it), in float64."""
         f64 = torch.float64
@@ -202,17 +193,12 @@ class WarpSim:
             raise RuntimeError("the Warp simulator is closed")
 
     def _standing_references(self, rows: slice | torch.Tensor) -> None:
-        """Standing on all four legs (f = 0, d = 1), the weight shared (``VecSim._standing_references``)."""
-        c = self.command
-        c["freq"][rows] = 0.0
-        c["duty"][rows] = 1.0
-        c["p_td_w"][rows] = 0.0
-        c["F_w"][rows] = 0.0
-        c["F_w"][rows, :, 2] = self.total_weight() / 4.0
+        """References of ``rows``: standing (:func:`~dls_quadruped.sim.interface.standing_references`)."""
+        standing_references(self.command, rows, self.total_weight())
 
     def total_weight(self) -> float:
         """m g of the robot in this model [N]."""
-        return float(self.model.body_subtreemass[1] * -self.model.opt.gravity[2])
+        return robot_weight(self.model)
 
     # ------------------------------------------------------------------ public API
     def set_references(self, freq: Any, duty: Any, p_td_w: Any, F_w: Any) -> None:
