@@ -22,10 +22,9 @@ from pathlib import Path
 import torch
 
 from dls_quadruped.bench.machine import cpu_model
-from dls_quadruped.bench.terrain_ab import make_env
+from dls_quadruped.bench.terrain_ab import interleaved_rates, make_env
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
-from dls_quadruped.core.progress import progress
 
 MODES = ("pinocchio", "mujoco")
 
@@ -55,24 +54,12 @@ def measure(tasks: list[str], n: int, workers: int, rounds: int, steps: int) -> 
             _timed(shard, "_dynamics_terms", split[k], "leg_terms")
             _timed(shard.batch, "step", split[k], "batch_step")
             _timed(shard.controller, "compute", split[k], "controller")
-    gen = torch.Generator().manual_seed(0)
-    rates: dict = {k: [] for k in envs}
-    try:
-        for env in envs.values():
-            env.reset()
-            for _ in range(steps):  # warm-up
-                env.step(torch.randn(n, 28, generator=gen))
-        for s in split.values():
-            s.clear()
-        for _ in progress(range(rounds), desc=f"N={n} workers={workers}", unit="round", leave=False):
-            for k, env in envs.items():
-                t0 = time.perf_counter()
-                for _ in range(steps):
-                    env.step(torch.randn(n, 28, generator=gen))
-                rates[k].append(n * steps / (time.perf_counter() - t0))
-    finally:
-        for env in envs.values():
-            env.close()
+
+    def clear_split() -> None:  # the warm-up's calls are not timed
+        for acc in split.values():
+            acc.clear()
+
+    rates = interleaved_rates(envs, n, rounds, steps, desc=f"N={n} workers={workers}", before_rounds=clear_split)
     out = {}
     for t in tasks:
         row = {}

@@ -65,21 +65,21 @@ def make_env(task: str, n: int, terrain_module=None, overrides: dict | None = No
         scene_module.build_scene = current
 
 
-def measure(n: int, rounds: int, steps: int, baseline) -> dict[str, dict[str, float]]:
-    """Median RL steps/s per env over interleaved rounds."""
-    envs = {"base": make_env("base", n),
-            "rough_whole_terrain": make_env("rough", n, overrides={"scene": {"terrain_regions": False}}),
-            "rough": make_env("rough", n)}
-    if baseline is not None:
-        envs["rough_baseline_terrain"] = make_env("rough", n, baseline, {"scene": {"terrain_regions": False}})
+def interleaved_rates(envs: dict, n: int, rounds: int, steps: int, desc: str,
+                      before_rounds=None) -> dict[object, list[float]]:
+    """RL steps/s of every env of ``envs`` (each with ``n`` robots, random actions) in ``rounds`` rounds of
+    ``steps`` steps, the envs taking turns within a round so that a change of machine load hits all of
+    them alike; one warm-up round first, then ``before_rounds()`` if given. Closes the envs."""
     gen = torch.Generator().manual_seed(0)
-    rates: dict[str, list[float]] = {k: [] for k in envs}
+    rates: dict[object, list[float]] = {k: [] for k in envs}
     try:
         for env in envs.values():
             env.reset()
             for _ in range(steps):  # warm-up
                 env.step(torch.randn(n, 28, generator=gen))
-        for _ in progress(range(rounds), desc=f"N={n} rounds", unit="round", leave=False):
+        if before_rounds is not None:
+            before_rounds()
+        for _ in progress(range(rounds), desc=desc, unit="round", leave=False):
             for name, env in envs.items():
                 t0 = time.perf_counter()
                 for _ in range(steps):
@@ -88,6 +88,17 @@ def measure(n: int, rounds: int, steps: int, baseline) -> dict[str, dict[str, fl
     finally:
         for env in envs.values():
             env.close()
+    return rates
+
+
+def measure(n: int, rounds: int, steps: int, baseline) -> dict[str, dict[str, float]]:
+    """Median RL steps/s per env over interleaved rounds."""
+    envs = {"base": make_env("base", n),
+            "rough_whole_terrain": make_env("rough", n, overrides={"scene": {"terrain_regions": False}}),
+            "rough": make_env("rough", n)}
+    if baseline is not None:
+        envs["rough_baseline_terrain"] = make_env("rough", n, baseline, {"scene": {"terrain_regions": False}})
+    rates = interleaved_rates(envs, n, rounds, steps, desc=f"N={n} rounds")
     base = statistics.median(rates["base"])
     return {k: {"median": statistics.median(v), "min": min(v), "max": max(v), "ratio_to_base": statistics.median(v) / base}
             for k, v in rates.items()}

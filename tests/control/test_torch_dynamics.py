@@ -30,21 +30,10 @@ from dls_quadruped.control.torch_dynamics import (
     qM_addresses_from_pairs,
 )
 from dls_quadruped.robots.aliengo import constants as C
+from tests.control.test_dynamics import random_states
 
 NAMES = ("M_leg", "h_leg", "J_leg", "Jdot_qdot", "foot_pos_w", "foot_vel_w")
 B = 16
-
-
-def random_states(num: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Random MuJoCo states (as tests/control/test_dynamics.py): any base pose, joints within limits."""
-    rng = np.random.default_rng(seed)
-    qpos = np.zeros((num, 19))
-    qpos[:, 0:3] = rng.uniform(-2.0, 2.0, (num, 3))
-    quat = rng.standard_normal((num, 4))
-    qpos[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
-    qpos[:, 7:] = rng.uniform(C.JOINT_RANGES[:, 0], C.JOINT_RANGES[:, 1], (num, 12))
-    qvel = rng.uniform(-3.0, 3.0, (num, 18))
-    return qpos, qvel
 
 
 def mass_and_bias(m: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray) -> dict[str, np.ndarray]:
