@@ -117,7 +117,6 @@ def standing_references(command: dict[str, torch.Tensor], rows: slice | torch.Te
     command["F_w"][rows, :, 2] = weight / 4.0
 
 
-
 @runtime_checkable
 class SimBackend(Protocol):
     """N AlienGo robots simulated and controlled by the low-level controller as one batch (see the module
