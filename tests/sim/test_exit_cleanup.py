@@ -20,7 +20,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 
 SCRIPT = textwrap.dedent("""\
-    import os, sys, time
+    import os, signal, sys, time
     import torch.multiprocessing
 
     def build(kind):
@@ -37,6 +37,9 @@ SCRIPT = textwrap.dedent("""\
         return sim, sim._procs, lambda: sim.step(1)
 
     if __name__ == "__main__":
+        # Ctrl-C as under a terminal: a test run started in the background (`make test &`, nohup) passes
+        # SIGINT on ignored, and Python then installs no KeyboardInterrupt handler
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         kind, how, close, strategy = sys.argv[1:5]
         torch.multiprocessing.set_sharing_strategy(strategy)
         obj, procs, step = build(kind)
