@@ -33,6 +33,7 @@ from pathlib import Path
 
 from dls_quadruped.cli import ArgumentParser
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.eval.compare import paired_vs
 from dls_quadruped.eval.scenario import EvalOptions
 from dls_quadruped.eval.scenarios import SCENARIOS
 from experiments.distill_common import _git_commit, _uncommitted, write_table
@@ -129,42 +130,7 @@ def without_episodes(res: dict) -> dict:
 PROTOCOL = "episode-schedule-1"
 """Evaluation protocol of a cached result: results from before the episode schedule (envs/schedule.py),
 whose pushes and noise after a fall depended on the other robots, are evaluated again."""
-PAIRED_METRICS = {"survived": "survival [share]", "reward": "mean reward per step", "length_s": "episode length [s]",
-                  "cot": "cost of transport"}
-"""Per-episode values compared between experts, when a scenario records them."""
 
-
-def paired_vs(results: dict, reference: str = "base") -> list[dict]:
-    """Every expert minus ``reference`` on the same scheduled episodes (same seed, same commands and
-    episode schedule, ``envs/schedule.py``): for each per-episode metric the scenario recorded, the mean
-    of the per-episode differences with its 95 % bootstrap interval over episodes. Results whose
-    episodes differ (another command list) are not paired and left out."""
-    import numpy as np
-
-    from dls_quadruped.eval.metrics import paired_difference
-
-    ref = (results.get(reference) or {}).get("per_episode")
-    if not ref:
-        return []
-
-    def values(pe: dict, key: str):
-        if key == "survived":
-            return None if "fell" not in pe else 1.0 - np.array(pe["fell"], dtype=float)
-        return None if key not in pe else np.array([np.nan if v is None else v for v in pe[key]], dtype=float)
-
-    rows = []
-    for task, res in results.items():
-        pe = res.get("per_episode")
-        if task == reference or not pe or pe.get("command") != ref.get("command"):
-            continue
-        for key, label in PAIRED_METRICS.items():
-            a, b = values(pe, key), values(ref, key)
-            if a is None or b is None or a.shape != b.shape or a.ndim != 1:
-                continue
-            d = paired_difference(a, b)
-            rows.append({"policy": f"{task} - {reference}", "metric": label, "mean difference": round(d["mean"], 4),
-                         "95 % CI": f"[{d['ci95'][0]:.4f}, {d['ci95'][1]:.4f}]", "episodes": d["episodes"]})
-    return rows
 
 
 def finish(name: str, scenario: str, args: argparse.Namespace, results: dict, info: dict, rows: list[dict],

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from experiments.rl_common import paired_vs
+from dls_quadruped.eval.compare import paired_vs
 
 
 def test_paired_vs_base_by_hand():
