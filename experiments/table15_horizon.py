@@ -24,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import argparse
 
+from dls_quadruped.cli import UserError, run_cli
 from experiments.warm_start_common import (
     COMMITTED_STUDENT,
     Cell,
@@ -96,6 +97,10 @@ def train_students(args: argparse.Namespace) -> dict[tuple[float, int], list[Pat
     path = {(dt, h): [root / "exported" / f"first-spline_H{h}_dt{dt:g}_seed{k}.pt" for k in range(seeds)]
             for dt, h in grid}
     todo = [(dt, h) for dt, h in grid if not all(x.is_file() for x in path[(dt, h)])]
+    if todo and getattr(args, "shard", None) is not None:  # N shards would each distil the same students
+        raise UserError(f"the students of (dt, H) {', '.join(f'({dt:g}, {h})' for dt, h in todo)} are not under "
+                        f"{root / 'exported'} yet: distil them first with --students-only (one process), then "
+                        "start the --shard processes")
     if todo:
         runs = [dc.Run(f"first-spline_dt{dt:g}_H{h}", {"algorithm": "dagger",
                                                         "encoding": {"p": "first", "F": "spline", "horizon": h, "dt": dt}})
@@ -159,11 +164,16 @@ def _flags(p: argparse.ArgumentParser) -> None:
                    help="distillation scale of the RL rows' students (experiments/distill_common.py SCALES)")
     p.add_argument("--single-student", action="store_true",
                    help="one student per (dt, H) from --students (make_students.sh table15), not 3 training seeds")
+    p.add_argument("--students-only", action="store_true",
+                   help="distil the training seeds' students and stop (before running --shard processes)")
 
 
 def main() -> None:
     args = parse_args(__doc__, "table15_horizon", _flags)
     students = None if args.single_student else train_students(args)
+    if args.students_only:
+        print(f"[table15_horizon] students ready under {args.students / 'table15_seeds' / 'exported'}", flush=True)
+        return
     todo, rows = cells(students)
     results = run_cells(todo, args)
     if students is not None:
@@ -182,4 +192,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)

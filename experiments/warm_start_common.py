@@ -106,6 +106,10 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     p.add_argument("--sampler-seeds", type=int, default=3,
                    help="sampler noise streams per episode for the MPC cells (robots in parallel)")
     p.add_argument("--only", nargs="*", default=None, help="run only these cells")
+    p.add_argument("--shard", type=shard_arg, default=None, metavar="K/N",
+                   help="run only cells K, K + N, K + 2N, ... of the script's list into the cache and stop (no "
+                        "table): start N processes side by side (K = 0 .. N-1, the same --out), then run once "
+                        "without --shard to write the table from the cache")
     if extra is not None:
         extra(p)
     args = p.parse_args()
@@ -113,6 +117,17 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     args.episodes = args.episodes or SCALES[args.scale]["episodes"]
     args.seconds = args.seconds or SCALES[args.scale]["seconds"]
     return args
+
+
+def shard_arg(text: str) -> tuple[int, int]:
+    """``"K/N"`` -> (K, N) with 0 <= K < N (argparse type: a bad value is a one-line usage error)."""
+    try:
+        k, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected K/N such as 0/2, got {text!r}") from None
+    if not 0 <= k < n:
+        raise argparse.ArgumentTypeError(f"K/N needs 0 <= K < N, got {text!r}")
+    return k, n
 
 
 def student_path(students: Path, p: str, F: str, horizon: int, dt: float) -> Path | None:
@@ -125,14 +140,17 @@ def student_path(students: Path, p: str, F: str, horizon: int, dt: float) -> Pat
 
 
 def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
-    """Run (or load from the cache) every cell; {name: summary or {"skipped": why}}."""
+    """Run (or load from the cache) every cell; {name: summary or {"skipped": why}}. With ``args.shard`` = (K, N)
+    only cells K, K + N, ... (positions in ``cells``) and exit after them: the table is written by a run without."""
     torch.set_num_threads(args.threads)
     out: dict[str, dict] = {}
     (args.out / "cells").mkdir(parents=True, exist_ok=True)
-    todo = [c for c in cells if not args.only or c.name in args.only]
+    shard = getattr(args, "shard", None)
+    mine = {c.name for i, c in enumerate(cells) if shard is None or i % shard[1] == shard[0]}
+    todo = [c for c in cells if (not args.only or c.name in args.only) and c.name in mine]
     bar = progress(total=len(todo), desc=args.out.name, unit="cell")
     for k, cell in enumerate(cells):
-        if args.only and cell.name not in args.only:
+        if (args.only and cell.name not in args.only) or cell.name not in mine:
             continue
         bar.update(1)
         bar.set_postfix_str(cell.name, refresh=False)
@@ -191,6 +209,10 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
               f"initial cost {s['initial_cost']['median']:.1f}, survival {s['survival']['rate']:.2f}, "
               f"{summary['seconds_wall']:.0f} s", flush=True)
     bar.close()
+    if shard is not None:  # the table needs every shard's cells: the run without --shard writes it
+        print(f"[{args.out.name}] shard {shard[0]}/{shard[1]}: {len(todo)} cells in {args.out / 'cells'}; when every "
+              "shard is done, run once more without --shard to write the table", flush=True)
+        raise SystemExit(0)
     return out
 
 

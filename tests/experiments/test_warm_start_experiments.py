@@ -106,3 +106,31 @@ def test_table18_stairs_part_blind_vs_aware(tmp_path: Path) -> None:
     table = (out / "stairs.md").read_text()
     assert table.count("naive, aware |") == 5 and "Δ success aware - blind" in table
     assert (out / "stairs.png").is_file() and not (out / "table.md").exists()
+
+
+def test_shards_split_the_cells_and_the_run_without_shard_tabulates_them(tmp_path: Path) -> None:
+    out = tmp_path / "t16"
+    first, second = "naive_warm_start_M10000", "naive_warm_start_M4000"  # positions 4 and 3 of table16's cells
+    stdout = _run("table16_samples.py", out, "--only", first, second, "--shard", "1/2")
+    assert sorted(p.name for p in (out / "cells").iterdir()) == [f"{second}.json"]  # position 3: 3 % 2 == 1
+    assert "run once more without --shard" in stdout and not (out / "table.md").exists()
+    stamp = (out / "cells" / f"{second}.json").stat().st_mtime_ns
+    _run("table16_samples.py", out, "--only", first, second)  # runs the other shard's cell, reuses this one
+    assert (out / "cells" / f"{first}.json").is_file() and (out / "table.md").is_file()
+    assert (out / "cells" / f"{second}.json").stat().st_mtime_ns == stamp
+
+
+@pytest.mark.parametrize("bad", ["2/2", "1", "a/b", "0/0"])
+def test_bad_shard_is_a_one_line_usage_error(tmp_path: Path, bad: str) -> None:
+    cmd = [sys.executable, str(REPO / "experiments" / "table16_samples.py"), "--out", str(tmp_path), "--shard", bad]
+    res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
+    assert res.returncode == 2 and "--shard" in res.stderr and "K/N" in res.stderr
+    assert not (tmp_path / "cells").exists()
+
+
+def test_table15_shards_refuse_to_distil_students_side_by_side(tmp_path: Path) -> None:
+    cmd = [sys.executable, str(REPO / "experiments" / "table15_horizon.py"), "--out", str(tmp_path / "t15"),
+           "--students", str(tmp_path / "none"), "--only", "rl_warm_start_dt0.04_H5_seed0", "--shard", "0/2"]
+    res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
+    assert res.returncode == 2 and "--students-only" in res.stderr and "(0.04, 5)" in res.stderr
+    assert not (tmp_path / "none").exists()  # nothing distilled
