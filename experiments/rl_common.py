@@ -127,9 +127,11 @@ def without_episodes(res: dict) -> dict:
     return {k: v for k, v in res.items() if k not in ("per_episode", "diagrams", "events")}
 
 
-PROTOCOL = "episode-schedule-1"
+PROTOCOL = "episode-schedule-1+spawn-1"
 """Evaluation protocol of a cached result: results from before the episode schedule (envs/schedule.py),
-whose pushes and noise after a fall depended on the other robots, are evaluated again."""
+whose pushes and noise after a fall depended on the other robots, and from before the reset placed every
+foot above the terrain (events.spawn_height; it changed the rough-terrain scenarios' starts), are evaluated
+again."""
 
 
 
