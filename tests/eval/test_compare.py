@@ -65,3 +65,15 @@ def test_cli_writes_the_differences(tmp_path, capsys):
     assert "mean reward per step" in capsys.readouterr().out
     with pytest.raises(FileNotFoundError, match="missing.json"):
         main([str(tmp_path / "missing.json"), str(pb)])
+
+
+def test_help_and_a_bad_flag():
+    import subprocess
+    import sys
+
+    ok = subprocess.run([sys.executable, "-m", "dls_quadruped.eval.compare", "--help"], capture_output=True, text=True,
+                        timeout=120, check=False)
+    assert ok.returncode == 0 and "paired" in ok.stdout
+    bad = subprocess.run([sys.executable, "-m", "dls_quadruped.eval.compare", "a.json", "b.json", "--bogus"],
+                         capture_output=True, text=True, timeout=120, check=False)
+    assert bad.returncode == 2 and "--bogus" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1

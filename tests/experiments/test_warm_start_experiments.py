@@ -134,3 +134,13 @@ def test_table15_shards_refuse_to_distil_students_side_by_side(tmp_path: Path) -
     res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
     assert res.returncode == 2 and "--students-only" in res.stderr and "(0.04, 5)" in res.stderr
     assert not (tmp_path / "none").exists()  # nothing distilled
+
+
+def test_rugged_clearance_help_and_bad_difficulty() -> None:
+    script = str(REPO / "experiments" / "rugged_clearance.py")
+    ok = subprocess.run([sys.executable, script, "--help"], cwd=REPO, capture_output=True, text=True, timeout=120,
+                        check=False)
+    assert ok.returncode == 0 and "--difficulty" in ok.stdout
+    bad = subprocess.run([sys.executable, script, "--difficulty", "1.5"], cwd=REPO, capture_output=True, text=True,
+                         timeout=120, check=False)
+    assert bad.returncode == 2 and "each must be in [0, 1], got [1.5]" in bad.stderr
