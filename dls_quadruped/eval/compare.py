@@ -1,8 +1,9 @@
-"""Paired comparison of two policies evaluated on the same scheduled episodes.
+"""Paired comparison of two policies (or closed-loop controllers) evaluated on the same scheduled episodes.
 
     python -m dls_quadruped.eval --policy new.pt --scenario simple --episodes 256 --out results/eval/new
     python -m dls_quadruped.eval --policy old.pt --scenario simple --episodes 256 --out results/eval/old
     python -m dls_quadruped.eval.compare results/eval/new/simple.json results/eval/old/simple.json [--out d.json]
+    python -m dls_quadruped.eval.compare runA/summary.json:rl_warm_start runB/summary.json:rl_baseline
 
 With the same ``--seed`` and ``--episodes`` both evaluations draw every episode's command, pushes and
 noise from one schedule (``envs/schedule.py``), so episode e is the same episode for both policies. For
@@ -10,6 +11,14 @@ each per-episode metric both results record (survival, mean reward per step, epi
 transport) this prints the mean over episodes of (A - B) with its 95 % bootstrap interval over episodes
 (``eval.metrics.paired_difference``), and A's and B's own means. An interval that excludes 0 says the
 difference is more than the episodes' spread; it says nothing about another seed's training run.
+
+A closed-loop summary (``python -m dls_quadruped.closed_loop``'s ``summary.json``) is named ``FILE:CONTROLLER``
+(the controller may be left out when the file holds one): two runs with the same ``--scenario``, ``--seed``,
+``--episodes``, ``--seconds`` and command (``--vx``, stairs heights) played the same episodes, so a controller of
+one run is paired with a controller of another (e.g. a single and a multi-policy warm start, which need two
+runs). Its metrics are the closed loop's per-episode ones (survival, RL reward, initial and rollout costs,
+velocity error, cost of transport); an MPC controller's sampler seeds are averaged within each episode and
+resampled independently in the interval (``eval.metrics.paired_difference``).
 """
 
 from __future__ import annotations
@@ -27,6 +36,15 @@ from dls_quadruped.eval.metrics import paired_difference
 PAIRED_METRICS = {"survived": "survival [share]", "reward": "mean reward per step", "length_s": "episode length [s]",
                   "cot": "cost of transport"}
 """Per-episode values compared between two evaluations, when the scenario records them."""
+
+CLOSED_LOOP_METRICS = {"survived": "survival [share]", "rl_reward": "RL reward per step", "initial_cost": "initial cost",
+                       "rollout_cost": "rollout cost, state", "rollout_cost_full": "rollout cost, full J",
+                       "vel_error": "velocity error [m/s]", "cost_of_transport": "cost of transport",
+                       "reached_top": "stairs: reached the top", "climbed_fraction": "stairs: climbed fraction"}
+"""Per-episode values compared between two closed-loop controllers ((S, E) with S sampler seeds, or (1, E))."""
+
+CLOSED_LOOP_SAME = ("scenario", "seed", "episodes", "seconds", "command", "stairs_heights")
+"""Closed-loop settings that fix the scheduled episodes: two runs that agree on them played the same episodes."""
 
 
 def per_episode_values(result: dict, key: str) -> np.ndarray | None:
@@ -59,8 +77,41 @@ def paired_vs(results: dict[str, dict], reference: str = "base") -> list[dict]:
     return rows
 
 
+def closed_loop_result(summary: dict, controller: str | None, name: str) -> dict:
+    """One controller of a closed-loop summary as a comparable result: its settings, ``per_episode`` values and
+    ``kind`` "closed_loop". ``controller`` may be None when the summary holds one controller."""
+    controllers = summary.get("controllers") or {}
+    if controller is None:
+        if len(controllers) != 1:
+            raise UserError(f"{name} holds the controllers {', '.join(controllers)}: name one as {name}:CONTROLLER")
+        controller = next(iter(controllers))
+    if controller not in controllers:
+        raise UserError(f"{name} has no controller {controller!r}; it holds {', '.join(controllers) or 'none'}")
+    settings = summary.get("settings") or {}
+    student = settings.get("student") if controller == "rl_warm_start" else None
+    return {"kind": "closed_loop", **settings, "controller": controller,
+            "policy": f"{controller}" + (f" ({student})" if student else ""),
+            "per_episode": controllers[controller].get("per_episode")}
+
+
 def check_paired(a: dict, b: dict, names: tuple[str, str]) -> None:
     """Raise UserError naming the first thing that makes ``a`` and ``b`` not the same episodes."""
+    kinds = (a.get("kind", "eval"), b.get("kind", "eval"))
+    if kinds[0] != kinds[1]:
+        raise UserError(f"{names[0]} is a{' closed-loop' if kinds[0] == 'closed_loop' else 'n eval'} result and "
+                         f"{names[1]} a{' closed-loop' if kinds[1] == 'closed_loop' else 'n eval'} one: their episodes "
+                         "are not the same (compare two evaluations or two closed-loop controllers)")
+    if kinds[0] == "closed_loop":
+        for key in CLOSED_LOOP_SAME:
+            if a.get(key) != b.get(key):
+                raise UserError(f"{names[0]} and {names[1]} are not the same episodes: {key} {a.get(key)!r} vs "
+                                 f"{b.get(key)!r} (run both with the same --scenario, --seed, --episodes, --seconds "
+                                 "and command)")
+        for name, pe in zip(names, (a.get("per_episode"), b.get("per_episode"))):
+            if not pe:
+                raise UserError(f"{name} has no per-episode values (a summary.json of dls_quadruped.closed_loop is "
+                                 "expected)")
+        return
     for key in ("scenario", "seed", "episodes", "episode_length_s"):
         if a.get(key) != b.get(key):
             raise UserError(f"{names[0]} and {names[1]} are not the same episodes: {key} {a.get(key)!r} vs "
@@ -79,20 +130,46 @@ def check_paired(a: dict, b: dict, names: tuple[str, str]) -> None:
 def compare(a: dict, b: dict, names: tuple[str, str] = ("A", "B")) -> list[dict]:
     """Paired differences A - B per metric recorded by both, with A's and B's means over the paired episodes."""
     check_paired(a, b, names)
+    closed_loop = a.get("kind") == "closed_loop"
+    metrics = CLOSED_LOOP_METRICS if closed_loop else PAIRED_METRICS
     rows = []
-    for key, label in PAIRED_METRICS.items():
-        x, y = per_episode_values(a, key), per_episode_values(b, key)
-        if x is None or y is None or x.shape != y.shape or x.ndim != 1:
-            continue
+    for key, label in metrics.items():
+        if closed_loop:
+            x, y = (_closed_loop_values(r, key) for r in (a, b))
+            if x is None or y is None or x.shape[1] != y.shape[1]:
+                continue
+        else:
+            x, y = per_episode_values(a, key), per_episode_values(b, key)
+            if x is None or y is None or x.shape != y.shape or x.ndim != 1:
+                continue
         d = paired_difference(x, y)
-        both = np.isfinite(x) & np.isfinite(y)
-        rows.append({"metric": label, "A": float(x[both].mean()) if both.any() else float("nan"),
-                     "B": float(y[both].mean()) if both.any() else float("nan"),
+        xm, ym = (_episode_means(v) for v in (x, y))  # per episode (over sampler seeds), then over the paired ones
+        both = np.isfinite(xm) & np.isfinite(ym)
+        rows.append({"metric": label, "A": float(xm[both].mean()) if both.any() else float("nan"),
+                     "B": float(ym[both].mean()) if both.any() else float("nan"),
                      "A - B": d["mean"], "ci95": d["ci95"], "relative": d["relative"],
                      "relative_ci95": d["relative_ci95"], "episodes": d["episodes"]})
     if not rows:
-        raise UserError(f"{names[0]} and {names[1]} share no per-episode metric ({', '.join(PAIRED_METRICS)})")
+        raise UserError(f"{names[0]} and {names[1]} share no per-episode metric ({', '.join(metrics)})")
     return rows
+
+
+def _closed_loop_values(result: dict, key: str) -> np.ndarray | None:
+    """(S, E) floats of a closed-loop per-episode metric (null -> NaN), or None if not recorded."""
+    v = (result.get("per_episode") or {}).get(key)
+    if v is None:
+        return None
+    return np.array([[np.nan if e is None else e for e in row] for row in (v if v and isinstance(v[0], list) else [v])],
+                    dtype=float)
+
+
+def _episode_means(x: np.ndarray) -> np.ndarray:
+    """Per-episode means: (E,) as is, (S, E) averaged over its S seeds ignoring NaN (all-NaN: NaN)."""
+    if x.ndim == 1:
+        return x
+    with np.errstate(all="ignore"):
+        n = np.isfinite(x).sum(0)
+        return np.where(n > 0, np.nansum(x, 0) / np.maximum(n, 1), np.nan)
 
 
 def format_rows(rows: list[dict], names: tuple[str, str]) -> str:
@@ -105,29 +182,42 @@ def format_rows(rows: list[dict], names: tuple[str, str]) -> str:
     return "\n".join(lines)
 
 
-def _load(path: Path) -> dict:
+def _load(spec: str) -> dict:
+    """An evaluation JSON, or one controller of a closed-loop summary (``FILE:CONTROLLER`` or ``FILE``)."""
+    path, controller = Path(spec), None
+    if not path.is_file() and ":" in spec:
+        head, tail = spec.rsplit(":", 1)
+        path, controller = Path(head), tail
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file (an evaluation JSON, results/eval/<policy>/<scenario>.json)")
+        raise FileNotFoundError(f"{path}: no such file (an evaluation JSON, results/eval/<policy>/<scenario>.json, or "
+                                "a closed-loop summary.json[:CONTROLLER])")
     try:
-        return json.loads(path.read_text())
+        data = json.loads(path.read_text())
     except json.JSONDecodeError as err:
         raise UserError(f"{path}: not JSON ({err})") from None
+    if "controllers" in data and "settings" in data:
+        return closed_loop_result(data, controller, str(path))
+    if controller is not None:
+        raise UserError(f"{path} is not a closed-loop summary (no 'controllers' and 'settings'): ':{controller}' names a "
+                        "controller of one; name an evaluation JSON without it")
+    return data
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("a", type=Path, help="evaluation JSON of policy A")
-    p.add_argument("b", type=Path, help="evaluation JSON of policy B (the reference)")
+    p.add_argument("a", help="evaluation JSON of policy A, or a closed-loop summary.json[:CONTROLLER]")
+    p.add_argument("b", help="the reference B, of the same kind as A")
     p.add_argument("--out", type=Path, default=None, help="also write the differences to this JSON file")
     args = p.parse_args(argv)
     a, b = _load(args.a), _load(args.b)
     names = (f"{args.a} ({a.get('policy', '?')})", f"{args.b} ({b.get('policy', '?')})")
     rows = compare(a, b, names)
-    print(f"[compare] {a['scenario']}: {a['episodes']} paired episodes, seed {a['seed']}")
+    print(f"[compare] {a.get('scenario')}: {a.get('episodes')} paired episodes, seed {a.get('seed')}")
     print(format_rows(rows, names))
     if args.out is not None:
         write_json({"a": str(args.a), "b": str(args.b), "policy_a": a.get("policy"), "policy_b": b.get("policy"),
-                    "scenario": a["scenario"], "seed": a["seed"], "episodes": a["episodes"], "rows": rows}, args.out,
+                    "scenario": a.get("scenario"), "seed": a.get("seed"), "episodes": a.get("episodes"), "rows": rows},
+                   args.out,
                    indent=1)
     return rows
 

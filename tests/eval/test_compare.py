@@ -77,3 +77,50 @@ def test_help_and_a_bad_flag():
     bad = subprocess.run([sys.executable, "-m", "dls_quadruped.eval.compare", "a.json", "b.json", "--bogus"],
                          capture_output=True, text=True, timeout=120, check=False)
     assert bad.returncode == 2 and "--bogus" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+
+
+def closed_loop(controllers: dict[str, dict], **settings) -> dict:
+    return {"settings": {"scenario": "survival_sweep", "seed": 0, "episodes": 4, "seconds": 15.0,
+                         "command": "simple task", "stairs_heights": None, **settings},
+            "controllers": {name: {"per_episode": pe} for name, pe in controllers.items()}}
+
+
+def test_closed_loop_controllers_of_two_runs_by_hand(tmp_path):
+    """A warm start with 3 sampler seeds per episode (seeds averaged within an episode) against a policy run once,
+    from two summary files of the same episodes."""
+    mpc = {"survived": [[1, 0, 1, 0], [1, 1, 1, 0], [1, 0, 1, 0]], "rl_reward": [[2.0, 1.0, 2.2, None]] * 3}
+    alone = {"survived": [[1, 0, 0, 0]], "rl_reward": [[1.9, 1.1, 2.0, 1.5]]}
+    pa, pb = tmp_path / "pair.json", tmp_path / "single.json"
+    pa.write_text(json.dumps(closed_loop({"rl_warm_start": mpc})))
+    pb.write_text(json.dumps(closed_loop({"rl_warm_start": mpc, "rl_baseline": alone})))
+    rows = {r["metric"]: r for r in main([str(pa), f"{pb}:rl_baseline"])}
+    surv = rows["survival [share]"]
+    # per episode: A = 1, 1/3, 1, 0; B = 1, 0, 0, 0 -> differences 0, 1/3, 1, 0
+    assert surv["A - B"] == pytest.approx((1 / 3 + 1) / 4) and surv["episodes"] == 4
+    assert surv["A"] == pytest.approx((1 + 1 / 3 + 1) / 4) and surv["B"] == pytest.approx(0.25)
+    rew = rows["RL reward per step"]  # episode 3 has no value for A: left out of both
+    assert rew["episodes"] == 3 and rew["A - B"] == pytest.approx((0.1 - 0.1 + 0.2) / 3)
+    assert rew["ci95"][0] <= rew["A - B"] <= rew["ci95"][1]
+    same = {r["metric"]: r for r in main([f"{pb}:rl_warm_start", str(pa)])}  # a controller against itself: 0
+    assert same["survival [share]"]["A - B"] == 0.0  # its interval is not [0, 0]: seeds are resampled on each side
+    assert same["RL reward per step"]["A - B"] == 0.0 and same["RL reward per step"]["ci95"] == [0.0, 0.0]
+
+
+def test_closed_loop_runs_of_other_episodes_or_names_are_refused(tmp_path):
+    pe = {"survived": [[1, 0, 1, 0]], "rl_reward": [[2.0, 1.0, 2.2, 1.0]]}
+    one, two, other = tmp_path / "one.json", tmp_path / "two.json", tmp_path / "other.json"
+    one.write_text(json.dumps(closed_loop({"rl_baseline": pe})))
+    two.write_text(json.dumps(closed_loop({"rl_baseline": pe, "rl_warm_start": pe})))
+    other.write_text(json.dumps(closed_loop({"rl_baseline": pe}, command="forward 1.5 m/s")))
+    with pytest.raises(UserError, match="command"):
+        main([str(one), str(other)])
+    with pytest.raises(UserError, match="name one as"):  # two controllers: which one?
+        main([str(one), str(two)])
+    with pytest.raises(UserError, match="no controller 'student'.*rl_baseline, rl_warm_start"):
+        main([str(one), f"{two}:student"])
+    evaluation = tmp_path / "eval.json"
+    evaluation.write_text(json.dumps(result("old.pt", [False] * 4, [2.0] * 4)))
+    with pytest.raises(UserError, match="closed-loop result"):  # an eval result and a closed-loop controller
+        main([str(one), str(evaluation)])
+    with pytest.raises(UserError, match="not a closed-loop summary"):
+        main([str(one), f"{evaluation}:rl_baseline"])
