@@ -68,13 +68,14 @@ def test_tasks_resolve_and_match_table6(name):
     assert agent["actor"]["distribution_cfg"]["init_std"] == 1.0
 
 
-def test_climb_finetune_is_climb_without_entropy_and_with_a_std_cap():
-    """tasks/climb_finetune.yaml (the climb expert's second stage) changes only the agent's
-    exploration: the env, rewards and curricula are climb's, and rsl-rl's own signature check
+@pytest.mark.parametrize("task", ["climb", "rough"])
+def test_finetune_is_its_task_without_entropy_and_with_a_std_cap(task):
+    """tasks/<task>_finetune.yaml (climb's second stage; rough retrained without the bonus) changes only the
+    agent's exploration: the env, rewards and curricula are the task's, and rsl-rl's own signature check
     (agent_config) accepts the std clamp."""
     from dls_quadruped.learning.agent_config import check_agent_section
 
-    climb, fine = load_task("climb"), load_task("climb_finetune")
+    climb, fine = load_task(task), load_task(f"{task}_finetune")
     assert {k: v for k, v in fine.data.items() if k != "agent"} == {k: v for k, v in climb.data.items() if k != "agent"}
     assert fine.data["agent"]["algorithm"]["entropy_coef"] == 0.0 != climb.data["agent"]["algorithm"]["entropy_coef"]
     assert fine.data["agent"]["actor"]["distribution_cfg"]["std_range"] == [0.05, 1.0]
