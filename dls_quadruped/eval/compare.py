@@ -8,7 +8,7 @@
 With the same ``--seed`` and ``--episodes`` both evaluations draw every episode's command, pushes and
 noise from one schedule (``envs/schedule.py``), so episode e is the same episode for both policies. For
 each per-episode metric both results record (survival, mean reward per step, episode length, cost of
-transport) this prints the mean over episodes of (A - B) with its 95 % bootstrap interval over episodes
+transport; on stairs, reached the top and the climbed fraction) this prints the mean over episodes of (A - B) with its 95 % bootstrap interval over episodes
 (``eval.metrics.paired_difference``), and A's and B's own means. An interval that excludes 0 says the
 difference is more than the episodes' spread; it says nothing about another seed's training run.
 
@@ -34,7 +34,8 @@ from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.metrics import paired_difference
 
 PAIRED_METRICS = {"survived": "survival [share]", "reward": "mean reward per step", "length_s": "episode length [s]",
-                  "cot": "cost of transport"}
+                  "cot": "cost of transport", "reached_top": "stairs: reached the top [share]",
+                  "climbed_fraction": "stairs: climbed fraction"}
 """Per-episode values compared between two evaluations, when the scenario records them."""
 
 CLOSED_LOOP_METRICS = {"survived": "survival [share]", "rl_reward": "RL reward per step", "initial_cost": "initial cost",
@@ -52,6 +53,13 @@ def per_episode_values(result: dict, key: str) -> np.ndarray | None:
     pe = result.get("per_episode") or {}
     if key == "survived":
         return None if "fell" not in pe else 1.0 - np.array(pe["fell"], dtype=float)
+    if key == "reached_top":  # stairs: derived from the climbed fraction and the flight's height
+        if "climbed_fraction" not in pe or "step_height" not in pe or "steps_per_flight" not in result:
+            return None
+        from dls_quadruped.eval.stairs import reached_top
+
+        flight = result["steps_per_flight"] * np.array(pe["step_height"], dtype=float)
+        return reached_top(np.array(pe["climbed_fraction"], dtype=float), flight).astype(float)
     return None if key not in pe else np.array([np.nan if v is None else v for v in pe[key]], dtype=float)
 
 

@@ -39,6 +39,26 @@ def test_an_episode_without_a_value_is_left_out_of_both():
     assert rew["B"] == pytest.approx(5.5 / 3)  # B's mean over the same three episodes
 
 
+def stairs_result(policy: str, climbed: list[float]) -> dict:
+    return {"scenario": "stairs", "seed": 0, "episodes": 4, "episode_length_s": 15.0, "policy": policy,
+            "steps_per_flight": 6, "per_episode": {"step_height": [0.05, 0.05, 0.1, 0.1], "command_v_x": [0.4] * 4,
+                                                   "climbed_fraction": climbed, "fell": [False] * 4}}
+
+
+def test_stairs_reached_the_top_and_climbed_fraction_by_hand():
+    # flights of 6 x 5 cm and 6 x 10 cm: within 1 mm of the top counts as the top (0.9999 x 0.3 m is 0.03 mm short)
+    a = stairs_result("new.pt", [1.0, 0.9999, 0.5, 1.0])
+    b = stairs_result("old.pt", [1.0, 0.5, 0.2, 0.3])
+    rows = {r["metric"]: r for r in compare(a, b)}
+    top = rows["stairs: reached the top [share]"]
+    assert top["A"] == pytest.approx(0.75) and top["B"] == pytest.approx(0.25) and top["A - B"] == pytest.approx(0.5)
+    climbed = rows["stairs: climbed fraction"]
+    assert climbed["A - B"] == pytest.approx((0.0 + 0.4999 + 0.3 + 0.7) / 4)
+    assert rows["survival [share]"]["A - B"] == 0.0
+    short = stairs_result("new.pt", [0.99, 1.0, 1.0, 1.0])  # 0.99 x 0.3 m is 3 mm short of the top: not reached
+    assert {r["metric"]: r for r in compare(short, b)}["stairs: reached the top [share]"]["A"] == pytest.approx(0.75)
+
+
 @pytest.mark.parametrize(("over", "named"), [({"seed": 1}, "seed"), ({"scenario": "forward"}, "scenario"),
                                              ({"episodes": 8}, "episodes")])
 def test_other_episodes_are_refused_naming_what_differs(over, named):
