@@ -8,8 +8,9 @@
 With the same ``--seed`` and ``--episodes`` both evaluations draw every episode's command, pushes and
 noise from one schedule (``envs/schedule.py``), so episode e is the same episode for both policies. For
 each per-episode metric both results record (survival, mean reward per step, episode length, cost of
-transport; on stairs, reached the top and the climbed fraction) this prints the mean over episodes of (A - B) with its 95 % bootstrap interval over episodes
-(``eval.metrics.paired_difference``), and A's and B's own means. An interval that excludes 0 says the
+transport; on stairs, reached the top and the climbed fraction) this prints the mean over episodes of
+(A - B) with its 95 % bootstrap interval over episodes (``eval.metrics.paired_difference``), and A's and
+B's own means. An interval that excludes 0 says the
 difference is more than the episodes' spread; it says nothing about another seed's training run.
 
 A closed-loop summary (``python -m dls_quadruped.closed_loop``'s ``summary.json``) is named ``FILE:CONTROLLER``
