@@ -1,7 +1,8 @@
 """Batched closed-loop episodes of one controller in a ``LocomotionEnv``, with the thesis's metrics (7.3.1).
 
 Every env runs one episode (15 s by default) from the same start; data after an env's first
-termination is masked out (its restart is simulated but not counted). Per policy step (50 Hz) and
+termination is masked out (its restart is simulated but not counted; the loop stops once every episode has
+ended). Per policy step (50 Hz) and
 robot: the per-step RL reward (the env's reward without the dt factor, on the thesis's ~2.3
 scale when the env uses the base task's Table-4 reward), the initial cost (the MPC's state cost of
 the current state, computed the same way for every controller, so the RL baseline gets one too),
@@ -137,12 +138,18 @@ class InitialCostProbe:
         return state_cost_terms(srbd.as_vector(), refs.state_vector(), self.sampler.weights)
 
 
-def run_closed_loop(env, controller: Controller, num_steps: int | None = None, record_robots: int = 1) -> ClosedLoopTraces:
+def run_closed_loop(env, controller: Controller, num_steps: int | None = None, record_robots: int = 1,
+                    stop_when_all_ended: bool = True) -> ClosedLoopTraces:
     """Run every env of ``env`` under ``controller`` for ``num_steps`` policy steps (default: one episode).
+
+    Every metric is masked (NaN) after a robot's episode ended, so once every robot's episode has ended
+    the remaining steps could change nothing but the video's frames: with ``stop_when_all_ended`` the
+    loop stops there (a survival cell whose robots all fell early no longer simulates the rest of the
+    15 s); the traces keep their ``num_steps`` rows (NaN as before) and the video's last frame is held.
 
     ``timing``: ``wall`` (the loop), ``kernel`` (MPC cost kernel), ``solve`` (whole MPC solves incl.
     the kernel, warm starts, decode), ``policy`` (network queries), ``probe`` (initial-cost metric), and
-    ``robot_seconds_per_second`` = E x T x step_dt / wall.
+    ``robot_seconds_per_second`` = E x T x step_dt / wall, T the ``steps_simulated``.
     """
     n = env.num_envs
     steps = int(num_steps or env.max_episode_length)
@@ -176,6 +183,7 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     t_policy = t_probe = 0.0
     mpc_fallbacks = student_fallbacks = 0
     obs = env.get_observations()
+    simulated = 0
     wall0 = time.perf_counter()
     with torch.inference_mode(), progress(total=steps, desc=f"{controller.name}, {n} robots", unit="step",
                                           leave=False) as bar:
@@ -224,6 +232,10 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
             fell |= ended & ~time_out
             length[ended] = k + 1
             alive &= ~done
+            simulated = k + 1
+            if stop_when_all_ended and not bool(alive.any()):
+                qpos[k + 1:] = qpos[k]  # the video holds its last frame
+                break
             if bool(done.any()):
                 controller.reset(torch.nonzero(done).flatten())
     wall = time.perf_counter() - wall0
@@ -231,7 +243,8 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     timing = {"wall": wall, "kernel": kernel, "solve": controller.solve_seconds, "policy": t_policy,
               "probe": t_probe, "env_and_sim": wall - controller.solve_seconds - t_policy - t_probe,
               "kernel_share": kernel / wall if wall > 0 else float("nan"),
-              "robot_seconds_per_second": n * steps * env.step_dt / wall if wall > 0 else float("nan"),
+              "robot_seconds_per_second": n * simulated * env.step_dt / wall if wall > 0 else float("nan"),
+              "steps_simulated": simulated,
               "num_threads": torch.get_num_threads()}
     return ClosedLoopTraces(
         controller=controller.name, command=command, reward=reward, initial_cost=init, initial_cost_terms=init_terms,

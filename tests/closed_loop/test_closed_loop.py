@@ -102,6 +102,30 @@ def test_policy_controllers_match_the_eval_rollout() -> None:
     assert 1.0 < float(np.nanmedian(tr.reward)) < 3.0
 
 
+def test_the_loop_stops_once_every_episode_has_ended_with_the_same_traces() -> None:
+    """Past the last robot's end every metric is masked, so stopping there changes no number: run two
+    episodes' worth of steps after all robots time out at the first, with and without the early stop."""
+    runs = []
+    for stop in (True, False):
+        env = make_env(commands(2, 0, None), 0.5, seed=0, num_workers=0)
+        try:
+            length = int(env.max_episode_length)
+            ctrl = make_controller(ControllerConfig("naive_warm_start", policy=POLICY, sampler=SMALL), env)
+            runs.append(run_closed_loop(env, ctrl, num_steps=3 * length, record_robots=2, stop_when_all_ended=stop))
+        finally:
+            env.close()
+    stopped, full = runs
+    assert stopped.timing["steps_simulated"] == length and full.timing["steps_simulated"] == 3 * length
+    assert (stopped.length == length).all() and not stopped.fell.any()
+    for name in ("reward", "initial_cost", "vel_error", "power", "speed", "base_vel", "ground_z", "rollout_cost"):
+        a, b = getattr(stopped, name), getattr(full, name)
+        assert a.shape == b.shape == (3 * length,) + a.shape[1:], name
+        np.testing.assert_array_equal(a, b, err_msg=name)  # NaN where equal positions are NaN
+        assert np.isnan(a[length:]).all() and np.isfinite(a[:length]).any(), name
+    np.testing.assert_array_equal(stopped.qpos[:length], full.qpos[:length])
+    assert (stopped.qpos[length:] == stopped.qpos[length - 1]).all()  # the video holds its last frame
+
+
 def test_bad_configurations_are_refused(tmp_path: Path, capsys) -> None:
     with pytest.raises(ValueError, match="unknown controller 'mpc'; allowed"):
         ControllerConfig("mpc")
