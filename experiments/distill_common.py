@@ -34,6 +34,7 @@ import argparse
 import copy
 import csv
 import hashlib
+import os
 import shutil
 import subprocess
 import time
@@ -111,6 +112,9 @@ def parse_args(description: str, name: str) -> argparse.Namespace:
     p.add_argument("--expert", default=str(REPO / "docs" / "policies" / "base_actor.pt"))
     p.add_argument("--keep-datasets", action="store_true", help="keep each run's dataset/ (large at thesis scale)")
     p.add_argument("--only", nargs="*", default=None, help="run only these run names")
+    p.add_argument("--train-only", action="store_true",
+                   help="train the selected runs and stop (no evaluation or table): split a long script over "
+                        "processes with --only, then run it once without either flag")
     return p.parse_args()
 
 
@@ -164,7 +168,16 @@ def _drop_datasets(run_dir: Path) -> None:
 def train_runs(runs: list[Run], args: argparse.Namespace) -> dict[str, dict]:
     """Train every run with every seed (skipping finished runs); returns {name: result} with
     ``students[k][j]`` the state dict of seed k at snapshot j (j = 0: the last epoch, or every
-    epoch 1 .. E with ``snapshots``)."""
+    epoch 1 .. E with ``snapshots``). With ``args.train_only`` the script stops here (exit 0)."""
+    out = _train_runs(runs, args)
+    if getattr(args, "train_only", False):
+        print(f"[{args.out.name}] --train-only: {len(out)} run(s) trained under {args.out / 'runs'}; run the script "
+              "without --train-only / --only for the table", flush=True)
+        raise SystemExit(0)
+    return out
+
+
+def _train_runs(runs: list[Run], args: argparse.Namespace) -> dict[str, dict]:
     from dls_quadruped.envs.env import LocomotionEnv
 
     scale = SCALES[args.scale]
@@ -228,7 +241,9 @@ def train_runs(runs: list[Run], args: argparse.Namespace) -> dict[str, dict]:
                                               else [cfg.train.epochs]),
                           "seconds": seconds / len(members), "trained_with": [x.name for x in members],
                           "group_seconds": seconds}
-                torch.save(result, run_dir / "result.pt")
+                tmp = run_dir / "result.pt.tmp"  # result.pt marks the run finished: never a partial one
+                torch.save(result, tmp)
+                os.replace(tmp, run_dir / "result.pt")
                 write_json({k: v for k, v in result.items() if k != "students"}, run_dir / "metrics.json")
                 if not args.keep_datasets and r.name not in needed_later:
                     _drop_datasets(run_dir)

@@ -82,6 +82,20 @@ def test_fig24_has_sp_for_every_epoch(tiny, monkeypatch):
     assert (out / "fig24.png").is_file()
 
 
+def test_train_only_trains_and_stops_before_the_table(tiny, monkeypatch):
+    """--train-only (a long script split over processes): the run is finished (result.pt, no partial
+    .tmp left), no evaluation or table is written, and the exit status is 0."""
+    out = tiny / "t11_train_only"
+    monkeypatch.setattr(sys, "argv", [table11_naive_vs_dagger.__file__, "--scale", "small", "--out", str(out),
+                                      "--only", "naive_first-spline", "--train-only"])
+    with pytest.raises(SystemExit) as stop:
+        table11_naive_vs_dagger.main()
+    assert stop.value.code == 0
+    run = out / "runs" / "naive_first-spline"
+    assert (run / "result.pt").is_file() and not (run / "result.pt.tmp").exists()
+    assert not (out / "table.csv").exists() and not (out / "results.json").exists()
+
+
 @pytest.mark.slow
 def test_table12_and_table13_rows(tiny, monkeypatch):
     run_script(monkeypatch, table12_batch_size, tiny / "t12", "batch_512")
