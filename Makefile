@@ -73,9 +73,11 @@ bench-rl: $(STAMP)
 	$(PY) -m dls_quadruped.bench.rl_env --out $(OUT)/bench
 
 # one PPO iteration split into collection and update, samples/s of each, rsl-rl's stock update beside
-# learning/fast_update.py's, interleaved (N = 256 and 1024; docs/benchmarks.md "PPO update")
+# learning/fast_update.py's, interleaved (N = 256 and 1024; docs/benchmarks.md "PPO update");
+# BENCH_PPO_ARGS="--variants fast fast_bf16" adds the bf16 update (pays only on CPUs with bf16 instructions)
+BENCH_PPO_ARGS ?=
 bench-ppo: $(STAMP)
-	OMP_WAIT_POLICY=PASSIVE $(PY) -m dls_quadruped.bench.ppo_update --out $(OUT)/bench
+	OMP_WAIT_POLICY=PASSIVE $(PY) -m dls_quadruped.bench.ppo_update --out $(OUT)/bench $(BENCH_PPO_ARGS)
 
 # the gymnasium view's cost beside the native env (rough, N = 1024; docs/gymnasium.md "Cost"), not part of `make bench`
 bench-gym: $(STAMP)

@@ -7,7 +7,11 @@ load hits them alike and their ratios are measured side by side:
 * ``stock``: rsl-rl-lib's PPO update as shipped, the trainer's thread count (``--threads``);
 * ``fast_1_thread``: ``learning/fast_update.py``'s update, still on ``--threads`` threads;
 * ``fast``: the same with ``--update-threads`` threads in the update (default every core), as
-  ``make train`` runs.
+  ``make train`` runs;
+* ``fast_bf16`` (only with ``--variants``): ``fast`` with rsl-rl's ``use_mixed_precision`` (the
+  update's forward passes and losses under ``torch.autocast`` in bfloat16; a task sets it with
+  ``agent.algorithm.use_mixed_precision: true``). It changes the update's rounding, so it is not
+  the default of any task; the bench measures what it would buy.
 
 Every iteration is timed as ``OnPolicyRunner.learn`` splits it: collection (24 env steps + policy +
 storage) and update (returns + 5 epochs x 4 mini-batches). The first iteration of each variant is
@@ -42,6 +46,8 @@ from dls_quadruped.learning.fast_update import (
 )
 
 VARIANTS = ("stock", "fast_1_thread", "fast")
+"""The default variants; ``stock`` is always run (every ratio is to it)."""
+ALL_VARIANTS = (*VARIANTS, "fast_bf16")
 
 
 def summarise(iterations: list[dict[str, float]]) -> dict[str, float]:
@@ -54,20 +60,26 @@ def summarise(iterations: list[dict[str, float]]) -> dict[str, float]:
             "samples_per_s": samples / (collect + update), "update_share": update / (collect + update)}
 
 
-def bench_size(task: str, n: int, iterations: int, update_threads: int) -> dict[str, Any]:
-    """All variants at N robots, interleaved; per-iteration timings and their summary."""
+def bench_size(task: str, n: int, iterations: int, update_threads: int,
+               variants: tuple[str, ...] = VARIANTS) -> dict[str, Any]:
+    """The variants at N robots, interleaved; per-iteration timings and their summary."""
+    unknown = [v for v in variants if v not in ALL_VARIANTS]
+    if unknown or "stock" not in variants:
+        raise ValueError(f"variants {list(variants)}: need 'stock' and only {list(ALL_VARIANTS)}")
     cfg = load_task(task)
     env = LocomotionEnv(cfg, num_envs=n, verbose=False)
     try:
         runners = {}
-        for name in VARIANTS:
+        for name in variants:
             torch.manual_seed(0)  # the same initial networks for every variant
             runners[name] = make_runner(env, cfg.data)
-        speed_up_update(runners["fast_1_thread"].alg, threads=0)
-        speed_up_update(runners["fast"].alg, threads=update_threads)
-        timings: dict[str, list[dict[str, float]]] = {name: [] for name in VARIANTS}
+            if name != "stock":
+                speed_up_update(runners[name].alg, threads=0 if name == "fast_1_thread" else update_threads)
+            if name == "fast_bf16":
+                runners[name].alg.use_mixed_precision = True  # rsl-rl's flag, read by every update
+        timings: dict[str, list[dict[str, float]]] = {name: [] for name in variants}
         for i in range(iterations + 1):
-            order = VARIANTS if i % 2 == 0 else VARIANTS[::-1]
+            order = variants if i % 2 == 0 else variants[::-1]
             for name in order:
                 it = {**ppo_iteration(env, runners[name]), "load_1min": os.getloadavg()[0]}
                 print(f"[bench.ppo_update] N={n} {name} iteration {i}{' (warm-up)' if i == 0 else ''}: "
@@ -77,7 +89,7 @@ def bench_size(task: str, n: int, iterations: int, update_threads: int) -> dict[
                     timings[name].append(it)
     finally:
         env.close()
-    summary = {name: summarise(timings[name]) for name in VARIANTS}
+    summary = {name: summarise(timings[name]) for name in variants}
     stock = summary["stock"]
     for s in summary.values():
         s["end_to_end_vs_stock"] = s["samples_per_s"] / stock["samples_per_s"]
@@ -107,6 +119,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                         help="torch threads of the trainer (collection, and the stock update)")
     parser.add_argument("--update-threads", type=non_negative_int, default=None,
                         help="torch threads of the fast variant's update (default: every core)")
+    parser.add_argument("--variants", nargs="+", choices=ALL_VARIANTS, default=list(VARIANTS),
+                        help="variants to run side by side (stock always: the ratios are to it)")
     parser.add_argument("--quick", action="store_true", help="N = 64, 1 measured iteration (a smoke run)")
     parser.add_argument("--out", type=Path, default=Path("results/bench"))
     args = parser.parse_args(argv)
@@ -114,6 +128,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         args.sizes, args.iterations = [64], 1
     torch.set_num_threads(args.threads)
     update_threads = default_update_threads() if args.update_threads is None else args.update_threads
+    variants = ["stock"] + [v for v in dict.fromkeys(args.variants) if v != "stock"]
     t0 = time.perf_counter()
     result: dict[str, Any] = {
         "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "available_cores": available_cores(),
@@ -122,7 +137,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "note": "shared machine: other processes may run alongside (see the load averages); compare "
                 "the variants' ratios, measured interleaved, rather than absolute times",
         "args": {k: str(v) for k, v in vars(args).items()},
-        "sizes": [bench_size(args.task, n, args.iterations, update_threads) for n in args.sizes]}
+        "variants": variants,
+        "sizes": [bench_size(args.task, n, args.iterations, update_threads, tuple(variants)) for n in args.sizes]}
     result["load_avg_after"] = os.getloadavg()
     result["wall_s"] = time.perf_counter() - t0
     args.out.mkdir(parents=True, exist_ok=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from dls_quadruped.bench.ppo_update import markdown, summarise
+from dls_quadruped.bench.ppo_update import bench_size, markdown, summarise
 
 
 def test_summary_medians_and_samples_per_second():
@@ -24,3 +24,9 @@ def test_markdown_row_per_size_and_variant():
     table = markdown({"sizes": [{"num_envs": 256, "summary": {"stock": s, "fast": s}}]})
     rows = table.splitlines()
     assert len(rows) == 4 and rows[2].startswith("| 256 | stock | 1.00 | 3.00 | 75% | 100 | 33 | 25 | 1.50x | 1.25x |")
+
+
+@pytest.mark.parametrize("variants", [("fast", "fast_bf16"), ("stock", "fast_fp16")])
+def test_variants_need_stock_and_known_names(variants):
+    with pytest.raises(ValueError, match="need 'stock' and only"):
+        bench_size("base", 8, 1, 1, variants)
