@@ -14,20 +14,57 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install install-gpu test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
+.PHONY: install install-gpu install-offline wheelhouse gpu-check test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
 
-$(STAMP): setup.py
-	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q $(TORCH_INDEX) "$(TORCH_SPEC)"
+# One stamp per (TORCH_SPEC, TORCH_INDEX): changing either re-installs torch (--force-reinstall: pip would keep a
+# 2.13.0+cpu build for a cu128 index's torch==2.13.0, the same version to it).
+TORCH_STAMP := $(VENV)/.torch-$(shell printf '%s|%s' '$(TORCH_SPEC)' '$(TORCH_INDEX)' | cksum | cut -d' ' -f1)
+
+$(TORCH_STAMP):
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	rm -f $(VENV)/.torch-*
+	$(PY) -m pip install -q --force-reinstall $(TORCH_INDEX) "$(TORCH_SPEC)"
+	touch $@
+
+$(STAMP): setup.py $(TORCH_STAMP)
 	$(PY) -m pip install -q -e ".[dev]"
 	touch $(STAMP)
 
 install: $(STAMP)
 
-# the optional MuJoCo Warp backends (scene.backend: cuda / warp-cpu; docs/gpu.md); on a GPU machine install a
-# CUDA torch wheel first (TORCH_INDEX above)
+# the optional MuJoCo Warp backends (scene.backend: cuda / warp-cpu; docs/gpu.md). On a GPU machine name a CUDA
+# torch wheel (TORCH_INDEX above); the check below says so when the torch left in .venv is a CPU build
+# (fine for warp-cpu, not for cuda).
 install-gpu: $(STAMP)
 	$(PY) -m pip install -q -e ".[dev,gpu]"
+	@$(PY) -c "import torch, sys; sys.exit(0 if torch.version.cuda else 1)" || \
+		echo "install-gpu: the torch in $(VENV) ($$($(PY) -c 'import torch; print(torch.__version__)')) is a CPU build: \
+	backend warp-cpu works, cuda does not. For a GPU: make TORCH_SPEC=torch==2.13.0 \
+	TORCH_INDEX='--index-url https://download.pytorch.org/whl/cu128' install-gpu (docs/gpu.md)"
+
+# Air-gapped GPU nodes (docs/gpu.md "Offline install"): on a machine with network, `make wheelhouse` downloads every
+# wheel the [gpu] install needs for WHEEL_PYTHON on glibc x86-64 Linux into WHEELHOUSE (versions: the ones
+# installed here); WHEEL_EXCLUDE drops what the node already has (e.g. torch). On the node,
+# `make install-offline WHEELHOUSE=...` installs from the folder with no network.
+WHEELHOUSE ?= wheelhouse
+WHEEL_PYTHON ?= 3.12
+WHEEL_EXCLUDE ?=
+wheelhouse: install-gpu
+	$(PY) -m dls_quadruped.tools.wheelhouse --out $(WHEELHOUSE) --python-version $(WHEEL_PYTHON) \
+		$(if $(WHEEL_EXCLUDE),--exclude $(WHEEL_EXCLUDE),)
+
+install-offline:
+	test -d "$(WHEELHOUSE)" || { echo "install-offline: WHEELHOUSE=$(WHEELHOUSE) is not a folder (make wheelhouse)"; exit 2; }
+	test -x $(PY) || $(PYTHON) -m venv --system-site-packages $(VENV)
+	$(PY) -m pip install -q --no-index --find-links "$(WHEELHOUSE)" "dls_quadruped[gpu]"
+	touch $(STAMP)
+
+# The ten-minute GPU check (docs/gpu.md "GPU check"): versions, compile time, cuda-vs-cpu trajectories, host syncs,
+# env steps/s, the MPC, then PPO on base with the time left; a JSON report written as it goes. Without CUDA it runs
+# on warp-cpu at small sizes. GPU_CHECK_ARGS="--budget-s 600 --train-envs 4096" etc.
+GPU_CHECK_ARGS ?=
+gpu-check:
+	$(if $(wildcard $(STAMP)),$(PY),$(PYTHON)) -m dls_quadruped.bench.gpu_check --out $(OUT)/gpu_check $(GPU_CHECK_ARGS)
 
 test: $(STAMP)
 	$(PY) -m pytest

@@ -6,9 +6,9 @@ setup(
     name="dls_quadruped",
     version="0.1.0",
     description="AlienGo in MuJoCo with a latent-action low-level controller, PPO policies and a torch sampling MPC",
-    python_requires=">=3.10",
+    python_requires=">=3.11",
     packages=find_packages(include=["dls_quadruped", "dls_quadruped.*"]),
-    package_data={"dls_quadruped": ["robots/aliengo/*.xml", "mpc/*.cpp"]},
+    package_data={"dls_quadruped": ["robots/aliengo/*.xml", "mpc/*.cpp", "bench/*.npz"]},
     install_requires=[
         "torch>=2.4",
         "mujoco>=4.0",
@@ -30,6 +30,6 @@ setup(
         # optional: it pulls warp-lang (~100 MB) and compiles kernels on first use, the CPU backend needs none of it.
         # Pinned: the backend uses MuJoCo Warp's two-phase step, its CSR mass matrix and batched model fields,
         # whose names and layouts change between releases.
-        "gpu": ["mujoco-warp==4.0.0"],
+        "gpu": ["mujoco-warp==4.0.0", "warp-lang==1.19.0"],
     },
 )

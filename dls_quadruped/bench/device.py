@@ -1,4 +1,4 @@
-"""Device benchmark (issue 26 item 6): ``make bench DEVICE=cuda`` = ``python -m dls_quadruped.bench.device --device cuda``.
+"""Device benchmark: ``make bench DEVICE=cuda`` = ``python -m dls_quadruped.bench.device --device cuda``.
 
 Three measurements on one simulator backend (``sim/interface.py``) and torch device, written to
 ``results/bench/device.json`` with the machine (GPU name, CPU model) and printed as markdown:
@@ -14,7 +14,7 @@ Three measurements on one simulator backend (``sim/interface.py``) and torch dev
   simulated robot-seconds per wall second with the kernel's share.
 
 On a machine without CUDA the same script runs with ``--device cpu --backend cpu`` (or ``warp-cpu``), which is
-what the tests do at tiny sizes. Targets (issue 26, one H100): base >= 300 000 and rough >= 150 000 env steps/s
+what the tests do at tiny sizes. Targets (one H100): base >= 300 000 and rough >= 150 000 env steps/s
 at 4096 robots; MPC M = 10 000 <= 1 ms, M = 100 000 <= 3 ms.
 """
 
@@ -41,8 +41,10 @@ def _sync(device: torch.device) -> None:
 
 
 def _out_of_memory(err: BaseException) -> bool:
+    """torch's OOM, or Warp's failed allocation (a RuntimeError "Failed to allocate ... bytes on device")."""
     text = f"{type(err).__name__}: {err}".lower()
-    return isinstance(err, torch.cuda.OutOfMemoryError) or "out of memory" in text
+    return (isinstance(err, torch.cuda.OutOfMemoryError) or "out of memory" in text
+            or ("failed to allocate" in text and "graph capture" not in text) or "cudaerrormemoryallocation" in text)
 
 
 def machine(device: torch.device) -> dict:
@@ -54,13 +56,17 @@ def machine(device: torch.device) -> dict:
     return out
 
 
-def env_steps(task: str, num_envs: int, device: torch.device, backend: str, steps: int, warmup: int) -> dict:
-    """Robot steps per second of ``task`` with ``num_envs`` robots (random actions, resets included)."""
+def env_steps(task: str, num_envs: int, device: torch.device, backend: str, steps: int, warmup: int,
+              capture: bool | None = None) -> dict:
+    """Robot steps per second of ``task`` with ``num_envs`` robots (random actions, resets included);
+    ``capture``: the Warp backends' graph replay on or off (None: the backend's default)."""
     from dls_quadruped.envs.config import load_task
     from dls_quadruped.envs.env import LocomotionEnv
 
     cfg = load_task(task, overrides={"scene": {"backend": backend, "num_workers": 0 if backend != "cpu" else -1}})
     env = LocomotionEnv(cfg, num_envs=num_envs, device=str(device), seed=0, verbose=False)
+    if capture is not None:
+        env.scene.sim.capture = capture
     try:
         g = torch.Generator(device=device).manual_seed(0)
         for _ in range(warmup):
@@ -71,9 +77,12 @@ def env_steps(task: str, num_envs: int, device: torch.device, backend: str, step
             env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
         _sync(device)
         wall = time.perf_counter() - tic
+        graphs = [getattr(env.scene.sim, k, None) for k in ("_step1", "_step2")]
+        capture_errors = sorted({g.error for g in graphs if g is not None and g.error})
     finally:
         env.close()
-    return {"task": task, "num_envs": num_envs, "steps": steps, "wall_s": wall, "steps_per_s": num_envs * steps / wall}
+    return {"task": task, "num_envs": num_envs, "steps": steps, "wall_s": wall, "steps_per_s": num_envs * steps / wall,
+            "capture": capture, **({"capture_errors": capture_errors} if capture_errors else {})}
 
 
 def mpc_solve(samples: int, horizon: int, device: torch.device, kernel: str, solves: int) -> dict:

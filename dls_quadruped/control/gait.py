@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import torch
 
+from dls_quadruped.core.torch_cache import constant_cache
+
 TROT_PHASE_OFFSETS = (0.0, 0.5, 0.5, 0.0)
 """Phases at reset for (FL, FR, RL, RR): diagonal pairs move together."""
 
@@ -21,7 +23,13 @@ def trot_phases(num: int, device: torch.device | str = "cpu", dtype: torch.dtype
     Returns:
         phase: (num, 4) in [0, 1).
     """
-    return torch.tensor(TROT_PHASE_OFFSETS, device=device, dtype=dtype).expand(num, 4).clone()
+    return _trot_offsets(torch.device(device), dtype).expand(num, 4).clone()
+
+
+@constant_cache
+def _trot_offsets(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    """(4,) ``TROT_PHASE_OFFSETS`` as a tensor, built once per device and dtype (read-only)."""
+    return torch.tensor(TROT_PHASE_OFFSETS, device=device, dtype=dtype)
 
 
 def advance_phase(phase: torch.Tensor, freq: torch.Tensor, dt: float) -> torch.Tensor:

@@ -21,6 +21,7 @@ from dataclasses import dataclass, fields
 
 import torch
 
+from dls_quadruped.core.torch_cache import constant_cache
 from dls_quadruped.robots.aliengo import constants as C
 
 ACTION_DIM = 28
@@ -164,8 +165,10 @@ class LatentAction:
         return cls(vec[..., 0:4], vec[..., 4:8], vec[..., 8:16].reshape(*lead, 4, 2), vec[..., 16:28].reshape(*lead, 4, 3))
 
 
+@constant_cache
 def scale_vector(cfg: LatentActionConfig, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
-    """Table 5 scales as a (28,) vector in the action layout."""
+    """Table 5 scales as a (28,) vector in the action layout; built once per (cfg, dtype, device) and shared, so
+    read-only (an action step uploads no constants)."""
     w = cfg.weight
     p_s = cfg.foothold_scale_frac * cfg.hip_height  # [m]
     fxy_s = cfg.force_xy_scale_frac * w  # [N]
@@ -174,16 +177,29 @@ def scale_vector(cfg: LatentActionConfig, dtype: torch.dtype, device: torch.devi
     return torch.tensor(values, dtype=dtype, device=device)
 
 
+@constant_cache
+def _shift_parts(cfg: LatentActionConfig, dtype: torch.dtype, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """(28,) shifts without the F_z term, and the (28,) indicator of the F_z entries (shared, read-only)."""
+    base = torch.tensor([cfg.freq_shift] * 4 + [cfg.duty_shift] * 4 + [0.0] * 20, dtype=dtype, device=device)
+    is_fz = torch.zeros(ACTION_DIM, dtype=dtype, device=device)
+    is_fz[list(F_Z_INDICES)] = 1.0
+    return base, is_fz
+
+
 def _shift(
     cfg: LatentActionConfig, num_stance: torch.Tensor | float, dtype: torch.dtype, device: torch.device
 ) -> torch.Tensor:
     """Table 5 shifts as a (..., 28) vector; the F_z shift m g / max(n, 1) depends on the stance count."""
-    base = torch.tensor([cfg.freq_shift] * 4 + [cfg.duty_shift] * 4 + [0.0] * 20, dtype=dtype, device=device)
+    base, is_fz = _shift_parts(cfg, dtype, device)
     n = torch.as_tensor(num_stance, device=device).to(dtype).clamp_min(1.0)
     fz_shift = (cfg.weight / n).unsqueeze(-1)  # (..., 1) [N]
-    is_fz = torch.zeros(ACTION_DIM, dtype=dtype, device=device)
-    is_fz[list(F_Z_INDICES)] = 1.0
     return base + fz_shift * is_fz
+
+
+@constant_cache
+def _nominal_foothold(cfg: LatentActionConfig, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """(4, 2) [m] ``cfg.nominal_foothold_b`` as a tensor (shared, read-only)."""
+    return torch.tensor(cfg.nominal_foothold_b, dtype=dtype, device=device)
 
 
 def denormalise(raw: torch.Tensor, num_stance: torch.Tensor | float, cfg: LatentActionConfig) -> LatentAction:
@@ -259,7 +275,7 @@ def to_world(
     """
     dtype, device = action.p_h.dtype, action.p_h.device
     c, s = torch.cos(base_yaw).unsqueeze(-1), torch.sin(base_yaw).unsqueeze(-1)  # (..., 1)
-    nominal = torch.tensor(cfg.nominal_foothold_b, dtype=dtype, device=device)  # (4, 2)
+    nominal = _nominal_foothold(cfg, dtype, device)  # (4, 2)
     q_h = nominal + action.p_h  # (..., 4, 2) foothold relative to the base, frame H
     x_w = base_pos_w[..., 0:1] + c * q_h[..., 0] - s * q_h[..., 1]  # (..., 4)
     y_w = base_pos_w[..., 1:2] + s * q_h[..., 0] + c * q_h[..., 1]
@@ -291,8 +307,11 @@ class LowLevelReferences:
     violation: torch.Tensor
 
 
-def validate_raw(raw: torch.Tensor) -> None:
-    """Raise (ValueError, TypeError for a non-tensor) unless raw is a finite (B, 28) tensor, naming what is wrong."""
+def validate_raw(raw: torch.Tensor, check_finite: bool = True) -> None:
+    """Raise (ValueError, TypeError for a non-tensor) unless raw is a finite (B, 28) tensor, naming what is wrong.
+
+    ``check_finite=False`` checks the type and shape only: the finiteness check reads the tensor back to the
+    host (a device synchronisation), which a caller that has already replaced non-finite rows skips."""
     if not isinstance(raw, torch.Tensor):
         raise TypeError(f"latent action must be a torch.Tensor of shape (B, {ACTION_DIM}), got {type(raw).__name__}")
     if raw.dim() != 2 or raw.shape[1] != ACTION_DIM:
@@ -300,6 +319,8 @@ def validate_raw(raw: torch.Tensor) -> None:
             f"latent action must have shape (B, {ACTION_DIM}) = [f(4), d(4), p_xy(4x2), F_xyz(4x3)], "
             f"got {tuple(raw.shape)}"
         )
+    if not check_finite:
+        return
     bad = ~torch.isfinite(raw)
     if bad.any():
         robots = torch.nonzero(bad.any(dim=1)).flatten().tolist()
@@ -319,7 +340,8 @@ class ActionInterface:
         self.terrain_height_fn = terrain_height_fn
 
     def __call__(
-        self, raw: torch.Tensor, num_stance: torch.Tensor, base_pos_w: torch.Tensor, base_yaw: torch.Tensor
+        self, raw: torch.Tensor, num_stance: torch.Tensor, base_pos_w: torch.Tensor, base_yaw: torch.Tensor,
+        check_finite: bool = True,
     ) -> LowLevelReferences:
         """Process one batch of raw actions.
 
@@ -328,11 +350,13 @@ class ActionInterface:
             num_stance: (B,) legs currently in stance (sets the F_z shift m g / n).
             base_pos_w: (B, 3) [m] base position, world frame.
             base_yaw: (B,) [rad] base yaw.
+            check_finite: refuse non-finite entries (a host read of ``raw``); False where the caller already
+                replaced them (``LocomotionEnv.check_actions``).
 
         Raises:
             ValueError: wrong shape or non-finite entries (names robots and components).
         """
-        validate_raw(raw)
+        validate_raw(raw, check_finite)
         self._check_state(raw.shape[0], num_stance, base_pos_w, base_yaw)
         return self._references(denormalise(raw, num_stance, self.cfg), base_pos_w, base_yaw)
 

@@ -138,9 +138,9 @@ class LowLevelController:
         self.phase[ids] = (trot_phases(len(ids), device=self.device, dtype=self.phase.dtype) if phase is None
                            else phase.to(self.phase))
         self.p_lo_w[ids] = foot_pos_w.to(self.p_lo_w)
-        self.contact[ids] = True
-        self._fresh[ids] = True
-        self.target_vel_xy_w[ids] = 0.0
+        self.contact.index_fill_(0, ids, True)  # scalar fills: x[ids] = v copies v from the host on CUDA
+        self._fresh.index_fill_(0, ids, True)
+        self.target_vel_xy_w.index_fill_(0, ids, 0.0)
 
     STATE_FIELDS = ("phase", "p_lo_w", "contact", "target_xy_w", "target_vel_xy_w", "_fresh", "p_ref_w")
     """The per-robot buffers that carry from one physics step to the next (a checkpoint's controller state)."""
@@ -217,8 +217,10 @@ class LowLevelController:
         acc = a_ref + self._kd * (v_ref - terms.foot_vel_w) + self._kp * (p_ref - terms.foot_pos_w) - terms.Jdot_qdot
         J = terms.J_leg
         Jt = J.transpose(-1, -2)
-        # qddot = J^-1 acc, damped: (J^T J + lambda^2 I) qddot = J^T acc
-        qdd = torch.linalg.solve(Jt @ J + self._eye, (Jt @ acc.unsqueeze(-1))).squeeze(-1)
+        # qddot = J^-1 acc, damped: (J^T J + lambda^2 I) qddot = J^T acc. solve_ex: linalg.solve's own
+        # singularity check reads the info codes back to the host (a GPU synchronisation per physics step); the
+        # damped matrix is positive definite, and a non-finite leg gives non-finite torques either way
+        qdd = torch.linalg.solve_ex(Jt @ J + self._eye, (Jt @ acc.unsqueeze(-1))).result.squeeze(-1)
         tau_swing = (terms.M_leg @ qdd.unsqueeze(-1)).squeeze(-1) + terms.h_leg
 
         # --- stance: tau = -J^T F ---

@@ -97,7 +97,8 @@ def swing_reference(
     """
     ref = p_lo_w
     s = torch.as_tensor(progress, dtype=ref.dtype, device=ref.device).clamp(0.0, 1.0).unsqueeze(-1)
-    h = torch.as_tensor(step_height, dtype=ref.dtype, device=ref.device)
+    # a Python number stays one: a tensor built from it per call is a host-to-device copy on a GPU
+    h = step_height.to(ref) if isinstance(step_height, torch.Tensor) else float(step_height)
     t_s = torch.as_tensor(swing_duration, dtype=ref.dtype, device=ref.device).clamp_min(MIN_SWING_DURATION)
     t_seg = (0.5 * t_s).unsqueeze(-1) if t_s.dim() > 0 else 0.5 * t_s  # (..., 1) or scalar [s]
 

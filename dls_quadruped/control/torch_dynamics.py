@@ -218,27 +218,52 @@ def leg_mass_blocks(qM: torch.Tensor, params: LegChainParams, qM_adr: np.ndarray
             (:func:`qM_addresses_from_pairs`); default ``params.qM_adr``.
     """
     qM = torch.as_tensor(qM)
-    nv = params.nv
+    adr = params.qM_adr if qM_adr is None else np.asarray(qM_adr)
+    return _leg_mass_blocks(qM, params.nv, _LegIndices(params.dof_adr, adr, qM.device))
+
+
+class _LegIndices:
+    """The leg-block index tensors of one model on one device (built once: a per-call upload of a numpy array
+    is a host-to-device copy on a GPU).
+
+    Attributes:
+        dense_rows, dense_cols: (4, 3, 3) row >= column of each leg-block entry in a dense (nv, nv) inertia.
+        sparse: (4, 3, 3) addresses of the entries in a sparse inertia; ``sparse_max`` the largest (a host int).
+        dof: (4, 3) dof addresses of the leg joints (rows of ``qfrc_bias``).
+    """
+
+    def __init__(self, dof_adr: np.ndarray, qM_adr: np.ndarray, device: torch.device):
+        self.dense_rows = torch.as_tensor(np.maximum(dof_adr[:, :, None], dof_adr[:, None, :]), device=device)
+        self.dense_cols = torch.as_tensor(np.minimum(dof_adr[:, :, None], dof_adr[:, None, :]), device=device)
+        self.sparse = torch.as_tensor(qM_adr, device=device)
+        self.sparse_max = int(np.max(qM_adr))
+        self.dof = torch.as_tensor(dof_adr, device=device)
+
+
+def _leg_mass_blocks(qM: torch.Tensor, nv: int, idx: _LegIndices) -> torch.Tensor:
+    """:func:`leg_mass_blocks` with the index tensors given (shape checks on the host only)."""
     if qM.ndim == 3 and tuple(qM.shape[1:]) == (nv, nv):
-        rows = torch.as_tensor(np.maximum(params.dof_adr[:, :, None], params.dof_adr[:, None, :]), device=qM.device)
-        cols = torch.as_tensor(np.minimum(params.dof_adr[:, :, None], params.dof_adr[:, None, :]), device=qM.device)
-        return qM[:, rows, cols]
+        return qM[:, idx.dense_rows, idx.dense_cols]
     if qM.ndim == 3 and qM.shape[1] == 1:
         qM = qM[:, 0]
     if qM.ndim != 2:
         raise ValueError(f"qM must be (B, nM), (B, 1, nM) or (B, {nv}, {nv}); got {tuple(qM.shape)}")
-    adr = torch.as_tensor(params.qM_adr if qM_adr is None else qM_adr, device=qM.device)
-    if int(adr.max()) >= qM.shape[1]:
+    if idx.sparse_max >= qM.shape[1]:
         raise ValueError(f"qM has {qM.shape[1]} entries per robot, fewer than the model's sparse inertia needs")
-    return qM[:, adr]
+    return qM[:, idx.sparse]
 
 
 def leg_bias(qfrc_bias: torch.Tensor, params: LegChainParams) -> torch.Tensor:
     """Leg rows (B, 4, 3) [N m] of MuJoCo's ``qfrc_bias`` (B, nv) = ``LegDynamics.h_leg`` (module doc)."""
     qfrc_bias = torch.as_tensor(qfrc_bias)
-    if qfrc_bias.ndim != 2 or qfrc_bias.shape[1] != params.nv:
-        raise ValueError(f"qfrc_bias must be (B, {params.nv}); got {tuple(qfrc_bias.shape)}")
-    return qfrc_bias[:, torch.as_tensor(params.dof_adr, device=qfrc_bias.device)]
+    return _leg_bias(qfrc_bias, params.nv, torch.as_tensor(params.dof_adr, device=qfrc_bias.device))
+
+
+def _leg_bias(qfrc_bias: torch.Tensor, nv: int, dof: torch.Tensor) -> torch.Tensor:
+    """:func:`leg_bias` with the (4, 3) dof-address tensor ``dof`` on ``qfrc_bias``'s device given."""
+    if qfrc_bias.ndim != 2 or qfrc_bias.shape[1] != nv:
+        raise ValueError(f"qfrc_bias must be (B, {nv}); got {tuple(qfrc_bias.shape)}")
+    return qfrc_bias[:, dof]
 
 
 # ---------------------------------------------------------------------------- kinematics
@@ -347,8 +372,8 @@ def foot_kinematics(qpos: torch.Tensor, qvel: torch.Tensor, pt: _ParamTensors) -
     w = (y.reshape(B, n * 7, 3) @ R_b.transpose(1, 2)).view(B, n, 7, 3)
     p_f = w[:, :, 0] + p_b.unsqueeze(1)
     r_f = w[:, :, 0]  # foot relative to the base origin, world-aligned
-    anchors = w[:, :, (3, 2, 1)]  # (B, 4, 3 joints, 3) relative to the base origin
-    axes = w[:, :, (6, 5, 4)]
+    anchors = w[:, :, 1:4].flip(2)  # (B, 4, 3 joints, 3) relative to the base origin
+    axes = w[:, :, 4:7].flip(2)
 
     # Velocities and accelerations at qacc = 0 along the chain (reference point: base origin, then each anchor).
     ref = torch.zeros_like(r_f)
@@ -394,6 +419,7 @@ class TorchLegDynamics:
         self.qM_adr = self.params.qM_adr if qM_pairs is None else qM_addresses_from_pairs(*qM_pairs,
                                                                                            self.params.dof_adr)
         self._tensors: dict[tuple[torch.device, torch.dtype], _ParamTensors] = {}
+        self._indices: dict[torch.device, _LegIndices] = {}
 
     def _param_tensors(self, like: torch.Tensor) -> _ParamTensors:
         key = (like.device, like.dtype)
@@ -439,8 +465,11 @@ class TorchLegDynamics:
         """
         qpos, qvel = self._check_state(qpos, qvel)
         kin = foot_kinematics(qpos, qvel, self._param_tensors(qpos))
-        M_leg = leg_mass_blocks(torch.as_tensor(qM).to(qpos), self.params, self.qM_adr)
-        h_leg = leg_bias(torch.as_tensor(qfrc_bias).to(qpos), self.params)
+        if qpos.device not in self._indices:
+            self._indices[qpos.device] = _LegIndices(self.params.dof_adr, self.qM_adr, qpos.device)
+        idx = self._indices[qpos.device]
+        M_leg = _leg_mass_blocks(torch.as_tensor(qM).to(qpos), self.params.nv, idx)
+        h_leg = _leg_bias(torch.as_tensor(qfrc_bias).to(qpos), self.params.nv, idx.dof)
         if M_leg.shape[0] != qpos.shape[0] or h_leg.shape[0] != qpos.shape[0]:
             raise ValueError(f"qM / qfrc_bias batch sizes {M_leg.shape[0]} / {h_leg.shape[0]} differ from the "
                              f"state's {qpos.shape[0]}")

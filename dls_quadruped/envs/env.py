@@ -14,8 +14,13 @@ Step order (IsaacLab's ``ManagerBasedRLEnv.step``):
 Returns ``(obs, reward, dones, extras)`` with ``extras["time_outs"]`` (time limits, bootstrapped
 by PPO) and ``extras["log"]`` (episode means, curriculum values, and
 ``Episode_Metric/lin_vel_xy_error``: mean over the resetting envs of the per-step planar
-velocity-tracking error |v_xy,b - v_cmd,xy| [m/s] averaged over their episode). The last observation of a
-reset env is the first one of its new episode (as in IsaacLab).
+velocity-tracking error |v_xy,b - v_cmd,xy| [m/s] averaged over their episode). The episode values are
+0-dim tensors on ``device`` (as IsaacLab's; rsl-rl's logger reads them once per iteration), the curriculum
+values floats. The last observation of a reset env is the first one of its new episode (as in IsaacLab).
+
+Host reads: one per step, the ids of the robots to reset (the simulator backends reset by row id), plus one
+per interval event term (the ids of the robots it pushes); the rest of a step queues device work only
+(``core/sync_probe.py``, ``tests/envs/test_host_sync.py``).
 
 What terms see (``env.<attr>``): ``state`` (RobotState on ``device``), ``num_envs``, ``device``,
 ``step_dt`` [s], ``max_episode_length`` [steps], ``max_episode_length_s``, ``episode_length_buf``,
@@ -178,15 +183,15 @@ class LocomotionEnv(VecEnv):
             raise ValueError(f"actions must have shape {want} (num_envs, num_actions), got {tuple(actions.shape)}")
         actions = actions.detach().to(device=self.device, dtype=torch.float32)
         nonfinite = ~torch.isfinite(actions).all(dim=1)
-        if nonfinite.any():
-            actions = torch.where(nonfinite[:, None], torch.zeros_like(actions), actions)
+        # unconditional (no `if nonfinite.any()`): a host read here would stall a GPU pipeline every step
+        actions = torch.where(nonfinite[:, None], torch.zeros_like(actions), actions)
         return actions, nonfinite
 
     def step(self, actions: torch.Tensor | np.ndarray) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         """One policy step; see the module docstring. A robot whose action row is not finite gets a
         zero action this step, is terminated (``Episode_Termination/nonfinite_action``) and reset."""
         actions, nonfinite = self.check_actions(actions)
-        self.action_manager.process(actions)
+        self.action_manager.process(actions, finite=True)
         self.scene.sim.step(self.decimation)
         return self._finish_step(nonfinite)
 
@@ -297,9 +302,9 @@ class LocomotionEnv(VecEnv):
         for manager in (self.reward_manager, self.termination_manager, self.action_manager, self.command_manager):
             log.update(manager.reset(env_ids))
         steps = self.episode_length_buf[env_ids].clamp(min=1)
-        log["Episode_Metric/lin_vel_xy_error"] = float((self._vel_err_sum[env_ids] / steps).mean())
-        self._vel_err_sum[env_ids] = 0.0
-        self.episode_length_buf[env_ids] = 0
+        log["Episode_Metric/lin_vel_xy_error"] = (self._vel_err_sum[env_ids] / steps).mean()
+        self._vel_err_sum.index_fill_(0, env_ids, 0.0)  # scalar fills: no host-to-device copies
+        self.episode_length_buf.index_fill_(0, env_ids, 0)
 
     # ------------------------------------------------------------------ checkpoint state
     def state_dict(self) -> dict:

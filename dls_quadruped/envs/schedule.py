@@ -23,6 +23,8 @@ any torch device; a uniform is its top 24 bits / 2**24 (every float32 in [0, 1) 
 from __future__ import annotations
 
 import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import torch
 
@@ -52,6 +54,7 @@ class EpisodeSchedule:
         self.num_envs = int(num_envs)
         self.device = torch.device(device)
         self._hashes: dict[tuple, int | torch.Tensor] = {}
+        self._advance: torch.Tensor | None = None  # see only()
         self.restart(seed, episode_keys)
 
     def restart(self, seed: int, episode_keys: torch.Tensor | None = None) -> None:
@@ -77,7 +80,24 @@ class EpisodeSchedule:
         """``env_ids`` begin their next episode: episode += 1, every stream's draw count restarts."""
         self.episode[env_ids] += 1
         for count in self._draws.values():
-            count[env_ids] = 0
+            count.index_fill_(0, env_ids, 0)  # a scalar fill: no host-to-device copy of the 0
+
+    @contextmanager
+    def only(self, advance: torch.Tensor) -> Iterator[None]:
+        """Draws made inside advance the draw counts of the rows where ``advance`` (n,) bool is True only.
+
+        For masked updates without a host read: draw for every env (``env_ids = arange(B)``), keep the draws
+        of the masked envs (``torch.where``), and their numbers are those an indexed draw of the masked envs
+        alone would give, while the others' next draws are unchanged. ``advance`` is indexed like the
+        ``env_ids`` of each draw inside.
+        """
+        if self._advance is not None:
+            raise RuntimeError("EpisodeSchedule.only does not nest")
+        self._advance = advance
+        try:
+            yield
+        finally:
+            self._advance = None
 
     def _bits(self, env_ids: torch.Tensor, shape: tuple[int, ...], stream: str) -> torch.Tensor:
         """(n, *shape) int64 hashes in [0, 2**32); advances ``stream``'s draw count of ``env_ids`` by one."""
@@ -94,14 +114,19 @@ class EpisodeSchedule:
         h = hash32(h ^ key_ep_count[1])
         h = hash32(h ^ self._constant_hash("stream", stream_id(stream)))
         h = hash32(h ^ key_ep_count[2])
-        count[env_ids] += 1
+        if self._advance is None:
+            count[env_ids] += 1
+        else:
+            count[env_ids] += self._advance.to(torch.long)
         return hash32(h[:, None] ^ self._element_hash(size)[None, :]).reshape(n, *shape)
 
     def _constant_hash(self, kind: str, value: int) -> int:
         """hash32 of one integer (the seed, a stream id), cached."""
         key = (kind, int(value))
         if key not in self._hashes:
-            self._hashes[key] = int(hash32(torch.tensor([int(value)], dtype=torch.long))[0])
+            # hash32's int64 arithmetic never overflows, so on a Python int it gives the tensor's value, without a
+            # tensor read back to the host
+            self._hashes[key] = int(hash32(int(value)))
         return self._hashes[key]
 
     def _element_hash(self, size: int) -> torch.Tensor:

@@ -61,13 +61,15 @@ class SimConfig:
     regions: RegionConfig | None = None
     """Per-robot terrain regions of a tiled terrain (``sim/regions.py``): each robot collides only with the
     geoms near it; None: every robot on the whole model (a plane, or tests that compare the two). The Warp
-    backends ignore it (every robot on the whole model, MuJoCo Warp's broadphase culls)."""
+    backends cull the terrain per robot with it (``sim/warp_collision.py``: its ``margin``; cells of ``cell``,
+    None there meaning 1 m, since a Warp cell is a row of geom ids, not a compiled model)."""
     nconmax: int | None = None
     """Warp backends: contacts allocated per robot (None: MuJoCo Warp's default for the model, 48 on a plane,
-    128 with height fields). Lower it to fit more robots in GPU memory, raise it if MuJoCo Warp warns of an
-    overflow (docs/gpu.md)."""
+    128 with height fields). Lower it to fit more robots in GPU memory, raise it if the backend warns of an
+    overflow (a robot whose world overflowed is flagged ``diverged``; docs/gpu.md "Contact and constraint sizes")."""
     njmax: int | None = None
-    """Warp backends: constraint rows allocated per robot (None: MuJoCo Warp's default for the model)."""
+    """Warp backends: constraint rows allocated per robot (None: MuJoCo Warp's default for the model; 4 rows per
+    contact with pyramidal cones, plus joint limits)."""
     leg_dynamics: str = "pinocchio"
     """``cpu``: where the low-level controller's leg terms (leg blocks of M, leg bias, foot Jacobians) come from
     at every physics step (:data:`LEG_DYNAMICS`): ``pinocchio`` (one Pinocchio call per robot, on the nominal
@@ -110,11 +112,12 @@ def standing_references(command: dict[str, torch.Tensor], rows: slice | torch.Te
     the weight shared equally, no foothold. Every backend gives these to a robot at construction and at
     its reset, until its first ``set_references`` (the state published at a reset reads the duty,
     ``contact_cmd = phase < d``, so a robot must not start an episode with its previous episode's duty)."""
-    command["freq"][rows] = 0.0
-    command["duty"][rows] = 1.0
-    command["p_td_w"][rows] = 0.0
-    command["F_w"][rows] = 0.0
-    command["F_w"][rows, :, 2] = weight / 4.0
+    for t, value in ((command["freq"], 0.0), (command["duty"], 1.0), (command["p_td_w"], 0.0), (command["F_w"], 0.0),
+                     (command["F_w"][:, :, 2], weight / 4.0)):
+        if isinstance(rows, torch.Tensor):
+            t.index_fill_(0, rows.to(t.device), value)  # t[rows] = value would copy value from the host on CUDA
+        else:
+            t[rows] = value
 
 
 @runtime_checkable
@@ -245,6 +248,13 @@ def make_backend(name: str, model: mujoco.MjModel, num_envs: int, cfg: SimConfig
 
 
 def _cpu_backend(model: mujoco.MjModel, num_envs: int, cfg: SimConfig) -> SimBackend:
+    if cfg.leg_dynamics == "pinocchio":
+        try:
+            import pinocchio  # noqa: F401  (the workers import it; fail here with one line instead)
+        except ImportError:
+            raise BackendUnavailableError(
+                "simulator backend 'cpu' with leg_dynamics 'pinocchio' needs Pinocchio (pinocchio is not "
+                "installed): pip install pin, or SimConfig(leg_dynamics='mujoco'), or a Warp backend") from None
     from dls_quadruped.sim.backend import VecSim
 
     return VecSim(model, num_envs, cfg)

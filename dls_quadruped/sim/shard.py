@@ -28,17 +28,20 @@ Per physics step (200 Hz): leg terms at the current state -> low-level torques (
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 import torch
 from mujoco.batch import Batch, SimulationError
 
-from dls_quadruped.control.dynamics import LegDynamics
 from dls_quadruped.control.lowlevel import LegTerms, LowLevelConfig, LowLevelController
 from dls_quadruped.control.torch_dynamics import TorchLegDynamics
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.regions import RegionConfig, RobotRegions
+
+if TYPE_CHECKING:
+    from dls_quadruped.control.dynamics import LegDynamics
 
 MAX_ABS_QVEL = 1.0e3
 """Generalized velocities beyond this [m/s, rad/s] mark a robot as diverged."""
@@ -151,7 +154,7 @@ class Shard:
         self.xfrc = self.batch.bind("xfrc_applied")
         self.sensordata = self.batch.bind("sensordata")
         if self.mujoco_terms:
-            self.dynamics: LegDynamics | TorchLegDynamics = TorchLegDynamics(model)
+            self.dynamics: TorchLegDynamics | LegDynamics = TorchLegDynamics(model)
             self._M = self.batch.bind("M")  # MuJoCo 4's sparse inertia (data.M)
             self._bias = self.batch.bind("qfrc_bias")
             self._qM_adr = self.dynamics.qM_adr  # (4, 3, 3) leg-block addresses in M
@@ -162,6 +165,10 @@ class Shard:
                     for i in range(model.nsensor) if stage[i] < int(mujoco.mjtStage.mjSTAGE_ACC)]
             self._lagged_cols = np.concatenate(cols) if cols else np.zeros(0, dtype=np.int64)
         else:
+            # Pinocchio is imported here, not at the top: the Warp backends import this module for its layout
+            # helpers and run where `pin` is not installed
+            from dls_quadruped.control.dynamics import LegDynamics
+
             self.dynamics = LegDynamics(model_path=C.MJCF_PATH)
         self.controller = LowLevelController(n, ctrl_cfg, dt=model.opt.timestep)
         self.base_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)

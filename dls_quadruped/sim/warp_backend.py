@@ -1,4 +1,4 @@
-"""MuJoCo Warp backend (issue 26): N AlienGo robots as N worlds of one MuJoCo Warp model, with the low-level
+"""MuJoCo Warp backend: N AlienGo robots as N worlds of one MuJoCo Warp model, with the low-level
 controller in torch on the same device, and no host round trip per physics step.
 
 Registered in ``sim/interface.py`` as ``warp-cpu`` (Warp's CPU device: correctness checks on any machine) and
@@ -29,10 +29,11 @@ Design:
 
 Differences from the CPU backend (``sim/backend.py``): MuJoCo Warp computes in float32 (the controller runs in
 float64 on the float32 state); its constraint solver is MuJoCo's algorithm, not its bits, and allocates
-``nconmax`` contacts and ``njmax`` constraint rows per world (``SimConfig``); terrain regions
-(``SimConfig.regions``) are not used -- every robot sees the whole terrain and MuJoCo Warp's broadphase
-culls far geoms; the controller's leg dynamics come from MuJoCo's mass matrix and bias forces (the CPU
-backend uses Pinocchio: the same quantities, ``tests/control/test_torch_dynamics.py``).
+``nconmax`` contacts and ``njmax`` constraint rows per world (``SimConfig``; a world that runs out is flagged
+``diverged``); with terrain regions (``SimConfig.regions``) each world's robot is tested only against the terrain
+geoms near its base (``sim/warp_collision.py``), not a model per region; the controller's leg dynamics come from
+MuJoCo's mass matrix and bias forces (the CPU backend uses Pinocchio: the same quantities,
+``tests/control/test_torch_dynamics.py``).
 """
 
 from __future__ import annotations
@@ -57,8 +58,19 @@ from dls_quadruped.core.state import RobotState
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.interface import SimConfig, robot_weight, standing_references
 from dls_quadruped.sim.shard import MAX_ABS_QVEL, STATE_SPECS, contact_sensor_layout
+from dls_quadruped.sim.warp_collision import (
+    ALLOCATION_OVERFLOWS,
+    CELL,
+    TerrainCulling,
+    collision_stats,
+)
+from dls_quadruped.sim.warp_graph import StepGraph
 
 _BOOL_FIELDS = ("base_contact", "diverged")
+
+CHECK_EVERY = 24
+"""``step`` calls between the backend's host reads (contact overflow, non-finite references): one PPO
+iteration of Table 6 (24 env steps), so a GPU step never waits on the host in between."""
 
 WARP_STATE_FIELDS = ("time", "qpos", "qvel", "act", "history", "qacc_warmstart", "ctrl", "qfrc_applied",
                      "xfrc_applied", "eq_active", "mocap_pos", "mocap_quat", "userdata", "plastic")
@@ -93,12 +105,13 @@ class WarpSim:
     Args:
         model: the scene (one AlienGo, free joint first, legs in ``constants.JOINT_NAMES`` order, the ground).
         num_envs: number of robots N.
-        cfg: backend configuration (``control``, ``nconmax``, ``njmax``; ``num_workers``, ``nthread`` and
-            ``regions`` do not apply).
+        cfg: backend configuration (``control``, ``nconmax``, ``njmax``, ``regions``: terrain culling;
+            ``num_workers`` and ``nthread`` do not apply).
         device: ``"cpu"`` (Warp's CPU device) or ``"cuda"``/``"cuda:k"``.
     """
 
-    def __init__(self, model: mujoco.MjModel, num_envs: int, cfg: SimConfig | None = None, device: str = "cpu"):
+    def __init__(self, model: mujoco.MjModel, num_envs: int, cfg: SimConfig | None = None, device: str = "cpu",
+                 capture: bool = True):
         cfg = SimConfig() if cfg is None else cfg
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
@@ -115,6 +128,14 @@ class WarpSim:
         with self._scope():
             self.m = mjw.put_model(model)
             self.d = mjw.make_data(model, nworld=n, nconmax=cfg.nconmax, njmax=cfg.njmax)
+            # overflows are flagged per robot and reported once (_freeze_diverged, _check_overflow), not printed
+            # by MuJoCo Warp's kernels at every step
+            self.m.opt.warn_overflow = 0
+            self.culling = None if cfg.regions is None else TerrainCulling(
+                model, self.m, self.d.naconmax, self.base_body, cfg.regions.cell or CELL, cfg.regions.margin)
+        # the physics step's two phases, replayed from captured Warp graphs (sim/warp_graph.py)
+        self._step1 = StepGraph(mjw.step1, self.m, self.d, self.wp_device, enabled=capture)
+        self._step2 = StepGraph(mjw.step2, self.m, self.d, self.wp_device, enabled=capture)
         self._batched: set[str] = set()
         v = wp.to_torch
         self._qpos, self._qvel, self._time = v(self.d.qpos), v(self.d.qvel), v(self.d.time)
@@ -134,6 +155,9 @@ class WarpSim:
                         for k, s in (("freq", (4,)), ("duty", (4,)), ("p_td_w", (4, 3)), ("F_w", (4, 3)))}
         self.wrench_w = torch.zeros(n, 6, dtype=self._xfrc.dtype, device=dev)
         self.diverged = torch.zeros(n, dtype=torch.bool, device=dev)
+        self._bad_refs = torch.zeros(4, dtype=torch.bool, device=dev)  # non-finite freq, duty, p_td_w, F_w seen
+        self.check_every = CHECK_EVERY
+        self._step_calls = 0
         self.tau = torch.zeros(n, 12, dtype=f64, device=dev)
         self.buf = {k: torch.zeros((n, *s), dtype=torch.float32, device=dev)
                     for k, s in STATE_SPECS.items() if k not in _BOOL_FIELDS}
@@ -152,6 +176,17 @@ class WarpSim:
         self._publish()
 
     # ------------------------------------------------------------------ plumbing
+    @property
+    def capture(self) -> bool:
+        """Whether ``step`` replays captured graphs of MuJoCo Warp's phases (``sim/warp_graph.py``)."""
+        return self._step2.enabled
+
+    @capture.setter
+    def capture(self, enabled: bool) -> None:
+        for graph in (self._step1, self._step2):
+            graph.enabled = bool(enabled)
+            graph.invalidate()
+
     def _scope(self) -> ExitStack:
         """Warp's device, and on CUDA torch's current stream, for MuJoCo Warp calls."""
         stack = ExitStack()
@@ -177,11 +212,17 @@ class WarpSim:
             raise ValueError(f"env_ids must be in [0, {self.num_envs}), got min {int(ids.min())} max {int(ids.max())}")
         return ids
 
-    def _check_rows(self, name: str, value: Any, n: int, shape: tuple[int, ...]) -> torch.Tensor:
-        """``value`` as a float64 tensor on the device of shape (n, *shape) with finite entries."""
+    def _shaped(self, name: str, value: Any, n: int, shape: tuple[int, ...]) -> torch.Tensor:
+        """``value`` as a float64 tensor on the device of shape (n, *shape) (no host read of its values)."""
         value = torch.as_tensor(value).to(self.device, torch.float64)
         if value.shape != (n, *shape):
             raise ValueError(f"{name} must have shape {(n, *shape)}, got {tuple(value.shape)}")
+        return value
+
+    def _check_rows(self, name: str, value: Any, n: int, shape: tuple[int, ...]) -> torch.Tensor:
+        """``value`` as a float64 tensor on the device of shape (n, *shape) with finite entries (a host read:
+        for calls outside the per-step path)."""
+        value = self._shaped(name, value, n, shape)
         finite = torch.isfinite(value).reshape(n, -1).all(dim=1)
         if not bool(finite.all()):
             rows = torch.nonzero(~finite).flatten().tolist()
@@ -202,12 +243,30 @@ class WarpSim:
 
     # ------------------------------------------------------------------ public API
     def set_references(self, freq: Any, duty: Any, p_td_w: Any, F_w: Any) -> None:
-        """World-frame latent references of every robot, held until the next call (``SimBackend``)."""
+        """World-frame latent references of every robot, held until the next call (``SimBackend``).
+
+        Shapes are checked here; finiteness on the device, without a host read: a non-finite reference is
+        remembered and raised by the next :meth:`check_inputs` (every :attr:`check_every` ``step`` calls), and
+        until then it makes its robot diverge, which freezes it (no NaN is published).
+        """
         n, c = self.num_envs, self.command
-        c["freq"].copy_(self._check_rows("freq", freq, n, (4,)))
-        c["duty"].copy_(self._check_rows("duty", duty, n, (4,)))
-        c["p_td_w"].copy_(self._check_rows("p_td_w", p_td_w, n, (4, 3)))
-        c["F_w"].copy_(self._check_rows("F_w", F_w, n, (4, 3)))
+        for i, (name, value, shape) in enumerate((("freq", freq, (4,)), ("duty", duty, (4,)),
+                                                  ("p_td_w", p_td_w, (4, 3)), ("F_w", F_w, (4, 3)))):
+            value = self._shaped(name, value, n, shape)
+            self._bad_refs[i] |= ~torch.isfinite(value).all()
+            c[name].copy_(value)
+
+    def check_inputs(self) -> None:
+        """Raise if a :meth:`set_references` call since the last check had non-finite values (one host read).
+
+        Raises:
+            ValueError: naming the references that were non-finite.
+        """
+        if bool(self._bad_refs.any()):
+            names = [k for k, bad in zip(("freq", "duty", "p_td_w", "F_w"), self._bad_refs.tolist()) if bad]
+            self._bad_refs.zero_()
+            raise ValueError(f"set_references got non-finite values in {', '.join(names)} (within the last "
+                             f"{self.check_every} step calls); those robots diverged and were frozen")
 
     def step(self, num_physics_steps: int = 1) -> RobotState:
         """Advance every robot by ``num_physics_steps`` physics steps, low-level control at each (module doc)."""
@@ -215,26 +274,33 @@ class WarpSim:
         if num_physics_steps < 1:
             raise ValueError(f"num_physics_steps must be >= 1, got {num_physics_steps}")
         c = self.command
+        torch_stream = wp.stream_from_torch(torch.cuda.current_stream(self.device)) if self.device.type == "cuda" else None
         with self._scope():
             self._xfrc[:, self.base_body] = self.wrench_w
             for _ in range(num_physics_steps):
                 tau = self.controller.compute(self._terms, c["freq"], c["duty"], c["p_td_w"], c["F_w"])
+                self.diverged |= ~torch.isfinite(tau).all(dim=1)  # non-finite references (set_references)
                 self.tau = tau.masked_fill(self.diverged[:, None], 0.0)
                 self._ctrl.copy_(self.tau)
                 time_before = self._time.clone()
-                mjw.step2(self.m, self.d)
+                self._step2(torch_stream)
                 self._freeze_diverged(time_before)
                 self._contact_sensors.copy_(self._sensordata)  # step1 zeroes the acceleration-stage sensors
-                mjw.step1(self.m, self.d)
+                self._step1(torch_stream)
                 self._terms = self._dynamics_terms()
-        self._check_overflow()
+        self._step_calls += 1
+        if self._step_calls % self.check_every == 0:  # the host reads of this call, once per check_every calls
+            self._check_overflow()
+            self.check_inputs()
         return self._publish()
 
     def _freeze_diverged(self, time_before: torch.Tensor) -> None:
-        """Flag robots whose state blew up; hold every flagged robot at the keyframe, at rest, clock stopped."""
+        """Flag robots whose state blew up or whose world ran out of contacts or constraint rows (MuJoCo Warp
+        dropped some: the step was wrong); hold every flagged robot at the keyframe, at rest, clock stopped."""
         qpos, qvel = self._qpos, self._qvel
         bad = ~torch.isfinite(qpos).all(dim=1) | ~torch.isfinite(qvel).all(dim=1)
         bad |= qvel.abs().amax(dim=1) > MAX_ABS_QVEL
+        bad |= (self._overflow & ALLOCATION_OVERFLOWS) != 0  # sticky until the robot's reset clears it
         self.diverged |= bad
         div = self.diverged[:, None]
         qpos.copy_(torch.where(div, self._key_qpos, qpos))
@@ -243,13 +309,21 @@ class WarpSim:
         self._time.copy_(torch.where(self.diverged, time_before, self._time))
 
     def _check_overflow(self) -> None:
-        """Warn once when a world ran out of contact or constraint rows (one host read per ``step`` call)."""
-        if self._warned_overflow or not bool((self._overflow != 0).any()):
+        """Warn once when a world ran out of contact or constraint rows (one host read per ``step`` call until then);
+        :meth:`_freeze_diverged` already flagged those robots on the device."""
+        if self._warned_overflow or not bool(((self._overflow & ALLOCATION_OVERFLOWS) != 0).any()):
             return
         self._warned_overflow = True
         warnings.warn(f"MuJoCo Warp ran out of contacts or constraint rows in some worlds (nconmax "
-                      f"{self.d.naconmax // self.num_envs}, njmax {self.d.njmax} per robot): contacts were dropped; "
-                      "raise SimConfig.nconmax / njmax (docs/gpu.md)", RuntimeWarning, stacklevel=3)
+                      f"{self.d.naconmax // self.num_envs}, njmax {self.d.njmax} per robot): those robots are flagged "
+                      "diverged and reset; raise scene.nconmax / njmax (SimConfig, docs/gpu.md)", RuntimeWarning,
+                      stacklevel=3)
+
+    def collision_stats(self) -> dict[str, float | int | str]:
+        """Broadphase pair tests, contacts and constraint rows per robot at the current state
+        (``sim/warp_collision.py collision_stats``; host reads, for benchmarks and sizing)."""
+        self._check_open()
+        return collision_stats(self.m, self.d, self.culling)
 
     def reset(self, env_ids: Any, base_pos_w: Any, base_quat_w: Any, joint_pos: Any, joint_vel: Any = None,
               base_lin_vel_w: Any = None, base_ang_vel_b: Any = None, phase: Any = None) -> RobotState:
@@ -272,20 +346,20 @@ class WarpSim:
              else self._check_rows("joint_vel", joint_vel, n, (12,))], dim=1)
         phase = None if phase is None else self._check_rows("phase", phase, n, (4,))
         mask = torch.zeros(self.num_envs, dtype=torch.bool, device=dev)
-        mask[ids] = True
+        mask.index_fill_(0, ids, True)  # scalar fills: x[ids] = v copies v from the host on CUDA
         with self._scope():
             mjw.reset_data(self.m, self.d, reset=wp.from_torch(mask))
             self._qpos[ids] = qpos.to(self._qpos.dtype)
             self._qvel[ids] = qvel.to(self._qvel.dtype)
-            self._time[ids] = 0.0
+            self._time.index_fill_(0, ids, 0.0)
             mjw.forward(self.m, self.d)  # every stage, sensors included: the reset robots' published forces
         self._contact_sensors[ids] = self._sensordata[ids]
-        self.diverged[ids] = False
-        self.wrench_w[ids] = 0.0
+        self.diverged.index_fill_(0, ids, False)
+        self.wrench_w.index_fill_(0, ids, 0.0)
         self._standing_references(ids)
         self._terms = self._dynamics_terms()
         self.controller.reset(ids, self._terms.foot_pos_w[ids], phase)
-        self.tau[ids] = 0.0
+        self.tau.index_fill_(0, ids, 0.0)
         return self._publish()
 
     def set_external_wrench(self, env_ids: Any, force_w: Any, torque_w: Any) -> None:
@@ -322,6 +396,8 @@ class WarpSim:
                 with self._scope():
                     arr = wp.array(tiled, dtype=arr.dtype, device=self.wp_device)
                 setattr(self.m, name, arr)
+                for graph in (self._step1, self._step2):  # they hold the replaced array's address
+                    graph.invalidate()
             self._batched.add(name)
         return wp.to_torch(arr)
 

@@ -38,3 +38,10 @@ def test_only_out_of_memory_ends_a_tasks_sizes() -> None:
     assert D._out_of_memory(torch.cuda.OutOfMemoryError("CUDA out of memory. Tried to allocate 2.00 GiB"))
     assert D._out_of_memory(RuntimeError("Warp CUDA error: out of memory"))
     assert not D._out_of_memory(ValueError("num_envs must be >= 1"))
+
+
+def test_warps_failed_allocation_is_out_of_memory_but_a_capture_without_pools_is_not() -> None:
+    # the messages of warp/_src/context.py's allocators (Warp 1.19)
+    assert D._out_of_memory(RuntimeError("Failed to allocate 17179869184 bytes on device 'cuda:0'"))
+    assert not D._out_of_memory(RuntimeError("Failed to allocate memory during graph capture because memory pools "
+                                             "are not enabled on device 'cuda:0'"))

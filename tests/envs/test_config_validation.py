@@ -27,6 +27,7 @@ CASES = [
     ({"env": {"episode_length_s": 0}}, "env.episode_length_s", "must be > 0.0"),
     ({"scene": {"num_workers": "two"}}, "scene.num_workers", "must be an integer"),
     ({"scene": {"num_workers": 1.5}}, "scene.num_workers", "must be an integer"),
+    ({"scene": {"nconmax": 64.5}}, "scene.nconmax", "must be an integer or null"),
     ({"rewards": {"track_lin_vel_xy": {"params": {"sigma": 0.0}}}}, "rewards.track_lin_vel_xy.params.sigma",
      "must be > 0"),
     ({"rewards": {"track_lin_vel_xy": {"params": {"sigma": "wide"}}}}, "rewards.track_lin_vel_xy.params.sigma",
@@ -100,7 +101,9 @@ def test_type_problem(value, annotation, ok):
 
 
 @pytest.mark.parametrize("body, key", [({"scene": {"num_workers": -2}}, "scene.num_workers"),
-                                       ({"scene": {"max_init_level": -1}}, "scene.max_init_level")])
+                                       ({"scene": {"max_init_level": -1}}, "scene.max_init_level"),
+                                       ({"scene": {"nconmax": 0}}, "scene.nconmax"),
+                                       ({"scene": {"njmax": 0}}, "scene.njmax")])
 def test_scene_bounds(tmp_path, body, key):
     with pytest.raises(ConfigError, match=f"{key}: must be >= "):
         load_task(_task(tmp_path, body))

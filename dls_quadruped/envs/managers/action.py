@@ -43,17 +43,19 @@ class ActionManager:
         self.violation = torch.zeros_like(self.raw_action)
         self.applied_physical = torch.zeros_like(self.raw_action)
 
-    def process(self, raw: torch.Tensor, replan: bool = False) -> None:
+    def process(self, raw: torch.Tensor, replan: bool = False, finite: bool = False) -> None:
         """Convert and send the references to the simulator (held until the next call).
 
         ``replan``: a second action within the same policy step (``LocomotionEnv.apply_action``): the previous
-        action stays the one before the policy step."""
+        action stays the one before the policy step. ``finite``: ``raw`` is known to be finite
+        (``LocomotionEnv.check_actions`` replaced the rows that were not), so it is not read back to check."""
         if not replan:
             self.prev_raw_action[:] = self.raw_action
         self.raw_action[:] = raw.to(self.raw_action)
         s = self.env.state
         num_stance = s.contact_cmd.sum(dim=-1)
-        refs = self.interface(self.raw_action, num_stance, s.base_pos_w, yaw_from_quat(s.base_quat_w))
+        refs = self.interface(self.raw_action, num_stance, s.base_pos_w, yaw_from_quat(s.base_quat_w),
+                              check_finite=not finite)
         self.violation[:] = refs.violation
         self.applied_action[:] = self.raw_action - refs.violation
         self.applied_physical[:] = refs.action.to_vector()
@@ -61,7 +63,7 @@ class ActionManager:
 
     def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
         for buf in (self.raw_action, self.prev_raw_action, self.applied_action, self.violation, self.applied_physical):
-            buf[env_ids] = 0.0
+            buf.index_fill_(0, env_ids, 0.0)  # x[ids] = 0.0 copies the 0 from the host on CUDA
         return {}
 
     def summary(self) -> str:

@@ -46,6 +46,7 @@ class CommandManager:
         """(B, 2) [m] world-frame displacement of an exact tracker since the episode began."""
         self.commanded_yaw = torch.zeros(env.num_envs, device=env.device)
         """(B,) [rad] that tracker's heading (the robot's at reset, then the integrated yaw rate)."""
+        self._all_ids = torch.arange(env.num_envs, device=env.device)
 
     def resample(self, env_ids: torch.Tensor) -> None:
         if len(env_ids) == 0:
@@ -55,9 +56,20 @@ class CommandManager:
         self.time_left[env_ids] = self.env.schedule.uniform(env_ids, (), lo, hi, stream="command_time")
 
     def compute(self, dt: float) -> None:
-        """Advance the timers by the policy step and resample the expired commands."""
+        """Advance the timers by the policy step and resample the expired commands.
+
+        Masked, without reading on the host which expired: every env draws, only the expired ones keep
+        their draws and advance their schedule streams (``EpisodeSchedule.only``), so the numbers are those of
+        resampling the expired envs alone."""
         self.time_left -= dt
-        self.resample(torch.nonzero(self.time_left <= 0.0).flatten())
+        expired = self.time_left <= 0.0
+        ids = self._all_ids
+        with self.env.schedule.only(expired):
+            command = self.term.func(self.env, ids, **self.params).to(self.command)
+            lo, hi = self.resampling_time_s
+            time_left = self.env.schedule.uniform(ids, (), lo, hi, stream="command_time")
+        self.command.copy_(torch.where(expired[:, None], command, self.command))
+        self.time_left.copy_(torch.where(expired, time_left, self.time_left))
 
     def integrate(self, dt: float) -> None:
         """Advance the exact tracker by one policy step of the current command: heading by
@@ -71,7 +83,7 @@ class CommandManager:
     def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
         """Resample the commands of ``env_ids`` and restart their tracker at the robot's (reset) heading."""
         self.resample(env_ids)
-        self.commanded_disp[env_ids] = 0.0
+        self.commanded_disp.index_fill_(0, env_ids, 0.0)
         self.commanded_yaw[env_ids] = yaw_from_quat(self.env.state.base_quat_w[env_ids]).to(self.commanded_yaw)
         return {}
 

@@ -1,7 +1,7 @@
 """Reward manager: r = sum_i w_i r_i dt (IsaacLab convention: weights are per second).
 
 Weights are mutable (``self.weights``) so a curriculum can switch terms on. Episode sums per term
-are logged at reset as ``Episode_Reward/<term>`` (sum over the episode / episode length in s).
+are logged at reset as ``Episode_Reward/<term>`` (sum over the episode / episode length in s, a 0-dim tensor).
 """
 
 from __future__ import annotations
@@ -52,11 +52,13 @@ class RewardManager:
             return 0.0
         return float(self.episode_sums[name][env_ids].mean() / (w * self.env.max_episode_length_s))
 
-    def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
+    def reset(self, env_ids: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Episode sums of ``env_ids`` (mean over them / episode length [s]) as 0-dim tensors on the env's device
+        (not read back here: the logger does that, once per iteration), then cleared."""
         logs = {}
         for name, s in self.episode_sums.items():
-            logs[f"Episode_Reward/{name}"] = float(s[env_ids].mean() / self.env.max_episode_length_s)
-            s[env_ids] = 0.0
+            logs[f"Episode_Reward/{name}"] = s[env_ids].mean() / self.env.max_episode_length_s
+            s.index_fill_(0, env_ids, 0.0)
         return logs
 
     def summary(self) -> str:

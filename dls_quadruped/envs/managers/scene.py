@@ -3,7 +3,7 @@
 Task file::
 
     terrain: {types: [flat, rugged, ...], num_rows: 10, ...}   # TerrainConfig fields
-    scene: {backend: cpu, num_workers: -1, max_init_level: 0, leg_dynamics: pinocchio}
+    scene: {backend: cpu, num_workers: -1, max_init_level: 0, leg_dynamics: pinocchio, nconmax: 16, njmax: 64}  # nconmax/njmax: Warp only
 
 Each env owns a terrain tile: row = level (difficulty), column = type (envs spread evenly over
 the columns by their episode key, ``envs/schedule.py``). Robots reset onto their tile origin; the
@@ -40,13 +40,18 @@ class SceneConfig:
     terrain_regions: on a tiled terrain, each robot collides only with the geoms near it
     (``sim/regions.py``: same contacts, 2-3x cheaper physics); false runs every robot on the whole terrain;
     leg_dynamics: ``cpu`` backend, where the low-level controller's leg terms come from (``SimConfig.leg_dynamics``):
-    ``pinocchio`` (default) or ``mujoco`` (MuJoCo's M and bias forces of each robot's own model)."""
+    ``pinocchio`` (default) or ``mujoco`` (MuJoCo's M and bias forces of each robot's own model);
+    nconmax, njmax: Warp backends, contacts and constraint rows allocated per robot (``SimConfig``; null: MuJoCo
+    Warp's guess for the model); the task files set them from measured use (docs/gpu.md "Contact and constraint
+    sizes")."""
 
     backend: str = "cpu"
     num_workers: int = field(default=-1, metadata={"min": -1})
     max_init_level: int = field(default=0, metadata={"min": 0})
     terrain_regions: bool = True
     leg_dynamics: str = "pinocchio"
+    nconmax: int | None = field(default=None, metadata={"min": 1})
+    njmax: int | None = field(default=None, metadata={"min": 1})
 
 
 class SceneManager:
@@ -66,7 +71,8 @@ class SceneManager:
         regions = RegionConfig(self.terrain_cfg) if self.cfg.terrain_regions and not self.terrain.is_plane else None
         self.sim: SimBackend = make_backend(self.cfg.backend, self.model, env.num_envs,
                                             SimConfig(num_workers=self.cfg.num_workers, regions=regions,
-                                                      leg_dynamics=self.cfg.leg_dynamics))
+                                                      leg_dynamics=self.cfg.leg_dynamics, nconmax=self.cfg.nconmax,
+                                                      njmax=self.cfg.njmax))
         self.scan_cfg = HeightScanConfig()
         dev = env.device
         self.scan_pattern = scan_pattern(self.scan_cfg, dev)

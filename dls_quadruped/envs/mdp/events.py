@@ -14,12 +14,22 @@ import mujoco
 import torch
 
 from dls_quadruped.core.rotations import quat_from_yaw
+from dls_quadruped.core.torch_cache import constant_cache
 from dls_quadruped.robots.aliengo import constants as C
 
 
 def _uniform(env, env_ids: torch.Tensor, shape: tuple[int, ...], rng, stream: str) -> torch.Tensor:
     """(n, *shape) U[rng) of ``env_ids`` (n,) from the env's episode schedule."""
     return env.schedule.uniform(env_ids, shape, float(rng[0]), float(rng[1]), stream=stream)
+
+
+@constant_cache
+def _constant(name: str, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """The robot constant ``name`` of the ``constants`` module (or ``"THIGH_Y"``, the signed lateral thigh offsets
+    (4,) [m]) as a tensor, built once per dtype and device (a per-reset upload is a host-to-device copy on a
+    GPU); read-only."""
+    value = C.LEG_Y_SIGN * C.THIGH_OFFSET_Y if name == "THIGH_Y" else getattr(C, name)
+    return torch.as_tensor(value, dtype=dtype, device=device)
 
 
 def foot_positions_b(q: torch.Tensor) -> torch.Tensor:
@@ -29,8 +39,8 @@ def foot_positions_b(q: torch.Tensor) -> torch.Tensor:
     q0, q1, q12 = legs[..., 0], legs[..., 1], legs[..., 1] + legs[..., 2]
     px = -C.THIGH_LENGTH * torch.sin(q1) - C.CALF_LENGTH * torch.sin(q12)  # leg plane, before the hip roll
     pz = -C.THIGH_LENGTH * torch.cos(q1) - C.CALF_LENGTH * torch.cos(q12)
-    py = torch.as_tensor(C.LEG_Y_SIGN * C.THIGH_OFFSET_Y, dtype=q.dtype, device=q.device)
-    hip = torch.as_tensor(C.HIP_OFFSETS_B, dtype=q.dtype, device=q.device)
+    py = _constant("THIGH_Y", q.dtype, q.device)
+    hip = _constant("HIP_OFFSETS_B", q.dtype, q.device)
     c, s = torch.cos(q0), torch.sin(q0)
     return hip + torch.stack([px, py * c - pz * s, py * s + pz * c], dim=-1)
 
@@ -46,7 +56,7 @@ def spawn_height(terrain, xy: torch.Tensor, yaw: torch.Tensor, q: torch.Tensor, 
     c, s = torch.cos(yaw)[:, None], torch.sin(yaw)[:, None]
     fx = xy[:, 0:1] + c * feet[..., 0] - s * feet[..., 1]
     fy = xy[:, 1:2] + s * feet[..., 0] + c * feet[..., 1]
-    nominal = foot_positions_b(torch.as_tensor(C.NOMINAL_JOINT_POS, dtype=q.dtype, device=q.device)[None])
+    nominal = foot_positions_b(_constant("NOMINAL_JOINT_POS", q.dtype, q.device)[None])
     ground = terrain.height_at(xy[:, 0], xy[:, 1])
     lowest = (terrain.height_at(fx, fy) - feet[..., 2]).amax(dim=1)  # the base z at which the lowest foot's
     raise_by = lowest - (ground - nominal[0, :, 2].amin())           # centre meets its ground, vs nominal/flat
@@ -62,9 +72,9 @@ def reset_robot(env, env_ids: torch.Tensor, joint_scale: tuple[float, float] = (
     dev = env.device
     origins = env.scene.env_origins[env_ids]
     xy = origins[:, :2] + _uniform(env, env_ids, (2,), (-xy_offset, xy_offset), "reset_robot")
-    nominal = torch.as_tensor(C.NOMINAL_JOINT_POS, dtype=torch.float32, device=dev)
+    nominal = _constant("NOMINAL_JOINT_POS", torch.float32, dev)
     q = nominal * _uniform(env, env_ids, (12,), joint_scale, "reset_robot")
-    lim = torch.as_tensor(C.JOINT_RANGES, dtype=torch.float32, device=dev)
+    lim = _constant("JOINT_RANGES", torch.float32, dev)
     q = torch.clamp(q, lim[:, 0], lim[:, 1])
     heading = _uniform(env, env_ids, (), yaw, "reset_robot")
     z = spawn_height(env.scene.terrain, xy, heading, q, height)

@@ -8,11 +8,24 @@ from __future__ import annotations
 import torch
 
 from dls_quadruped.core.rotations import quat_rotate_inverse
+from dls_quadruped.core.torch_cache import constant_cache
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.height_scan import height_scan as _height_scan
 
 CONTACT_FORCE_THRESHOLD = 1.0
 """[N] a foot is in contact when the normal (world z) ground force exceeds this."""
+
+
+@constant_cache
+def _gravity_dir_w(device: torch.device) -> torch.Tensor:
+    """(3,) unit gravity direction (0, 0, -1), world frame (built once per device, read-only)."""
+    return torch.tensor([0.0, 0.0, -1.0], device=device)
+
+
+@constant_cache
+def _nominal_joint_pos(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """(12,) [rad] ``constants.NOMINAL_JOINT_POS`` (built once per dtype and device, read-only)."""
+    return torch.as_tensor(C.NOMINAL_JOINT_POS, dtype=dtype, device=device)
 
 
 def base_lin_vel(env) -> torch.Tensor:
@@ -29,14 +42,14 @@ def base_ang_vel(env) -> torch.Tensor:
 def projected_gravity(env) -> torch.Tensor:
     """(B, 3) unit gravity direction in the base frame ((0, 0, -1) when level)."""
     s = env.state
-    g_w = torch.tensor([0.0, 0.0, -1.0], device=s.base_quat_w.device).expand(s.base_quat_w.shape[0], 3)
+    g_w = _gravity_dir_w(s.base_quat_w.device).expand(s.base_quat_w.shape[0], 3)
     return quat_rotate_inverse(s.base_quat_w, g_w)
 
 
 def joint_pos(env) -> torch.Tensor:
     """(B, 12) [rad] joint positions relative to the nominal standing pose."""
-    nominal = torch.as_tensor(C.NOMINAL_JOINT_POS, dtype=env.state.joint_pos.dtype, device=env.state.joint_pos.device)
-    return env.state.joint_pos - nominal
+    q = env.state.joint_pos
+    return q - _nominal_joint_pos(q.dtype, q.device)
 
 
 def joint_vel(env) -> torch.Tensor:

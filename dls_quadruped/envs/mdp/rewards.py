@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import torch
 
+from dls_quadruped.core.torch_cache import constant_cache
 from dls_quadruped.envs.mdp import kernels
 from dls_quadruped.envs.mdp.observations import (
     base_lin_vel,
@@ -78,10 +79,16 @@ def action_rate(env) -> torch.Tensor:
     return kernels.l2(am.raw_action - am.prev_raw_action)
 
 
+@constant_cache
+def _joint_ranges(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """(12, 2) [rad] ``constants.JOINT_RANGES`` (low, high) (built once per dtype and device, read-only)."""
+    return torch.as_tensor(C.JOINT_RANGES, dtype=dtype, device=device)
+
+
 def joint_soft_limits(env, soft_ratio: float = 0.9) -> torch.Tensor:
     """L2 of how far joints are outside the central ``soft_ratio`` of their range [rad^2]."""
     q = env.state.joint_pos
-    lim = torch.as_tensor(C.JOINT_RANGES, dtype=q.dtype, device=q.device)
+    lim = _joint_ranges(q.dtype, q.device)
     mid, half = lim.mean(dim=1), 0.5 * (lim[:, 1] - lim[:, 0]) * soft_ratio
     return kernels.l2(torch.clamp((q - mid).abs() - half, min=0.0))
 

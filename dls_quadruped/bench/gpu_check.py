@@ -1,0 +1,423 @@
+"""The ten-minute GPU check: ``make gpu-check`` (= ``python -m dls_quadruped.bench.gpu_check``).
+
+One script for a first session on a GPU machine. It writes ``<out>/report.json`` after every section, so a run
+cut short still leaves what it measured, and gives each section a share of ``--budget-s``:
+
+1. ``versions`` -- GPU, driver, CUDA, Warp, MuJoCo Warp, MuJoCo, torch, Python, CPU;
+2. ``compile`` -- seconds to build the first backend and run its first steps (Warp compiles MuJoCo Warp's
+   kernels on a fresh machine), flat and rough scene;
+3. ``trajectories`` -- the committed ``cpu``-backend reference runs (``bench/reference_runs.py``: standing, a trot,
+   a push with mass/friction/force changes, robots on rough tiles) replayed on the backend, max deviations;
+4. ``syncs`` -- host synchronisations inside ``LocomotionEnv.step`` by call site (torch's CUDA sync debug mode,
+   plus Warp array reads), random actions so robots fall and reset, pushes every ~0.3 s;
+5. ``env`` -- env steps/s (robot steps per wall second) for base at 4 096 and 16 384 and rough at 4 096 robots,
+   with the physics phases replayed from captured graphs and launched kernel by kernel;
+6. ``gpu_busy`` -- the fraction of a few env steps' wall time in which the GPU ran kernels (torch profiler);
+7. ``mpc`` -- the sampling MPC's solve at M = 10 000 and 100 000 (``bench/device.py``);
+8. ``train`` -- PPO on base at ``--train-envs`` robots for the time left; the policy, checkpoint and learning
+   curve are copied into ``<out>``.
+
+Without CUDA the same script runs on ``warp-cpu`` at small sizes (what the tests do).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import time
+import traceback
+import warnings
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dls_quadruped.bench.device import env_steps, machine, mpc_solve
+from dls_quadruped.core.json_io import write_json
+
+SECTIONS = ("versions", "compile", "trajectories", "syncs", "launches", "env", "gpu_busy", "mpc", "train")
+
+
+class Report:
+    """The JSON report, rewritten (atomically) whenever a section ends."""
+
+    def __init__(self, path: Path, budget_s: float):
+        self.path, self.budget_s, self.t0 = path, budget_s, time.monotonic()
+        self.data: dict = {"budget_s": budget_s, "sections": {}}
+
+    def elapsed(self) -> float:
+        return time.monotonic() - self.t0
+
+    def left(self) -> float:
+        return self.budget_s - self.elapsed()
+
+    def put(self, section: str, value: dict) -> None:
+        self.data["sections"][section] = value
+        self.data["elapsed_s"] = round(self.elapsed(), 1)
+        write_json(self.data, self.path)
+        print(f"[gpu_check] {section} ({self.elapsed():.0f} s): {json.dumps(value, default=str)[:600]}", flush=True)
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def versions(device: torch.device) -> dict:
+    import mujoco
+    import warp as wp
+
+    out = {**machine(device), "python": platform.python_version(), "mujoco": mujoco.__version__,
+           "warp": wp.config.version}
+    try:
+        from importlib.metadata import version
+
+        out["mujoco_warp"] = version("mujoco-warp")
+    except Exception as err:  # a source checkout without metadata
+        out["mujoco_warp"] = f"unknown ({err})"
+    wp.init()
+    if device.type == "cuda":
+        out["cuda_torch"] = torch.version.cuda
+        out["warp_cuda_driver"] = ".".join(map(str, wp.get_cuda_driver_version() or ()))
+        out["conditional_graphs"] = bool(wp.is_conditional_graph_supported())
+        try:
+            smi = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version,memory.total", "--format=csv,noheader"],
+                                 capture_output=True, text=True, timeout=20)
+            out["nvidia_smi"] = smi.stdout.strip()
+        except (OSError, subprocess.TimeoutExpired) as err:
+            out["nvidia_smi"] = f"unavailable ({err})"
+    return out
+
+
+def compile_times(backend: str, device: torch.device) -> dict:
+    """First backend build and first steps, flat and rough (kernels compile here on a fresh machine)."""
+    import mujoco
+
+    from dls_quadruped.bench.reference_runs import ROUGH_TERRAIN
+    from dls_quadruped.robots.aliengo import constants as C
+    from dls_quadruped.sim.interface import SimConfig, make_backend
+    from dls_quadruped.sim.terrain import build_scene
+
+    out = {}
+    for name, model in (("flat", mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))),
+                        ("rough", build_scene(ROUGH_TERRAIN)[0])):
+        tic = time.perf_counter()
+        with make_backend(backend, model, 4, SimConfig(num_workers=0, nthread=1)) as sim:
+            built = time.perf_counter() - tic
+            for _ in range(3):  # uncaptured first step, capture, replay
+                sim.step(2)
+            _sync(device)
+            first = time.perf_counter() - tic - built
+            tic2 = time.perf_counter()
+            sim.step(2)
+            _sync(device)
+            out[name] = {"build_s": built, "first_steps_s": first, "warm_step_s": time.perf_counter() - tic2}
+    return out
+
+
+def trajectories(backend: str) -> dict:
+    from dls_quadruped.bench.reference_runs import REFERENCE_PATH, SCENARIOS, compare
+    from dls_quadruped.sim.interface import SimConfig
+
+    refs = np.load(REFERENCE_PATH)
+    out = {}
+    for name, run in SCENARIOS.items():
+        tic = time.perf_counter()
+        try:
+            traj = run(backend, SimConfig(num_workers=0, nthread=1))
+            out[name] = {f"vs_{ref}": compare(name, traj, refs[f"{ref}/{name}"]) for ref in ("cpu", "warp-cpu")}
+            out[name]["wall_s"] = time.perf_counter() - tic
+        except Exception as err:
+            out[name] = {"ok": False, "error": f"{type(err).__name__}: {err}"}
+    return out
+
+
+def _site(frames: list[traceback.FrameSummary]) -> str:
+    """The innermost frame of this package (else the innermost frame) as ``file:line``."""
+    for f in reversed(frames):
+        if "dls_quadruped" in f.filename and "gpu_check" not in f.filename:
+            return f"{f.filename.split('dls_quadruped/')[-1]}:{f.lineno}"
+    return f"{frames[-1].filename}:{frames[-1].lineno}" if frames else "?"
+
+
+def _base_with_pushes(backend: str) -> dict:
+    return {"scene": {"backend": backend, "num_workers": 0},
+            "events": {"push": {"func": "push_robot", "mode": "interval", "interval_s": [0.2, 0.4],
+                                "params": {"velocity_range": [-0.5, 0.5]}}}}
+
+
+def syncs(backend: str, device: torch.device, num_envs: int, steps: int) -> dict:
+    """Host synchronisations per ``env.step`` by site: torch's (CUDA sync debug mode) and Warp array reads."""
+    import warp as wp
+
+    from dls_quadruped.envs.config import load_task
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    env = LocomotionEnv(load_task("base", overrides=_base_with_pushes(backend)), num_envs=num_envs,
+                        device=str(device), seed=0, verbose=False)
+    from dls_quadruped.core.sync_probe import sync_probe
+
+    sites: Counter = Counter()
+    probe_sites: Counter = Counter()
+    per_step, per_step_probe, done_steps = [], [], 0
+    warp_reads = {"n": 0}
+    orig_numpy = wp.array.numpy
+
+    def counted_numpy(self, *a, **k):
+        warp_reads["n"] += 1
+        sites["warp.array.numpy @ " + _site(traceback.extract_stack()[:-1])] += 1
+        return orig_numpy(self, *a, **k)
+
+    try:
+        g = torch.Generator(device=device).manual_seed(0)
+        for _ in range(3):  # compile and capture outside the count
+            env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
+        _sync(device)
+        wp.array.numpy = counted_numpy
+        if device.type == "cuda":
+            torch.cuda.set_sync_debug_mode("warn")
+        for _ in range(steps):
+            action = torch.randn(num_envs, env.num_actions, generator=g, device=device)
+            with warnings.catch_warnings(record=True) as caught, sync_probe() as probe:
+                warnings.simplefilter("always")
+                before = warp_reads["n"]
+                _, _, dones, _ = env.step(action)
+            torch_syncs = [w for w in caught if "synchroniz" in str(w.message).lower()]
+            for w in torch_syncs:
+                sites[f"cuda @ {w.filename.split('dls_quadruped/')[-1]}:{w.lineno}"] += 1
+            for site, k in probe.by_site().items():
+                probe_sites[site] += k
+            per_step.append(len(torch_syncs) + warp_reads["n"] - before)
+            per_step_probe.append(probe.total)
+            done_steps += int(bool(dones.any()))
+    finally:
+        if device.type == "cuda":
+            torch.cuda.set_sync_debug_mode(0)
+        wp.array.numpy = orig_numpy
+        env.close()
+    return {"num_envs": num_envs, "steps": steps, "steps_with_resets": done_steps,
+            "syncs_per_step_mean": float(np.mean(per_step)), "syncs_per_step_max": int(np.max(per_step)),
+            "by_site": dict(sites.most_common(40)),
+            "counted": "torch's CUDA sync debug mode + warp.array.numpy()" if device.type == "cuda"
+            else "warp.array.numpy() only (torch's sync debug mode needs CUDA)",
+            "probe_per_step_mean": float(np.mean(per_step_probe)), "probe_by_site": dict(probe_sites.most_common(40)),
+            "probe": "core/sync_probe.py: Python-level host reads and uploads (the cuda count also sees C++ ones)"}
+
+
+def launches(backend: str, device: torch.device, num_envs: int, steps: int) -> dict:
+    """Warp kernel launches (graph replays count one each) and torch operators per ``env.step``, by kind.
+
+    Counted: every ``wp.launch`` / ``wp.launch_tiled`` / ``wp.capture_launch`` call (MuJoCo Warp's kernels outside a
+    captured graph, and each graph) and every aten operator torch dispatches (``TorchDispatchMode``: on CUDA each
+    is roughly one kernel launch, views and metadata ops included, so an upper bound).
+    """
+    import warp as wp
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    from dls_quadruped.envs.config import load_task
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    class Ops(TorchDispatchMode):
+        def __init__(self):
+            super().__init__()
+            self.n = 0
+
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            self.n += 1
+            return func(*args, **(kwargs or {}))
+
+    counts = {"warp": 0}
+    names = ("launch", "launch_tiled", "capture_launch")
+    originals = {k: getattr(wp, k) for k in names}
+
+    def counted(fn):
+        def wrapper(*a, **k):
+            counts["warp"] += 1
+            return fn(*a, **k)
+        return wrapper
+
+    env = LocomotionEnv(load_task("base", overrides=_base_with_pushes(backend)), num_envs=num_envs,
+                        device=str(device), seed=0, verbose=False)
+    rows = []
+    try:
+        g = torch.Generator(device=device).manual_seed(0)
+        for _ in range(3):
+            env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
+        import mujoco_warp._src.warp_util  # noqa: F401  (MuJoCo Warp calls wp.launch through the warp module)
+        for k in names:
+            setattr(wp, k, counted(originals[k]))
+        for _ in range(steps):
+            action = torch.randn(num_envs, env.num_actions, generator=g, device=device)
+            counts["warp"] = 0
+            with Ops() as ops:
+                _, _, dones, _ = env.step(action)
+            rows.append((counts["warp"], ops.n, bool(dones.any())))
+    finally:
+        for k in names:
+            setattr(wp, k, originals[k])
+        env.close()
+    plain = [r for r in rows if not r[2]] or rows
+    reset = [r for r in rows if r[2]]
+    return {"num_envs": num_envs, "steps": steps, "warp_launches_per_step": float(np.mean([r[0] for r in plain])),
+            "torch_ops_per_step": float(np.mean([r[1] for r in plain])),
+            "warp_launches_reset_step": float(np.mean([r[0] for r in reset])) if reset else None,
+            "torch_ops_reset_step": float(np.mean([r[1] for r in reset])) if reset else None,
+            "steps_with_resets": len(reset)}
+
+
+def env_throughput(backend: str, device: torch.device, rows: list[tuple[str, int]], steps: int, report: Report,
+                   reserve_s: float) -> list[dict]:
+    """Env steps/s per (task, N), captured and uncaptured; stops early when the budget runs low."""
+    from dls_quadruped.bench.device import _out_of_memory
+
+    out = []
+    for task, n in rows:
+        for captured in (True, False):
+            if report.left() < reserve_s:
+                out.append({"task": task, "num_envs": n, "captured": captured, "skipped": "budget"})
+                continue
+            try:
+                row = env_steps(task, n, device, backend, steps, warmup=3, capture=captured)
+                out.append({**row, "captured": captured})
+            except Exception as err:
+                if not _out_of_memory(err):
+                    out.append({"task": task, "num_envs": n, "captured": captured,
+                                "error": f"{type(err).__name__}: {str(err)[:300]}"})
+                else:
+                    out.append({"task": task, "num_envs": n, "captured": captured, "error": "out of memory"})
+            if device.type == "cuda":
+                torch.cuda.empty_cache()
+            report.put("env", {"rows": out})
+    return out
+
+
+def gpu_busy(backend: str, device: torch.device, num_envs: int, steps: int) -> dict:
+    """Kernel time over wall time for ``steps`` env steps (torch profiler; Warp's kernels are seen by CUPTI too)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    from dls_quadruped.envs.config import load_task
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    if device.type != "cuda":
+        return {"skipped": "needs CUDA"}
+    env = LocomotionEnv(load_task("base", overrides={"scene": {"backend": backend, "num_workers": 0}}),
+                        num_envs=num_envs, device=str(device), seed=0, verbose=False)
+    try:
+        g = torch.Generator(device=device).manual_seed(0)
+        for _ in range(3):
+            env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
+        _sync(device)
+        with profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA]) as prof:
+            tic = time.perf_counter()
+            for _ in range(steps):
+                env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
+            _sync(device)
+            wall = time.perf_counter() - tic
+        kernels = [e for e in prof.events() if e.device_type == torch.autograd.DeviceType.CUDA]
+        busy_us = sum(e.device_time for e in kernels)
+    finally:
+        env.close()
+    return {"num_envs": num_envs, "steps": steps, "wall_s": wall, "kernel_s": busy_us * 1e-6,
+            "busy_fraction": busy_us * 1e-6 / wall, "kernels_per_step": len(kernels) / steps,
+            "note": "wall time under the profiler (slower than without)"}
+
+
+def train(device: torch.device, backend: str, num_envs: int, seconds: float, out: Path, iterations: int = 100000) -> dict:
+    """PPO on base for about ``seconds`` or ``iterations`` (SIGTERM at the time: the trainer saves at the end of
+    its iteration)."""
+    run_dir = Path(os.environ.get("TMPDIR", "/tmp")) / f"gpu_check_train_{os.getpid()}"
+    cmd = [sys.executable, "-m", "dls_quadruped.learning.train", "--task", "base", "--num-envs", str(num_envs),
+           "--iterations", str(iterations), "--device", str(device), "--backend", backend, "--seed", "0",
+           "--run-dir", str(run_dir), "--save-every-min", "1"]
+    tic = time.perf_counter()
+    log = open(out / "train.log", "w")
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
+    try:
+        proc.wait(timeout=max(seconds, 1.0))
+    except subprocess.TimeoutExpired:
+        proc.terminate()
+        try:
+            proc.wait(timeout=90)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    log.close()
+    result = {"num_envs": num_envs, "wall_s": time.perf_counter() - tic, "returncode": proc.returncode,
+              "run_dir": str(run_dir)}
+    ckpts = sorted(run_dir.glob("model_*.pt"), key=lambda p: int(p.stem.split("_")[1])) if run_dir.exists() else []
+    if ckpts:
+        shutil.copy(ckpts[-1], out / "train_checkpoint.pt")
+        result["checkpoint"] = ckpts[-1].name
+        try:
+            from dls_quadruped.viz import learning_curve
+
+            learning_curve.main([str(run_dir), "--csv", str(out / "learning_curve.csv"),
+                                 "--png", str(out / "learning_curve.png")])
+            rows = list(open(out / "learning_curve.csv"))
+            result["iterations"] = len(rows) - 1
+            result["last_row"] = rows[-1].strip()
+            result["header"] = rows[0].strip()
+        except Exception as err:
+            result["learning_curve_error"] = f"{type(err).__name__}: {err}"
+    return result
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(prog="dls_quadruped.bench.gpu_check", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", type=Path, default=Path("results/gpu_check"))
+    p.add_argument("--budget-s", type=float, default=600.0, help="wall-clock budget of the whole check [s]")
+    p.add_argument("--device", default=None, help="cuda (default when available) or cpu (runs on warp-cpu)")
+    p.add_argument("--skip", default="", help=f"comma-separated sections to skip, of {', '.join(SECTIONS)}")
+    p.add_argument("--train-envs", type=int, default=None, help="robots of the training run (4096 on a GPU)")
+    p.add_argument("--env-steps", type=int, default=None, help="timed env steps per throughput row")
+    args = p.parse_args(argv)
+    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    if device.type not in ("cuda", "cpu"):
+        p.error(f"--device must be cuda or cpu, got {args.device!r}")
+    skip = {s.strip() for s in args.skip.split(",") if s.strip()}
+    if skip - set(SECTIONS):
+        p.error(f"--skip: unknown sections {sorted(skip - set(SECTIONS))}; allowed: {', '.join(SECTIONS)}")
+    gpu = device.type == "cuda"
+    backend = "cuda" if gpu else "warp-cpu"
+    args.out.mkdir(parents=True, exist_ok=True)
+    report = Report(args.out / "report.json", args.budget_s)
+    report.data.update({"device": str(device), "backend": backend})
+    big = [("base", 4096), ("base", 16384), ("rough", 4096)] if gpu else [("base", 4), ("rough", 4)]
+    steps = args.env_steps or (30 if gpu else 3)
+    plan = [
+        ("versions", lambda: versions(device)),
+        ("compile", lambda: compile_times(backend, device)),
+        ("trajectories", lambda: trajectories(backend)),
+        ("syncs", lambda: syncs(backend, device, 256 if gpu else 4, 40 if gpu else 4)),
+        ("launches", lambda: launches(backend, device, 4, 12)),
+        ("env", lambda: {"rows": env_throughput(backend, device, big, steps, report,
+                                                 reserve_s=0.35 * args.budget_s)}),
+        ("gpu_busy", lambda: gpu_busy(backend, device, 4096, 5)),
+        ("mpc", lambda: {"rows": [mpc_solve(m, 10, device, "fast", 20 if gpu else 2)
+                                  for m in ((10000, 100000) if gpu else (500,))]}),
+        ("train", lambda: train(device, backend, args.train_envs or (4096 if gpu else 8),
+                                report.left() - 100 if gpu else 900.0, args.out, 100000 if gpu else 1)),
+    ]
+    for name, run in plan:
+        if name in skip:
+            continue
+        if name != "train" and report.left() < 60:
+            report.put(name, {"skipped": "budget"})
+            continue
+        tic = time.perf_counter()
+        try:
+            value = run()
+        except Exception as err:  # a broken section is a finding; the next one still runs
+            value = {"error": f"{type(err).__name__}: {err}", "traceback": traceback.format_exc()[-2000:]}
+        report.put(name, {**value, "section_s": round(time.perf_counter() - tic, 1)})
+    print(f"wrote {report.path}")
+
+
+if __name__ == "__main__":
+    main()

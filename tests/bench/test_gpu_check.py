@@ -1,0 +1,67 @@
+"""bench/gpu_check.py: the report is written section by section, a broken section is recorded and the check goes
+on, bad arguments are usage errors; on warp-cpu (slow, needs the [gpu] extra) the real sections run."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from dls_quadruped.bench import gpu_check as G
+
+
+def test_a_failing_section_is_recorded_and_the_next_one_runs(tmp_path: Path, monkeypatch):
+    seen = []
+
+    def boom(*a, **k):
+        seen.append("compile")
+        raise RuntimeError("kernel compile failed")
+
+    def versions(device):
+        seen.append("versions")
+        assert json.loads((tmp_path / "report.json").read_text())["sections"] == {}  # nothing written yet
+        return {"gpu": "none"}
+
+    monkeypatch.setattr(G, "versions", versions)
+    monkeypatch.setattr(G, "compile_times", boom)
+    monkeypatch.setattr(G, "trajectories", lambda backend: {"standing": {"ok": True}})
+    (tmp_path / "report.json").write_text(json.dumps({"sections": {}}))
+    G.main(["--device", "cpu", "--out", str(tmp_path), "--skip", "syncs,env,gpu_busy,mpc,train"])
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert seen == ["versions", "compile"]
+    assert rep["device"] == "cpu" and rep["backend"] == "warp-cpu"
+    assert rep["sections"]["versions"]["gpu"] == "none"
+    assert "RuntimeError: kernel compile failed" in rep["sections"]["compile"]["error"]
+    assert rep["sections"]["trajectories"]["standing"]["ok"] is True
+    assert set(rep["sections"]) == {"versions", "compile", "trajectories"}
+
+
+def test_sections_past_the_budget_are_marked_skipped(tmp_path: Path, monkeypatch):
+    monkeypatch.setattr(G, "versions", lambda device: {"gpu": "none"})
+    G.main(["--device", "cpu", "--out", str(tmp_path), "--budget-s", "30", "--skip", "train"])
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert rep["sections"]["compile"] == {"skipped": "budget"} and rep["sections"]["mpc"] == {"skipped": "budget"}
+
+
+@pytest.mark.parametrize("argv, message", [(["--skip", "warmup"], "unknown sections ['warmup']"),
+                                           (["--device", "mps"], "--device must be cuda or cpu")])
+def test_bad_arguments_are_usage_errors(tmp_path: Path, capsys, argv, message):
+    with pytest.raises(SystemExit) as err:
+        G.main(["--out", str(tmp_path), *argv])
+    assert err.value.code == 2 and message in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_check_runs_on_warp_cpu(tmp_path: Path):
+    pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
+    G.main(["--device", "cpu", "--out", str(tmp_path), "--skip", "compile,mpc,train", "--budget-s", "3000"])
+    rep = json.loads((tmp_path / "report.json").read_text())["sections"]
+    for name in ("standing", "trot"):  # the same algorithm as the committed warp-cpu run
+        assert rep["trajectories"][name]["vs_warp-cpu"]["ok"], rep["trajectories"][name]
+        assert rep["trajectories"][name]["vs_cpu"]["ok"], rep["trajectories"][name]
+    assert rep["syncs"]["syncs_per_step_max"] == 0  # no Warp array read inside env.step
+    rows = rep["env"]["rows"]
+    assert {(r["task"], r["captured"]) for r in rows} == {("base", True), ("base", False), ("rough", True),
+                                                          ("rough", False)}
+    assert all(r["steps_per_s"] > 0 and "capture_errors" not in r for r in rows)

@@ -1,0 +1,148 @@
+"""No host synchronisation inside ``LocomotionEnv.step`` beyond a written allow-list (``core/sync_probe.py``).
+
+On a GPU each host read of device memory (``.item()``, ``bool(t)``, ``torch.nonzero``, ...) waits for every
+queued kernel, and each tensor built from Python numbers or numpy is a copy from the host. The probe counts
+both by call site while ``env.step`` runs, on any device; the Warp backend on Warp's CPU device runs the
+GPU code path (the controller and the leg dynamics in torch, on the backend's device) without a GPU.
+
+Steps are counted after one warm-up step (constants are built and cached on first use), without events and
+with resets (short episodes, a non-finite action), command resampling and pushes every few steps.
+"""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from dls_quadruped.core.sync_probe import sync_probe
+from dls_quadruped.envs.config import load_task
+from dls_quadruped.envs.env import LocomotionEnv
+
+SMALL = {"terrain": {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0}}
+QUIET = {"commands": {"base_velocity": {"resampling_time_s": [100.0, 100.0]}}}
+EVENTFUL = {"env": {"episode_length_s": 0.2},  # 10 policy steps
+            "commands": {"base_velocity": {"resampling_time_s": [0.05, 0.1]}},
+            "events": {"push": {"func": "push_robot", "mode": "interval", "interval_s": [0.02, 0.06],
+                                "params": {"velocity_range": [-0.5, 0.5]}}}}
+
+PER_STEP = {
+    # the backends reset robots by row id (SimBackend.reset), so the env reads which robots are done
+    "dls_quadruped/envs/env.py:_finish_step": 1,
+    # interval events (pushes) reach the backend by row id too: one read per interval term
+    "dls_quadruped/envs/managers/event.py:apply": 1,
+}
+"""Sites allowed in every step, with how many reads each may make per step (per interval term for events)."""
+
+ON_RESET = {
+    # a curriculum that switches reward weights on (penalties_when_walking) decides on the host
+    "dls_quadruped/envs/managers/reward.py:episode_fraction",
+}
+"""Sites allowed on steps with resets only."""
+
+WARP_BACKEND = {
+    # sim/warp_backend.py checks its inputs' values and its contact overflow on the host, per call:
+    # set_references (every step) and reset / set_base_velocity / set_external_wrench (on events)
+    "dls_quadruped/sim/warp_backend.py:_check_rows",
+    "dls_quadruped/sim/warp_backend.py:_check_overflow",
+    "dls_quadruped/sim/warp_backend.py:_ids",
+}
+"""The Warp backend's own reads, counted but allowed until it validates at its API boundary only."""
+
+CPU_BACKEND_FILES = ("dls_quadruped/sim/backend.py", "dls_quadruped/sim/shard.py")
+"""The CPU backend moves state between torch and its MuJoCo/Pinocchio shards by design: not counted."""
+
+
+def _env(backend: str, overrides: dict) -> LocomotionEnv:
+    scene = {"backend": backend, "num_workers": 0}
+    return LocomotionEnv(load_task("base", overrides={**SMALL, **overrides, "scene": scene}), num_envs=4, seed=0,
+                         verbose=False)
+
+
+def _actions(steps: int) -> list[torch.Tensor]:
+    g = torch.Generator().manual_seed(0)
+    acts = [torch.randn(4, 28, generator=g) for _ in range(steps)]
+    acts[3][2, 5] = float("nan")  # a non-finite action terminates robot 2 (and goes through check_actions)
+    return acts
+
+
+def _run(env: LocomotionEnv, steps: int, exclude: tuple[str, ...] = ()):
+    """(probe report, number of robot resets) of ``steps`` steps after one warm-up step."""
+    acts = _actions(steps + 1)
+    env.step(acts[0])
+    dones = []
+    with sync_probe(exclude=exclude) as report:
+        for a in acts[1:]:
+            dones.append(env.step(a)[2])
+    return report, int(torch.stack(dones).sum())
+
+
+def _check(report, steps: int, allowed: set[str], interval_terms: int) -> None:
+    assert report.outside(allowed) == {}, f"host reads or uploads inside env.step: {report.by_site()}"
+    per_site: dict[str, int] = {}
+    for site, n in report.counts.items():
+        per_site[site.key()] = per_site.get(site.key(), 0) + n
+    assert per_site.get("dls_quadruped/envs/env.py:_finish_step", 0) <= steps, per_site
+    assert per_site.get("dls_quadruped/envs/managers/event.py:apply", 0) <= steps * interval_terms, per_site
+
+
+@pytest.fixture(scope="module")
+def warp():
+    return pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
+
+
+@pytest.mark.parametrize("overrides,interval_terms", [(QUIET, 0), (EVENTFUL, 1)], ids=["no_events", "resets_pushes"])
+def test_warp_step_reads_the_host_only_at_allowed_sites(warp, overrides, interval_terms):
+    env = _env("warp-cpu", overrides)
+    try:
+        steps = 12
+        report, resets = _run(env, steps)
+        checks = sum(n for s, n in report.counts.items() if s.key() == "dls_quadruped/envs/managers/event.py:apply")
+    finally:
+        env.close()
+    assert resets > 0  # the non-finite action at least
+    if interval_terms:
+        assert resets > 4 and checks > 0  # episodes of 10 steps, and the push term ran
+    _check(report, steps, set(PER_STEP) | ON_RESET | WARP_BACKEND, interval_terms)
+
+
+def test_cpu_step_reads_the_host_only_at_allowed_sites():
+    """The same outside the CPU backend's files (cheap: no MuJoCo Warp needed, so CI runs it)."""
+    env = _env("cpu", EVENTFUL)
+    try:
+        steps = 12
+        report, resets = _run(env, steps, exclude=CPU_BACKEND_FILES)
+    finally:
+        env.close()
+    assert resets > 4
+    _check(report, steps, set(PER_STEP) | ON_RESET, interval_terms=1)
+
+
+def test_probe_catches_planted_reads_and_uploads():
+    """A reward term that reads its value back and uploads a constant is caught, at the reward manager's call
+    site (the innermost frame inside the package), once per step each; nothing is counted after the probe."""
+    env = _env("cpu", QUIET)
+    term = env.reward_manager.terms[0]
+    original = term.func
+
+    def leaky(env_, **params):
+        value = original(env_, **params)
+        value.sum().item()  # planted host read
+        bool(value.any())  # planted host read
+        torch.as_tensor([1.0, 2.0])  # planted upload of a Python list
+        return value
+
+    term.func = leaky
+    try:
+        report, _ = _run(env, 3, exclude=CPU_BACKEND_FILES)
+        after = env.step(torch.zeros(4, 28))
+        with sync_probe(exclude=CPU_BACKEND_FILES) as empty:
+            pass
+    finally:
+        env.close()
+    assert after is not None and empty.total == 0
+    leaks = {(s.key(), s.kind): n for s, n in report.counts.items()
+             if s.key() == "dls_quadruped/envs/managers/base.py:__call__"}
+    assert leaks == {("dls_quadruped/envs/managers/base.py:__call__", "item"): 3,
+                     ("dls_quadruped/envs/managers/base.py:__call__", "__bool__"): 3,
+                     ("dls_quadruped/envs/managers/base.py:__call__", "upload"): 3}
+    assert "item" not in torch.Tensor.__dict__ and torch.Tensor.item is torch._C.TensorBase.item  # unwrapped
