@@ -10,12 +10,12 @@ most contacts, contact candidates and constraint rows in one world. Writes ``res
 
 from __future__ import annotations
 
-import argparse
 import csv
 from pathlib import Path
 
 import torch
 
+from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.sim.warp_collision import ALLOCATION_OVERFLOWS
@@ -53,7 +53,7 @@ def measure(task: str, num_envs: int, steps: int, action_scale: float, seed: int
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(prog="warp_contact_sizes.py", description=__doc__.splitlines()[0])
     p.add_argument("--tasks", nargs="+", default=["base", "rough", "speed", "climb"])
     p.add_argument("--num-envs", type=int, default=16)
     p.add_argument("--steps", type=int, default=100, help="policy steps (50 Hz)")
@@ -74,4 +74,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)

@@ -39,6 +39,7 @@ import numpy as np
 import torch
 
 from dls_quadruped.bench.device import env_steps, machine, mpc_solve
+from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
 
 SECTIONS = ("versions", "compile", "trajectories", "syncs", "launches", "env", "gpu_busy", "mpc", "train")
@@ -79,7 +80,7 @@ def versions(device: torch.device) -> dict:
         from importlib.metadata import version
 
         out["mujoco_warp"] = version("mujoco-warp")
-    except Exception as err:  # a source checkout without metadata
+    except Exception as err:  # noqa: BLE001 - a source checkout without metadata
         out["mujoco_warp"] = f"unknown ({err})"
     wp.init()
     if device.type == "cuda":
@@ -88,7 +89,7 @@ def versions(device: torch.device) -> dict:
         out["conditional_graphs"] = bool(wp.is_conditional_graph_supported())
         try:
             smi = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version,memory.total", "--format=csv,noheader"],
-                                 capture_output=True, text=True, timeout=20)
+                                 capture_output=True, text=True, timeout=20, check=False)
             out["nvidia_smi"] = smi.stdout.strip()
         except (OSError, subprocess.TimeoutExpired) as err:
             out["nvidia_smi"] = f"unavailable ({err})"
@@ -133,7 +134,7 @@ def trajectories(backend: str) -> dict:
             traj = run(backend, SimConfig(num_workers=0, nthread=1))
             out[name] = {f"vs_{ref}": compare(name, traj, refs[f"{ref}/{name}"]) for ref in ("cpu", "warp-cpu")}
             out[name]["wall_s"] = time.perf_counter() - tic
-        except Exception as err:
+        except Exception as err:  # noqa: BLE001 - a scenario that fails is a finding; the others still run
             out[name] = {"ok": False, "error": f"{type(err).__name__}: {err}"}
     return out
 
@@ -285,7 +286,7 @@ def env_throughput(backend: str, device: torch.device, rows: list[tuple[str, int
             try:
                 row = env_steps(task, n, device, backend, steps, warmup=3, capture=captured)
                 out.append({**row, "captured": captured})
-            except Exception as err:
+            except Exception as err:  # noqa: BLE001 - recorded in the row; the next size still runs
                 if not _out_of_memory(err):
                     out.append({"task": task, "num_envs": n, "captured": captured,
                                 "error": f"{type(err).__name__}: {str(err)[:300]}"})
@@ -336,17 +337,16 @@ def train(device: torch.device, backend: str, num_envs: int, seconds: float, out
            "--iterations", str(iterations), "--device", str(device), "--backend", backend, "--seed", "0",
            "--run-dir", str(run_dir), "--save-every-min", "1"]
     tic = time.perf_counter()
-    log = open(out / "train.log", "w")
-    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
-    try:
-        proc.wait(timeout=max(seconds, 1.0))
-    except subprocess.TimeoutExpired:
-        proc.terminate()
+    with open(out / "train.log", "w") as log:
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
         try:
-            proc.wait(timeout=90)
+            proc.wait(timeout=max(seconds, 1.0))
         except subprocess.TimeoutExpired:
-            proc.kill()
-    log.close()
+            proc.terminate()  # the trainer saves at the end of its iteration
+            try:
+                proc.wait(timeout=90)
+            except subprocess.TimeoutExpired:
+                proc.kill()
     result = {"num_envs": num_envs, "wall_s": time.perf_counter() - tic, "returncode": proc.returncode,
               "run_dir": str(run_dir)}
     ckpts = sorted(run_dir.glob("model_*.pt"), key=lambda p: int(p.stem.split("_")[1])) if run_dir.exists() else []
@@ -358,17 +358,17 @@ def train(device: torch.device, backend: str, num_envs: int, seconds: float, out
 
             learning_curve.main([str(run_dir), "--csv", str(out / "learning_curve.csv"),
                                  "--png", str(out / "learning_curve.png")])
-            rows = list(open(out / "learning_curve.csv"))
+            rows = (out / "learning_curve.csv").read_text().splitlines()
             result["iterations"] = len(rows) - 1
-            result["last_row"] = rows[-1].strip()
-            result["header"] = rows[0].strip()
-        except Exception as err:
+            result["last_row"] = rows[-1]
+            result["header"] = rows[0]
+        except Exception as err:  # noqa: BLE001 - the checkpoint is there; the curve is a convenience
             result["learning_curve_error"] = f"{type(err).__name__}: {err}"
     return result
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="dls_quadruped.bench.gpu_check", description=__doc__.split("\n\n")[0],
+    p = ArgumentParser(prog="dls_quadruped.bench.gpu_check", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", type=Path, default=Path("results/gpu_check"))
     p.add_argument("--budget-s", type=float, default=600.0, help="wall-clock budget of the whole check [s]")
@@ -383,6 +383,11 @@ def main(argv: list[str] | None = None) -> None:
     skip = {s.strip() for s in args.skip.split(",") if s.strip()}
     if skip - set(SECTIONS):
         p.error(f"--skip: unknown sections {sorted(skip - set(SECTIONS))}; allowed: {', '.join(SECTIONS)}")
+    try:
+        import mujoco_warp  # noqa: F401
+    except ImportError as err:
+        p.error(f"the GPU check runs the MuJoCo Warp backend, and {err.name} is not installed: make install-gpu "
+                "(or make install-offline WHEELHOUSE=...; docs/gpu.md)")
     gpu = device.type == "cuda"
     backend = "cuda" if gpu else "warp-cpu"
     args.out.mkdir(parents=True, exist_ok=True)
@@ -413,11 +418,11 @@ def main(argv: list[str] | None = None) -> None:
         tic = time.perf_counter()
         try:
             value = run()
-        except Exception as err:  # a broken section is a finding; the next one still runs
+        except Exception as err:  # noqa: BLE001 - a broken section is a finding; the next one still runs
             value = {"error": f"{type(err).__name__}: {err}", "traceback": traceback.format_exc()[-2000:]}
         report.put(name, {**value, "section_s": round(time.perf_counter() - tic, 1)})
     print(f"wrote {report.path}")
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)

@@ -22,7 +22,6 @@ on ``warp-cpu`` (keys ``"<backend>/<scenario>"``).
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Callable
 from pathlib import Path
 
@@ -30,8 +29,14 @@ import mujoco
 import numpy as np
 import torch
 
+from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.control.balance import BalanceController
-from dls_quadruped.control.latent_action import LatentActionConfig, clip, flat_ground, to_world
+from dls_quadruped.control.latent_action import (
+    LatentActionConfig,
+    clip,
+    flat_ground,
+    to_world,
+)
 from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.interface import SimBackend, SimConfig, make_backend
@@ -152,7 +157,7 @@ def compare(name: str, traj: np.ndarray, ref: np.ndarray) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="dls_quadruped.bench.reference_runs", description=__doc__.split("\n\n")[0])
+    p = ArgumentParser(prog="dls_quadruped.bench.reference_runs", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=REFERENCE_PATH)
     p.add_argument("--backends", nargs="+", default=["cpu", "warp-cpu"])
     args = p.parse_args(argv)
@@ -169,4 +174,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)

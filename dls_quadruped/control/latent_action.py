@@ -32,6 +32,9 @@ ACTION_COMPONENT_NAMES: tuple[str, ...] = (
     + tuple(f"F_{ax}[{leg}]" for leg in C.LEG_NAMES for ax in "xyz")
 )
 """Name of each of the 28 raw action entries, e.g. ``"F_z[RL]"`` is index 16 + 3 * 2 + 2 = 24."""
+ACTION_GROUPS: tuple[tuple[str, slice], ...] = (("f", slice(0, 4)), ("d", slice(4, 8)), ("p", slice(8, 16)),
+                                                 ("F", slice(16, 28)))
+"""(name, index range) of each component of the 28-vector: frequency, duty, foothold offset, force."""
 F_Z_INDICES = tuple(16 + 3 * leg + 2 for leg in range(C.NUM_LEGS))
 """Indices of F_z (FL, FR, RL, RR) in the 28-vector."""
 

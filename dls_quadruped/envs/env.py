@@ -191,7 +191,7 @@ class LocomotionEnv(VecEnv):
         """One policy step; see the module docstring. A robot whose action row is not finite gets a
         zero action this step, is terminated (``Episode_Termination/nonfinite_action``) and reset."""
         actions, nonfinite = self.check_actions(actions)
-        self.action_manager.process(actions, finite=True)
+        self.action_manager.process(actions, finite=True, num_physics_steps=self.decimation)
         self.scene.sim.step(self.decimation)
         return self._finish_step(nonfinite)
 
@@ -213,7 +213,7 @@ class LocomotionEnv(VecEnv):
         if self._controlled_steps + num_physics_steps > self.decimation:
             raise RuntimeError(f"apply_action: {self._controlled_steps} + {num_physics_steps} physics steps exceed "
                                f"the policy step's {self.decimation} (env.decimation)")
-        self.action_manager.process(raw.to(self.device), replan=replan)
+        self.action_manager.process(raw.to(self.device), replan=replan, num_physics_steps=num_physics_steps)
         self.scene.sim.step(num_physics_steps)
         self._controlled_steps += num_physics_steps
         self.refresh_state()

@@ -13,7 +13,9 @@ versions): a run continued from it, anywhere, takes the iteration the uninterrup
 ``copy_to`` names a second file every checkpoint is also written to (atomically; one to commit).
 Besides rsl-rl's every-``save_interval`` saves, the runner saves when ``save_every_s`` seconds of
 wall time passed since the last save and, after SIGINT/SIGTERM, at the end of the current
-iteration (then raises ``TrainingInterrupted``).
+iteration (then raises ``TrainingInterrupted``). Every iteration also logs ``learning/diagnostics.py``'s
+``Diagnostics/*`` scalars (action std and clip fractions per latent-action group, ignored F/p, KL, learning
+rate) and prints them on one line.
 
 Under torchrun the runner joins the process group with gloo on the CPU and NCCL on GPUs
 (``learning/distributed.py``; rsl-rl-lib itself only knows NCCL); rsl-rl all-reduces the gradients,
@@ -38,6 +40,7 @@ import yaml
 from rsl_rl.runners import OnPolicyRunner
 
 from dls_quadruped.learning import resume_state
+from dls_quadruped.learning.diagnostics import TrainingDiagnostics
 from dls_quadruped.learning.distributed import any_rank, init_distributed
 from dls_quadruped.learning.fast_update import speed_up_update
 from dls_quadruped.learning.symmetry import check_symmetry_cfg
@@ -71,6 +74,7 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         super().__init__(env, train_cfg, log_dir=log_dir, device=device)
         if fast_update:
             speed_up_update(self.alg, update_threads)  # before any checkpoint loads into the optimiser
+        self.diagnostics = TrainingDiagnostics.attach(self)
         self.save_every_s = save_every_s
         self.copy_to: str | None = None  # every checkpoint is also written here (train --checkpoint-copy)
         self.stop_signal: int | None = None
@@ -81,6 +85,7 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         def log_then_checkpoint(*args, **kwargs) -> None:
             # rsl-rl calls logger.log once per iteration, after the update and before its own save
             log(*args, **kwargs)
+            self._log_diagnostics(kwargs["it"])
             self._end_of_iteration()
 
         self.logger.log = log_then_checkpoint
@@ -118,6 +123,15 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         signal.signal(signal.SIGINT, handler)
         signal.signal(signal.SIGTERM, handler)
         return previous
+
+    def _log_diagnostics(self, it: int) -> None:
+        """Write the iteration's ``TrainingDiagnostics`` as ``Diagnostics/<name>`` scalars and one console line."""
+        values = self.diagnostics.scalars()  # every rank: it also restarts the rollout's sums
+        if self.logger.writer is None:
+            return
+        for name, value in values.items():
+            self.logger.writer.add_scalar(f"Diagnostics/{name}", value, it)
+        print(TrainingDiagnostics.summary(values), flush=True)
 
     def _end_of_iteration(self) -> None:
         stop = any_rank(self.stop_signal or 0, self.ranks, self.device)

@@ -72,7 +72,7 @@ class StepGraph:
                 with wp.ScopedStream(stream), wp.ScopedCapture(device=self.device, stream=stream,
                                                                force_module_load=False) as cap:
                     self.fn(self.m, self.d)
-            except Exception as err:  # a capture that fails must not stop the simulation: launch from now on
+            except Exception as err:  # noqa: BLE001 - a capture that fails must not stop the simulation
                 self.enabled, self.error = False, f"{type(err).__name__}: {err}"
                 warnings.warn(f"capturing {getattr(self.fn, '__name__', self.fn)} failed ({self.error}); "
                               "its kernels are launched one by one from now on", RuntimeWarning, stacklevel=2)

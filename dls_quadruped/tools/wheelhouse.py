@@ -13,7 +13,6 @@ they need, so a folder for a machine with torch preinstalled does not carry seve
 
 from __future__ import annotations
 
-import argparse
 import re
 import subprocess
 import sys
@@ -22,6 +21,8 @@ from pathlib import Path
 
 from packaging.markers import default_environment
 from packaging.requirements import Requirement
+
+from dls_quadruped.cli import ArgumentParser, run_cli
 
 MANYLINUX_X86_64 = ("manylinux_2_17_x86_64", "manylinux2014_x86_64", "manylinux_2_27_x86_64",
                     "manylinux_2_28_x86_64", "manylinux_2_34_x86_64", "manylinux1_x86_64", "any")
@@ -79,7 +80,7 @@ def download(pins: dict[str, str], dest: Path, python_version: str, platforms: t
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="dls_quadruped.tools.wheelhouse", description=__doc__.split("\n\n")[0])
+    p = ArgumentParser(prog="dls_quadruped.tools.wheelhouse", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=Path("wheelhouse"), help="folder for the wheels (created)")
     p.add_argument("--extras", default="gpu", help="comma-separated extras of dls_quadruped (default gpu)")
     p.add_argument("--python-version", default="3.12", help="target Python, e.g. 3.11 or 3.12 (default 3.12)")
@@ -107,4 +108,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)

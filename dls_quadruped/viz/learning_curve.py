@@ -8,7 +8,11 @@ window of 100), ``Train/mean_episode_length`` [policy steps, 50 per s], the velo
 ``Episode_Metric/lin_vel_xy_error`` (|v_xy,b - v_cmd,xy| averaged over each finished episode [m/s],
 logged by ``LocomotionEnv``), the iteration time (``Perf/collection_time + Perf/learning_time`` [s]),
 the mean exploration std of the actions (``Policy/mean_std``) and, where the task has them, the
-terrain-level and forward-speed curricula (``Curriculum/terrain_levels``, ``Curriculum/speed``).
+terrain-level and forward-speed curricula (``Curriculum/terrain_levels``, ``Curriculum/speed``), then
+the training diagnostics (``learning/diagnostics.py``, docs/train.md "Diagnostics"): the learning rate, the KL
+per update, the action std, clip and |a| > 1 fractions per latent-action group (f, d, p, F) and the fractions
+of (step, leg) in which F and p were ignored. A run that lacks a scalar (older runs: every diagnostic) leaves
+its cells empty; columns are only ever appended, so older CSVs read the same way.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import matplotlib.pyplot as plt
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from dls_quadruped.cli import ArgumentParser, run_cli
+from dls_quadruped.control.latent_action import ACTION_GROUPS
 
 COLUMNS = {
     "mean_reward": "Train/mean_reward",
@@ -33,6 +38,15 @@ COLUMNS = {
     "action_std": "Policy/mean_std",
     "terrain_level": "Curriculum/terrain_levels",
     "speed_range": "Curriculum/speed",
+    "learning_rate": "Loss/learning_rate",
+    "kl_mean": "Diagnostics/kl_mean",
+    "kl_max": "Diagnostics/kl_max",
+    **{f"std_{g}": f"Diagnostics/std_{g}" for g, _ in ACTION_GROUPS},
+    "clip_frac": "Diagnostics/clip_frac",
+    **{f"clip_frac_{g}": f"Diagnostics/clip_frac_{g}" for g, _ in ACTION_GROUPS},
+    **{f"outside_unit_frac_{g}": f"Diagnostics/outside_unit_frac_{g}" for g, _ in ACTION_GROUPS},
+    "F_ignored_frac": "Diagnostics/F_ignored_frac",
+    "p_ignored_frac": "Diagnostics/p_ignored_frac",
 }
 
 

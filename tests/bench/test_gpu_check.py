@@ -11,7 +11,16 @@ import pytest
 from dls_quadruped.bench import gpu_check as G
 
 
-def test_a_failing_section_is_recorded_and_the_next_one_runs(tmp_path: Path, monkeypatch):
+@pytest.fixture
+def fake_mujoco_warp(monkeypatch):
+    """An importable stand-in, so the orchestration runs where the [gpu] extra is not installed (CI)."""
+    import sys
+    import types
+
+    monkeypatch.setitem(sys.modules, "mujoco_warp", types.ModuleType("mujoco_warp"))
+
+
+def test_a_failing_section_is_recorded_and_the_next_one_runs(tmp_path: Path, monkeypatch, fake_mujoco_warp):
     seen = []
 
     def boom(*a, **k):
@@ -27,7 +36,7 @@ def test_a_failing_section_is_recorded_and_the_next_one_runs(tmp_path: Path, mon
     monkeypatch.setattr(G, "compile_times", boom)
     monkeypatch.setattr(G, "trajectories", lambda backend: {"standing": {"ok": True}})
     (tmp_path / "report.json").write_text(json.dumps({"sections": {}}))
-    G.main(["--device", "cpu", "--out", str(tmp_path), "--skip", "syncs,env,gpu_busy,mpc,train"])
+    G.main(["--device", "cpu", "--out", str(tmp_path), "--skip", "syncs,launches,env,gpu_busy,mpc,train"])
     rep = json.loads((tmp_path / "report.json").read_text())
     assert seen == ["versions", "compile"]
     assert rep["device"] == "cpu" and rep["backend"] == "warp-cpu"
@@ -37,7 +46,7 @@ def test_a_failing_section_is_recorded_and_the_next_one_runs(tmp_path: Path, mon
     assert set(rep["sections"]) == {"versions", "compile", "trajectories"}
 
 
-def test_sections_past_the_budget_are_marked_skipped(tmp_path: Path, monkeypatch):
+def test_sections_past_the_budget_are_marked_skipped(tmp_path: Path, monkeypatch, fake_mujoco_warp):
     monkeypatch.setattr(G, "versions", lambda device: {"gpu": "none"})
     G.main(["--device", "cpu", "--out", str(tmp_path), "--budget-s", "30", "--skip", "train"])
     rep = json.loads((tmp_path / "report.json").read_text())
@@ -46,7 +55,7 @@ def test_sections_past_the_budget_are_marked_skipped(tmp_path: Path, monkeypatch
 
 @pytest.mark.parametrize("argv, message", [(["--skip", "warmup"], "unknown sections ['warmup']"),
                                            (["--device", "mps"], "--device must be cuda or cpu")])
-def test_bad_arguments_are_usage_errors(tmp_path: Path, capsys, argv, message):
+def test_bad_arguments_are_usage_errors(tmp_path: Path, capsys, argv, message, fake_mujoco_warp):
     with pytest.raises(SystemExit) as err:
         G.main(["--out", str(tmp_path), *argv])
     assert err.value.code == 2 and message in capsys.readouterr().err
@@ -65,3 +74,13 @@ def test_the_check_runs_on_warp_cpu(tmp_path: Path):
     assert {(r["task"], r["captured"]) for r in rows} == {("base", True), ("base", False), ("rough", True),
                                                           ("rough", False)}
     assert all(r["steps_per_s"] > 0 and "capture_errors" not in r for r in rows)
+
+
+def test_without_mujoco_warp_it_is_a_one_line_usage_error(tmp_path: Path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "mujoco_warp", None)  # import mujoco_warp -> ImportError
+    with pytest.raises(SystemExit) as err:
+        G.main(["--device", "cpu", "--out", str(tmp_path)])
+    msg = capsys.readouterr().err
+    assert err.value.code == 2 and "mujoco_warp is not installed: make install-gpu" in msg

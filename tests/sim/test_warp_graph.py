@@ -14,8 +14,8 @@ from dls_quadruped.sim.interface import SimConfig
 
 pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
 
-from dls_quadruped.sim import warp_graph  # noqa: E402
-from dls_quadruped.sim.warp_backend import WarpSim  # noqa: E402
+from dls_quadruped.sim import warp_graph
+from dls_quadruped.sim.warp_backend import WarpSim
 
 
 def _run(capture: bool, mass_change: bool = True) -> tuple[torch.Tensor, WarpSim]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import torch
 
+from dls_quadruped.control.gait import contact_sequence
 from dls_quadruped.control.latent_action import (
     ACTION_DIM,
     ActionInterface,
@@ -29,7 +30,13 @@ def resolve_action_config(task: TaskConfig) -> LatentActionConfig:
 
 
 class ActionManager:
-    """Holds the raw, previous raw, applied (network units) and applied physical actions, (B, 28) each."""
+    """Holds the raw, previous raw, applied (network units) and applied physical actions, (B, 28) each.
+
+    Also, of the last processed action (training diagnostics, ``learning/diagnostics.py``): ``saturated``
+    (B, 28) bool, True where the Table 1 / friction-cone clip changed the entry; ``stance_frac`` (B, 4), the
+    fraction of the physics steps the action was held for in which each leg was in stance (the low-level
+    controller ignores a stance leg's foothold p and a swinging leg's force F).
+    """
 
     def __init__(self, task: TaskConfig, env):
         self.env = env
@@ -42,13 +49,18 @@ class ActionManager:
         self.applied_action = torch.zeros_like(self.raw_action)
         self.violation = torch.zeros_like(self.raw_action)
         self.applied_physical = torch.zeros_like(self.raw_action)
+        self.saturated = torch.zeros(n, ACTION_DIM, dtype=torch.bool, device=dev)
+        self.stance_frac = torch.ones(n, 4, device=dev)
 
-    def process(self, raw: torch.Tensor, replan: bool = False, finite: bool = False) -> None:
+    def process(self, raw: torch.Tensor, replan: bool = False, finite: bool = False,
+                num_physics_steps: int | None = None) -> None:
         """Convert and send the references to the simulator (held until the next call).
 
         ``replan``: a second action within the same policy step (``LocomotionEnv.apply_action``): the previous
         action stays the one before the policy step. ``finite``: ``raw`` is known to be finite
-        (``LocomotionEnv.check_actions`` replaced the rows that were not), so it is not read back to check."""
+        (``LocomotionEnv.check_actions`` replaced the rows that were not), so it is not read back to check.
+        ``num_physics_steps``: how many physics steps the action will be held for (None: ``env.decimation``);
+        sets ``stance_frac``."""
         if not replan:
             self.prev_raw_action[:] = self.raw_action
         self.raw_action[:] = raw.to(self.raw_action)
@@ -59,9 +71,15 @@ class ActionManager:
         self.violation[:] = refs.violation
         self.applied_action[:] = self.raw_action - refs.violation
         self.applied_physical[:] = refs.action.to_vector()
+        self.saturated[:] = refs.violation != 0
+        # the gait generator's contacts over the coming physics steps, from the current phase and the new f, d
+        steps = self.env.decimation if num_physics_steps is None else num_physics_steps
+        _, contact = contact_sequence(s.phase.to(refs.f), refs.f, refs.d, self.env.physics_dt, steps)  # (B, N, 4)
+        self.stance_frac[:] = contact.to(self.stance_frac.dtype).mean(dim=-2)
         self.env.scene.sim.set_references(refs.f, refs.d, refs.p_td_w, refs.F_w)
 
     def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
+        # saturated and stance_frac stay: they describe the action just held, read after the step's resets
         for buf in (self.raw_action, self.prev_raw_action, self.applied_action, self.violation, self.applied_physical):
             buf.index_fill_(0, env_ids, 0.0)  # x[ids] = 0.0 copies the 0 from the host on CUDA
         return {}
