@@ -3,7 +3,7 @@
 Three measurements on one simulator backend (``sim/interface.py``) and torch device, written to
 ``results/bench/device.json`` with the machine (GPU name, CPU model) and printed as markdown:
 
-* **env**: ``LocomotionEnv.step`` steps/s (robot steps per wall second, random actions, resets included) for
+* **env**: ``LocomotionEnv.step`` steps/s (robot steps per wall second, random actions, resets and pushes included) for
   each task (base, rough) and number of robots (256 ... 16 384 on a GPU); a size that does not fit in memory
   is recorded as such and the next task goes on;
 * **mpc**: the sampling MPC's solve for one robot at M samples (10 000 and 100 000), N = 10 (first-spline, forces
@@ -56,6 +56,12 @@ def machine(device: torch.device) -> dict:
     return out
 
 
+BENCH_PUSH = {"func": "push_robot", "mode": "interval", "interval_s": [0.5, 1.0],
+              "params": {"velocity_range": [-0.5, 0.5]}}
+"""Pushes every 0.5-1 s per robot in the env rows (a task's own are 8-12 s apart, or none): a timed run of 60
+steps (1.2 s) then includes pushes, and resets from the robots that random actions topple."""
+
+
 def env_steps(task: str, num_envs: int, device: torch.device, backend: str, steps: int, warmup: int,
               capture: bool | None = None) -> dict:
     """Robot steps per second of ``task`` with ``num_envs`` robots (random actions, resets included);
@@ -63,7 +69,8 @@ def env_steps(task: str, num_envs: int, device: torch.device, backend: str, step
     from dls_quadruped.envs.config import load_task
     from dls_quadruped.envs.env import LocomotionEnv
 
-    cfg = load_task(task, overrides={"scene": {"backend": backend, "num_workers": 0 if backend != "cpu" else -1}})
+    cfg = load_task(task, overrides={"scene": {"backend": backend, "num_workers": 0 if backend != "cpu" else -1},
+                                     "events": {"push": BENCH_PUSH}})
     env = LocomotionEnv(cfg, num_envs=num_envs, device=str(device), seed=0, verbose=False)
     if capture is not None:
         env.scene.sim.capture = capture
@@ -73,8 +80,10 @@ def env_steps(task: str, num_envs: int, device: torch.device, backend: str, step
             env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
         _sync(device)
         tic = time.perf_counter()
+        resets = torch.zeros((), dtype=torch.int64, device=device)
         for _ in range(steps):
-            env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
+            _, _, dones, _ = env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
+            resets += dones.sum()  # read once, after the timing
         _sync(device)
         wall = time.perf_counter() - tic
         graphs = [getattr(env.scene.sim, k, None) for k in ("_step1", "_step2")]
@@ -82,7 +91,7 @@ def env_steps(task: str, num_envs: int, device: torch.device, backend: str, step
     finally:
         env.close()
     return {"task": task, "num_envs": num_envs, "steps": steps, "wall_s": wall, "steps_per_s": num_envs * steps / wall,
-            "capture": capture, **({"capture_errors": capture_errors} if capture_errors else {})}
+            "resets": int(resets), "capture": capture, **({"capture_errors": capture_errors} if capture_errors else {})}
 
 
 def mpc_solve(samples: int, horizon: int, device: torch.device, kernel: str, solves: int) -> dict:
@@ -158,7 +167,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--tasks", nargs="+", default=["base", "rough"])
     p.add_argument("--sizes", nargs="+", type=int, default=None,
                    help=f"robots per env (default {list(GPU_SIZES)} on a GPU, {list(CPU_SIZES)} on the CPU)")
-    p.add_argument("--steps", type=int, default=20, help="measured env steps per size")
+    p.add_argument("--steps", type=int, default=60, help="measured env steps per size (60: 1.2 s, resets and pushes "
+                                                         "included)")
     p.add_argument("--warmup", type=int, default=3, help="env steps before timing (Warp compiles on the first)")
     p.add_argument("--samples", nargs="+", type=int, default=[10000, 100000], help="MPC samples M")
     p.add_argument("--horizon", type=int, default=10)

@@ -394,7 +394,7 @@ def main(argv: list[str] | None = None) -> None:
     report = Report(args.out / "report.json", args.budget_s)
     report.data.update({"device": str(device), "backend": backend})
     big = [("base", 4096), ("base", 16384), ("rough", 4096)] if gpu else [("base", 4), ("rough", 4)]
-    steps = args.env_steps or (30 if gpu else 3)
+    steps = args.env_steps or (60 if gpu else 3)
     plan = [
         ("versions", lambda: versions(device)),
         ("compile", lambda: compile_times(backend, device)),

@@ -375,7 +375,10 @@ class WarpSim:
         ids = self._ids(env_ids)
         self._qvel[ids, 0:3] = self._check_rows("lin_vel_w", lin_vel_w, len(ids), (3,)).to(self._qvel.dtype)
         with self._scope():
-            mjw.step1(self.m, self.d)  # qfrc_bias (and the velocity stage) at the new velocity
+            # the whole step1: its velocity stage alone (fwd_velocity + sensor_vel) is not equivalent -- on warp-cpu
+            # it moved the pushed robot's foot forces by up to 18 N on the following steps (likely the position
+            # stage's factorisation of M, which step2's implicit integration leaves changed)
+            mjw.step1(self.m, self.d)
         self._terms = self._dynamics_terms()
         return self._publish()
 

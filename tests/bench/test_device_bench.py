@@ -21,6 +21,7 @@ def test_device_bench_writes_env_mpc_and_closed_loop_rows(tmp_path: Path) -> Non
     (env,) = res["env"]
     assert env["task"] == "base" and env["num_envs"] == 4 and env["steps_per_s"] > 0
     assert env["steps_per_s"] == pytest.approx(4 * 2 / env["wall_s"])
+    assert isinstance(env["resets"], int) and 0 <= env["resets"] <= 4 * 2
     (mpc,) = res["mpc"]
     assert mpc["samples"] == 300 and 0 < mpc["kernel_s"] <= mpc["solve_s"]
     (loop,) = res["closed_loop"]

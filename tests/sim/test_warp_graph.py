@@ -90,3 +90,4 @@ def test_non_finite_references_freeze_their_robot_and_are_raised_at_the_next_che
     with pytest.raises(ValueError, match=r"p_td_w must have shape \(3, 4, 3\)"):
         WarpSim(model, 3, SimConfig(num_workers=0), device="cpu").set_references(
             c["freq"], c["duty"], c["p_td_w"][:, :2], c["F_w"])
+
