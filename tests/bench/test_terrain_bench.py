@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from dls_quadruped.bench.terrain import markdown, run
 
 
@@ -19,6 +21,7 @@ def test_terrain_bench_profiles_every_type_and_the_plane():
     assert f"| boxes ({result['ngeom']} geoms) |" in markdown(result)
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_terrain_ab_swaps_in_the_given_terrain_module(tmp_path):
     """The A/B bench builds rough with the module it is given: a copy of sim/terrain.py whose
     build_scene marks its terrain proves the swap (and that the current one is restored)."""

@@ -43,7 +43,7 @@ def _draws(env, ids) -> dict:
             for s in ("push_robot", "external_wrench", "randomize_friction")}
 
 
-@pytest.mark.parametrize("scenario", ["survival", "survival_sweep"])
+@pytest.mark.parametrize("scenario", ["survival", pytest.param("survival_sweep", marks=pytest.mark.slow)])
 def test_every_sampler_seed_meets_the_eval_suites_episode(scenario: str) -> None:
     ref = _eval_env(scenario)
     ours = make_env(commands(E, 0, None), 2.0, seed=0, num_workers=0, replicas=2, scenario=scenario)
@@ -66,6 +66,7 @@ def test_every_sampler_seed_meets_the_eval_suites_episode(scenario: str) -> None
         ref.close()
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_a_blind_mpc_runs_the_survival_task_with_survival_per_row() -> None:
     cfg = ControllerConfig("naive_warm_start", sampler=SamplerConfig(num_samples=300), ground="stance_feet")
     traces = run_controllers([cfg], commands(E, 0, None), 0.3, seed=0, num_workers=0, scenario="survival")

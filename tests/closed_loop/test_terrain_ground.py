@@ -20,6 +20,7 @@ from experiments.warm_start_common import Cell
 E = 8
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_probe_and_mpc_share_the_terrain_ground() -> None:
     """The probe's initial cost at the start of each policy step is the state cost the MPC's first solve of that
     step computes at the same state (same references, same ground); on the survival terrain the terrain map

@@ -3,6 +3,8 @@ plane, and given the true terrain height for its touch-down targets it walks up 
 
 from __future__ import annotations
 
+import pytest
+
 import numpy as np
 
 from dls_quadruped.eval.balance_run import run_balance
@@ -34,6 +36,7 @@ def test_balance_controller_walks_up_a_10cm_step():
     assert np.all(np.abs(run.base_height[-1] - top - 0.34) < 0.03)  # standing height above the step
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_flat_tiles_behave_exactly_as_the_plane():
     """Same deterministic controller, same start relative to the ground: the state on the terrain's
     flat tiles (walking from one row into the next) equals the plane's to float32 round-off."""

@@ -23,7 +23,7 @@ def _roundtrip(state: dict) -> dict:
     return torch.load(io.BytesIO(buf.getvalue()), weights_only=False)
 
 
-@pytest.mark.parametrize("workers_saved, workers_loaded", [(0, 0), (2, 0)])
+@pytest.mark.parametrize("workers_saved, workers_loaded", [(0, 0), pytest.param(2, 0, marks=pytest.mark.slow)])
 def test_loaded_env_steps_as_the_saved_one_goes_on(workers_saved, workers_loaded):
     gen = torch.Generator().manual_seed(0)
     env = _env(workers_saved)
@@ -53,6 +53,7 @@ def test_loaded_env_steps_as_the_saved_one_goes_on(workers_saved, workers_loaded
         assert same != drop_episodes
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_episode_state_of_another_number_of_robots_falls_back_to_fresh_episodes():
     env = _env(0)
     state = _roundtrip(env.state_dict())

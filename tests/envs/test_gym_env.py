@@ -115,6 +115,7 @@ def test_observations_stay_in_their_space_with_noise_and_large_actions():
         envs.close()
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_the_view_steps_exactly_as_the_native_env():
     native = LocomotionEnv(load_task("rough", overrides=ROUGH_SMALL), num_envs=4, seed=5, verbose=False)
     view = LocomotionVectorEnv(4, "rough", overrides=ROUGH_SMALL, seed=5, final_obs="all")

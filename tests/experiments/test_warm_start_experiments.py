@@ -21,6 +21,7 @@ def _run(script: str, out: Path, *extra: str) -> str:
     return res.stdout
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_table16_cell_is_cached_and_tabulated(tmp_path: Path) -> None:
     out = tmp_path / "t16"
     _run("table16_samples.py", out, "--only", "naive_warm_start_M4000")
@@ -68,6 +69,7 @@ def test_training_seeds_merge_per_episode_means() -> None:
     assert merge_training_seeds([a, {"skipped": "no student x"}]) == {"skipped": "no student x"}
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_table18_two_students_and_the_policies_alone(tmp_path: Path) -> None:
     """Table 18's two-policy cell (the base student under two names) beside both policies alone: paired
     differences from each, the groups' wins, switches per second and robot 0's winner trace (Fig. 34)."""
@@ -108,6 +110,7 @@ def test_table18_stairs_part_blind_vs_aware(tmp_path: Path) -> None:
     assert (out / "stairs.png").is_file() and not (out / "table.md").exists()
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_shards_split_the_cells_and_the_run_without_shard_tabulates_them(tmp_path: Path) -> None:
     out = tmp_path / "t16"
     first, second = "naive_warm_start_M10000", "naive_warm_start_M4000"  # positions 4 and 3 of table16's cells

@@ -40,6 +40,7 @@ def _rollout(model, num_envs, steps, cfg, seed=0, noise=0.05, init_lin_vel=None)
         return torch.stack(out), state.diverged.clone()
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_64_robots_stand_then_trot_in_place(model):
     """Issue 2 acceptance: 10 s standing + 10 s trotting, height +-3 cm, |roll|,|pitch| < 0.1, feet lift >= 3 cm."""
     run = run_balance(num_envs=64, stand_seconds=10.0, trot_seconds=10.0, model=model)
