@@ -57,7 +57,7 @@ install-offline:
 	test -d "$(WHEELHOUSE)" || { echo "install-offline: WHEELHOUSE=$(WHEELHOUSE) is not a folder (make wheelhouse)"; exit 2; }
 	test -x $(PY) || $(PYTHON) -m venv --system-site-packages $(VENV)
 	$(PY) -m pip install -q --no-index --find-links "$(WHEELHOUSE)" "dls_quadruped[gpu]"
-	touch $(STAMP)
+	touch $(TORCH_STAMP) && touch $(STAMP)  # the node's torch counts as installed: no online step later
 
 # The ten-minute GPU check (docs/gpu.md "GPU check"): versions, compile time, cuda-vs-cpu trajectories, host syncs,
 # env steps/s, the MPC, then PPO on base with the time left; a JSON report written as it goes. Without CUDA it runs
