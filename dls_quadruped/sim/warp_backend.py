@@ -156,6 +156,7 @@ class WarpSim:
         self.wrench_w = torch.zeros(n, 6, dtype=self._xfrc.dtype, device=dev)
         self.diverged = torch.zeros(n, dtype=torch.bool, device=dev)
         self._bad_refs = torch.zeros(4, dtype=torch.bool, device=dev)  # non-finite freq, duty, p_td_w, F_w seen
+        self._bad_inputs: dict[str, torch.Tensor] = {}  # other inputs checked on the device (_ids, _check_rows)
         self.check_every = CHECK_EVERY
         self._step_calls = 0
         self.tau = torch.zeros(n, 12, dtype=f64, device=dev)
@@ -207,10 +208,25 @@ class WarpSim:
         return self.dynamics.terms(self._qpos.to(f64), self._qvel.to(f64), self._M, self._qfrc_bias)
 
     def _ids(self, env_ids: Any) -> torch.Tensor:
-        ids = torch.as_tensor(env_ids).reshape(-1).to(self.device, torch.long)
-        if len(ids) and (int(ids.min()) < 0 or int(ids.max()) >= self.num_envs):
-            raise ValueError(f"env_ids must be in [0, {self.num_envs}), got min {int(ids.min())} max {int(ids.max())}")
-        return ids
+        """Row ids as a long tensor on the device. Ids given on the host (lists, arrays, CPU tensors for a CUDA
+        backend) are range-checked there; ids already on the device (the env's own) are checked on the device
+        without a host read: out-of-range ones are clamped (so no write lands outside the batch) and raised by
+        the next :meth:`check_inputs`."""
+        if isinstance(env_ids, torch.Tensor) and env_ids.device == self.device and not env_ids.is_floating_point():
+            ids = env_ids.reshape(-1).long()
+            bad = (ids < 0) | (ids >= self.num_envs)
+            self._bad_flag("env_ids").logical_or_(bad.any())
+            return ids.clamp(0, self.num_envs - 1)
+        host = torch.as_tensor(env_ids).reshape(-1).cpu().long()
+        if len(host) and (int(host.min()) < 0 or int(host.max()) >= self.num_envs):
+            raise ValueError(f"env_ids must be in [0, {self.num_envs}), got min {int(host.min())} max {int(host.max())}")
+        return host.to(self.device)
+
+    def _bad_flag(self, name: str) -> torch.Tensor:
+        """The device-side flag of input ``name`` (set when a value arrived invalid; read by check_inputs)."""
+        if name not in self._bad_inputs:
+            self._bad_inputs[name] = torch.zeros((), dtype=torch.bool, device=self.device)
+        return self._bad_inputs[name]
 
     def _shaped(self, name: str, value: Any, n: int, shape: tuple[int, ...]) -> torch.Tensor:
         """``value`` as a float64 tensor on the device of shape (n, *shape) (no host read of its values)."""
@@ -220,14 +236,21 @@ class WarpSim:
         return value
 
     def _check_rows(self, name: str, value: Any, n: int, shape: tuple[int, ...]) -> torch.Tensor:
-        """``value`` as a float64 tensor on the device of shape (n, *shape) with finite entries (a host read:
-        for calls outside the per-step path)."""
-        value = self._shaped(name, value, n, shape)
-        finite = torch.isfinite(value).reshape(n, -1).all(dim=1)
+        """``value`` as a float64 tensor on the device of shape (n, *shape) with finite entries: checked on the host
+        when it comes from there, on the device (flagged for :meth:`check_inputs`, no host read) when it is
+        already on the device."""
+        if isinstance(value, torch.Tensor) and value.device == self.device:
+            value = self._shaped(name, value, n, shape)
+            self._bad_flag(name).logical_or_(~torch.isfinite(value).all())
+            return value
+        host = torch.as_tensor(value).cpu().to(torch.float64)  # host data: checked before it is uploaded
+        if host.shape != (n, *shape):
+            raise ValueError(f"{name} must have shape {(n, *shape)}, got {tuple(host.shape)}")
+        finite = torch.isfinite(host).reshape(n, -1).all(dim=1)
         if not bool(finite.all()):
             rows = torch.nonzero(~finite).flatten().tolist()
             raise ValueError(f"{name} has non-finite values in rows {rows[:10]}")
-        return value
+        return host.to(self.device)
 
     def _check_open(self) -> None:
         if self._closed:
@@ -257,16 +280,24 @@ class WarpSim:
             c[name].copy_(value)
 
     def check_inputs(self) -> None:
-        """Raise if a :meth:`set_references` call since the last check had non-finite values (one host read).
+        """Raise if an input checked on the device since the last check was invalid (one host read): non-finite
+        references or reset/push values, row ids out of range.
 
         Raises:
-            ValueError: naming the references that were non-finite.
+            ValueError: naming each invalid input.
         """
-        if bool(self._bad_refs.any()):
-            names = [k for k, bad in zip(("freq", "duty", "p_td_w", "F_w"), self._bad_refs.tolist()) if bad]
+        flags = torch.cat([self._bad_refs, torch.stack(list(self._bad_inputs.values()))]) if self._bad_inputs \
+            else self._bad_refs
+        if bool(flags.any()):
+            keys = ("freq", "duty", "p_td_w", "F_w", *self._bad_inputs)
+            names = [k for k, bad in zip(keys, flags.tolist()) if bad]
             self._bad_refs.zero_()
-            raise ValueError(f"set_references got non-finite values in {', '.join(names)} (within the last "
-                             f"{self.check_every} step calls); those robots diverged and were frozen")
+            for flag in self._bad_inputs.values():
+                flag.zero_()
+            what = [f"{k} out of [0, {self.num_envs})" if k == "env_ids" else f"non-finite {k}" for k in names]
+            raise ValueError(f"invalid inputs within the last {self.check_every} step calls: {', '.join(what)} "
+                             "(robots with non-finite references diverged and were frozen; out-of-range ids were "
+                             "clamped)")
 
     def step(self, num_physics_steps: int = 1) -> RobotState:
         """Advance every robot by ``num_physics_steps`` physics steps, low-level control at each (module doc)."""

@@ -40,13 +40,12 @@ ON_RESET = {
 """Sites allowed on steps with resets only."""
 
 WARP_BACKEND = {
-    # sim/warp_backend.py checks its inputs' values and its contact overflow on the host, per call:
-    # set_references (every step) and reset / set_base_velocity / set_external_wrench (on events)
-    "dls_quadruped/sim/warp_backend.py:_check_rows",
+    # sim/warp_backend.py checks device inputs on the device and reads the flags (and its contact overflow) once
+    # every check_every (24) step calls: at most once in these runs
     "dls_quadruped/sim/warp_backend.py:_check_overflow",
-    "dls_quadruped/sim/warp_backend.py:_ids",
+    "dls_quadruped/sim/warp_backend.py:check_inputs",
 }
-"""The Warp backend's own reads, counted but allowed until it validates at its API boundary only."""
+"""The Warp backend's own reads: once per check_every step calls."""
 
 CPU_BACKEND_FILES = ("dls_quadruped/sim/backend.py", "dls_quadruped/sim/shard.py")
 """The CPU backend moves state between torch and its MuJoCo/Pinocchio shards by design: not counted."""

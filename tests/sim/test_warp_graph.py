@@ -80,14 +80,30 @@ def test_non_finite_references_freeze_their_robot_and_are_raised_at_the_next_che
         state = sim.step(2)
         assert state.diverged.tolist() == [False, True, False]
         assert all(torch.isfinite(getattr(state, f)).all() for f in ("base_pos_w", "joint_torque", "foot_force_w"))
-        with pytest.raises(ValueError, match=r"non-finite values in F_w"):
+        with pytest.raises(ValueError, match=r"non-finite F_w"):
             sim.check_inputs()
         sim.check_inputs()  # reported once
         sim.check_every = 1
         sim.set_references(c["freq"], c["duty"] * float("inf"), c["p_td_w"], c["F_w"].nan_to_num())
-        with pytest.raises(ValueError, match=r"non-finite values in duty"):
+        with pytest.raises(ValueError, match=r"non-finite duty"):
             sim.step(1)
     with pytest.raises(ValueError, match=r"p_td_w must have shape \(3, 4, 3\)"):
         WarpSim(model, 3, SimConfig(num_workers=0), device="cpu").set_references(
             c["freq"], c["duty"], c["p_td_w"][:, :2], c["F_w"])
 
+
+
+def test_device_ids_out_of_range_are_clamped_and_raised_at_the_check_host_ids_at_once():
+    model = mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))
+    with WarpSim(model, 3, SimConfig(num_workers=0), device="cpu") as sim:
+        before = sim.state.clone()
+        sim.set_base_velocity(torch.tensor([5]), torch.tensor([[0.3, 0.0, 0.0]]))  # ids on the device: clamped to 2
+        assert sim.state.base_lin_vel_w[2, 0] == pytest.approx(0.3) and sim.state.base_lin_vel_w[0, 0] == 0.0
+        with pytest.raises(ValueError, match=r"env_ids out of \[0, 3\)"):
+            sim.check_inputs()
+        with pytest.raises(ValueError, match=r"env_ids must be in \[0, 3\), got min 0 max 7"):
+            sim.set_base_velocity([0, 7], torch.zeros(2, 3))
+        sim.set_external_wrench(torch.tensor([1]), torch.tensor([[float("nan"), 0.0, 0.0]]), torch.zeros(1, 3))
+        with pytest.raises(ValueError, match=r"non-finite force_w"):
+            sim.check_inputs()
+        assert torch.equal(before.base_pos_w, sim.state.base_pos_w)
