@@ -33,6 +33,7 @@ def _run(name: str, seconds: float, vx: float | None = None, episodes: int = 2, 
         env.close()
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_student_warm_start_walks_the_simple_task() -> None:
     tr, _, _ = _run("rl_warm_start", seconds=5.0)
     s = summarize(tr)

@@ -3,9 +3,8 @@ plane, and given the true terrain height for its touch-down targets it walks up 
 
 from __future__ import annotations
 
-import pytest
-
 import numpy as np
+import pytest
 
 from dls_quadruped.eval.balance_run import run_balance
 from dls_quadruped.robots.aliengo import constants as C
@@ -16,6 +15,7 @@ STEP = TerrainConfig(types=("stairs_down",), num_rows=1, tile_size=6.0, border=2
                      step_width=2.0, step_height=(0.1, 0.1))
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_balance_controller_walks_up_a_10cm_step():
     model, terrain = build_scene(STEP)
     cx, cy, top = terrain.tile_origins_w[0, 0]

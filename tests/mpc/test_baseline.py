@@ -88,6 +88,7 @@ def test_baseline_walks_forward_at_half_a_metre_per_second(plane_run):
     assert np.isfinite(run.best_cost).all()
 
 
+@pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_baseline_walks_on_flat_terrain_tiles_as_on_the_plane(plane_run):
     """Issue 8: on the terrain's flat tiles (into the next row) the baseline walks as on MuJoCo's
     plane; on the old height-field tiles it fell after 4.7-5.4 s."""
