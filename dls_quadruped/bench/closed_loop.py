@@ -1,4 +1,4 @@
-"""Closed-loop throughput (issue 12 item 6): ``python -m dls_quadruped.bench.closed_loop``.
+"""Closed-loop throughput: ``python -m dls_quadruped.bench.closed_loop``.
 
 Runs the student-warm-started MPC (``rl_warm_start``) and the naive MPC on the simple task for B robots
 in one env, M = 10 000, N = 10, one batched solve of B x M samples per MPC step (100 Hz), and reports
@@ -9,12 +9,12 @@ process it times the kernel alone for one robot (M = 10 000, N = 10), so the thr
 against the machine's kernel speed (our machines differ by 3-5x there).
 
 With ``--paths fused torch`` (``make bench-closed-loop``: B = 16 and 64) each row runs on the fused solve
-(``SamplingMPC.fused``, issue 25) and on the torch path around the kernel, back to back in the same process: the kernel's share of the wall time, the
+(``SamplingMPC.fused``) and on the torch path around the kernel, back to back in the same process: the kernel's share of the wall time, the
 robot-seconds per second of the two and their ratio, and robot-seconds per CPU-second of the process (what other
 jobs on shared cores do not inflate).
 
 With ``--students 1 2`` each ``rl_warm_start`` row runs with one student and with the same student twice (two
-sample groups sharing the M samples of one batched solve, issue 27 item 9): a multi-policy solve should cost
+sample groups sharing the M samples of one batched solve): a multi-policy solve should cost
 what a single one does at equal M.
 
 Writes results/bench/closed_loop.json and prints a markdown table.

@@ -1,4 +1,4 @@
-"""RL env steps/s with the cpu backend's two leg-dynamics sources side by side, in one process (issue 25).
+"""RL env steps/s with the cpu backend's two leg-dynamics sources side by side, in one process.
 
 Builds ``base`` and ``rough`` with ``scene.leg_dynamics: pinocchio`` (the default) and ``mujoco`` (MuJoCo's M and
 bias forces from a persistent ``Batch`` + batched torch kinematics, ``sim/shard.py``) and steps them in turn, a few

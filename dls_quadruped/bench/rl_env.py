@@ -1,4 +1,4 @@
-"""RL environment benchmark (``make bench``, env part; issue 4 item 7).
+"""RL environment benchmark (``make bench``, env part).
 
 Measures, for the ``base`` task (flat ground) and the ``rough`` task at each N:
 

@@ -1,4 +1,4 @@
-"""Swing-foot tracking against a moving touch-down target (issue 12 item 9a).
+"""Swing-foot tracking against a moving touch-down target.
 
 ``python -m dls_quadruped.bench.swing [--vx 0.5] [--bandwidth 40]`` walks the model-based baseline
 (trot + heuristic footholds + naive-warm-started force MPC, ``mpc.baseline``) on flat ground and
@@ -7,8 +7,8 @@ records, every physics step (200 Hz), the swing legs' foot position against
 * the swing reference of that step (``LowLevelController.p_ref_w``): tracking error while swinging;
 * the touch-down target at the first stance step after a swing: touch-down error.
 
-``--bandwidth`` sets ``LowLevelConfig.target_bandwidth`` (0: the reference aims at the raw target as
-if it stood still, the behaviour before issue 12). Prints and writes JSON (``--out``).
+``--bandwidth`` sets ``LowLevelConfig.target_bandwidth`` (0: no target tracker, the reference aims at
+the raw target as if it stood still). Prints and writes JSON (``--out``).
 """
 
 from __future__ import annotations

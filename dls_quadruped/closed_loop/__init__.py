@@ -1,4 +1,4 @@
-"""Policy-warm-started sampling MPC in the closed loop (thesis 3.1-3.2, 7.3; issue 12).
+"""Policy-warm-started sampling MPC in the closed loop (thesis 3.1-3.2, 7.3).
 
 ``controllers`` (rl_warm_start, naive_warm_start, rl_baseline, student), ``runner``
 (batched episodes in a ``LocomotionEnv``), ``metrics`` (medians and quartiles, 7.3.1);

@@ -1,4 +1,4 @@
-"""Pinocchio leg dynamics for the low-level controller (thesis 2.2.5-2.2.6, SPEC section 4).
+"""Pinocchio leg dynamics for the low-level controller (thesis 2.2.5-2.2.6).
 
 For B robots given in MuJoCo's coordinates, :class:`LegDynamics` returns per leg the
 quantities the swing law ``tau = M J^-1 (a - Jdot qdot) + h`` and the stance law

@@ -1,4 +1,4 @@
-"""Gait generator (thesis 2.2.2, SPEC section 4): per-leg phase oscillators.
+"""Gait generator (thesis 2.2.2): per-leg phase oscillators.
 
 Each leg i has a phase ``theta_i`` in [0, 1) that advances by ``f_i * dt`` per control
 step; the leg is in stance while ``theta_i < d_i`` and in swing otherwise (eq. 2.2.3 of
@@ -47,7 +47,7 @@ def advance_phase(phase: torch.Tensor, freq: torch.Tensor, dt: float) -> torch.T
 
 
 def contact_from_phase(phase: torch.Tensor, duty: torch.Tensor) -> torch.Tensor:
-    """Contact (stance) flag: c = theta < d (SPEC 4; fixes the typo in eq. 2.2.3).
+    """Contact (stance) flag: c = theta < d (the thesis's eq. 2.2.3 with its typo fixed).
 
     Args:
         phase: (..., 4) in [0, 1).

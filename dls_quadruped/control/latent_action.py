@@ -1,4 +1,4 @@
-"""Latent action (f, d, p, F): layout, normalisation, clipping, frames (thesis 4.2.2, 4.3.4, SPEC 5).
+"""Latent action (f, d, p, F): layout, normalisation, clipping, frames (thesis 4.2.2, 4.3.4, Tables 1 and 5).
 
 The policy (or the MPC) outputs a raw 28-vector, leg order FL, FR, RL, RR:
 

@@ -1,4 +1,4 @@
-"""Low-level controller (thesis Fig. 1, 2.2.2-2.2.6; SPEC section 4), run every physics step.
+"""Low-level controller (thesis Fig. 1, 2.2.2-2.2.6, Appendix B), run every physics step.
 
 Inputs are world-frame latent references held between high-level updates:
 step frequency ``f`` and duty ``d`` per leg, touch-down target ``p_td_w`` and stance
@@ -6,8 +6,8 @@ ground-reaction force ``F_w``. Per physics step and per leg:
 
 * gait generator: contact ``c = theta < d``; ``theta`` then advances by ``f dt``;
 * swing legs track the two-segment Bezier reference from the lift-off position to
-  ``p_td_w``, which follows a moving target (below), with feedback linearisation (SPEC 4; the
-  sign of eq. 2.2.8 is a typo)::
+  ``p_td_w``, which follows a moving target (below), with feedback linearisation (the sign
+  of the thesis's eq. 2.2.8 is a typo)::
 
       tau = M J^-1 (a_ref + K_D (v_ref - v) + K_P (p_ref - p) - Jdot qdot) + h
 
@@ -17,15 +17,15 @@ ground-reaction force ``F_w``. Per physics step and per leg:
   leg-on-ground sign);
 * torques are clipped to the motor limits.
 
-Moving touch-down target (issue 12 item 9a): the target is re-planned by the MPC (100 Hz) or the
+Moving touch-down target: the target is re-planned by the MPC (100 Hz) or the
 policy (50 Hz) relative to the moving base, so it moves with the body in steps. An alpha-beta tracker
 per leg (a critically damped second-order observer of bandwidth ``target_bandwidth``, zero lag on a
 target moving at constant velocity) turns the horizontal target into a smooth position and velocity;
 the Bezier reference runs to the tracked position and carries the target's velocity
-(``swing.swing_reference(target_vel_w=...)``). Without it the foot trailed a target moving at
+(``swing.swing_reference(target_vel_w=...)``). Without it the foot trails a target moving at
 0.5 m/s by 3.4 cm RMS at touch-down (docs/mpc.md "Swing foot and moving targets"). The vertical target
-(terrain height under it) is used as given. ``target_bandwidth = 0`` restores the reference to the raw
-target at rest.
+(terrain height under it) is used as given. ``target_bandwidth = 0`` aims the reference at the raw
+target as if it stood still.
 
 Everything is batched over B robots in float64 torch (the simulator state is float64), on the CPU or on
 the device given (``device``: the Warp backends, ``sim/warp_backend.py``).

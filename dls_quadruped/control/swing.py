@@ -1,4 +1,4 @@
-"""Swing trajectory generator: two cubic Bézier segments (thesis 2.2.4, Appendix B, SPEC 4).
+"""Swing trajectory generator: two cubic Bézier segments (thesis 2.2.4, Appendix B).
 
 The foot goes from the lift-off point ``p_lo`` up to an apex and down to the touch-down
 target ``p_td``. The swing lasts ``T_s = (1 - d) / f`` seconds; the ascent covers the first
@@ -34,7 +34,7 @@ velocity and acceleration are the total time derivatives of the same curve,
 (the target's own acceleration neglected), with dpos_xy/dp_td_xy = 3 s^2 - 2 s^3 over the whole swing and
 dz/dz_td = 3 tau^2 - 2 tau^3 inside a segment whose end height z_td sets (1 on the descent when the apex
 follows z_td). Without it the reference is fed forward as if the target stood still, and a foot tracking it
-trails a target that moves with the body (issue 12 item 9a). At lift-off the extra terms vanish; at
+trails a target that moves with the body. At lift-off the extra terms vanish; at
 touch-down the reference velocity is the target's velocity.
 
 All functions are pure torch, batched over any leading dimensions, and keep the dtype and

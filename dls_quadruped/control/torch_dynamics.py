@@ -1,4 +1,4 @@
-"""Device-agnostic batched leg terms in torch (issue 26 item 2): the GPU path's ``LegTerms``.
+"""Device-agnostic batched leg terms in torch: the GPU path's ``LegTerms``.
 
 :class:`TorchLegDynamics` builds the :class:`~dls_quadruped.control.lowlevel.LegTerms` that
 ``LowLevelController.compute`` takes from four batched tensors on any device, in float64 or
@@ -51,8 +51,7 @@ starting from ``v_w``, ``omega_w = R omega_b`` and zero accelerations. The leg J
 ``[I_3, -[p_foot - p_base]x R]``. Everything is analytic (no finite differences) and elementwise over
 robots, so a robot with a non-finite state spoils only its own rows.
 
-CPU time per robot at B = 1024 (one thread, the loaded 2-core development VM, float64, median/best of
-30 calls interleaved with ``LegDynamics.compute``): see docs/architecture.md (control/ rows).
+CPU time of the leg terms against ``LegDynamics.compute``: docs/benchmarks.md "Leg dynamics from MuJoCo".
 """
 
 from __future__ import annotations

@@ -91,7 +91,7 @@ class LocomotionEnv(VecEnv):
         self.env_cfg = dataclass_from_dict(EnvConfig, self.task.section("env"), self.task, "env")
         self.num_envs = self.env_cfg.num_envs if num_envs is None else num_envs
         if isinstance(self.num_envs, bool) or not isinstance(self.num_envs, int) or self.num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")  # 0 used to mean the default
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")  # 0 is refused, not read as the default
         self.device = torch.device(device)
         self.seed = self.env_cfg.seed if seed is None else seed
         torch.manual_seed(self.seed)

@@ -1,4 +1,4 @@
-"""Evaluation scenarios by name (SPEC 10).
+"""Evaluation scenarios by name (thesis chapter 7).
 
 A scenario says which env it builds, how it runs the policy and what it reports; the command
 line (``python -m dls_quadruped.eval``) only looks it up here. A scenario is one ``Scenario``

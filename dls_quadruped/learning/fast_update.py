@@ -1,32 +1,32 @@
-"""A cheaper rsl-rl-lib PPO update with the same algorithm, hyper-parameters and mini-batches (issue 25).
+"""A cheaper rsl-rl-lib PPO update with the same algorithm, hyper-parameters and mini-batches.
 
-Profiled on the base task (one core of an AMD EPYC, 256 robots x 24 steps, 5 epochs x 4 mini-batches,
-each doubled by the mirror augmentation; docs/benchmarks.md "PPO update"): 80 % of the update is the
-actor's and critic's matrix products (~85 GFLOP/s, near one core's peak), 9 % ELU, 11 % the rest.
-A third of the forward products were spent on a pass whose result is only logged. What this module
-changes, each step leaving every number rsl-rl computes the same (``tests/learning/test_fast_update.py``):
+The update is compute-bound: most of its time is the actor's and critic's matrix products, which MKL
+already runs near one core's peak (profile in docs/benchmarks.md "PPO update"). What this module removes
+is the work rsl-rl adds around them; every change leaves the numbers rsl-rl computes the same, up to the
+summation order of fused Adam and threaded products (``tests/learning/test_fast_update.py`` compares
+losses, learning rate and weights after one update with the stock one):
 
 * **No second actor pass for the logged mirror loss.** rsl-rl's ``Symmetry.compute_loss`` runs the
   actor again, with autograd recording, on the augmented mini-batch to log the mirror loss even when
-  the loss does not train (``use_mirror_loss: false``). The action means of that pass are the means
-  of the main forward pass a few lines earlier (same observations, same weights, the distribution is
-  not touched in between), so ``ReusedForwardSymmetry`` takes them from there, without autograd.
-  With ``use_mirror_loss: true`` the stock loss (with its gradient) is kept.
+  the loss does not train (``use_mirror_loss: false``): a third of the forward matrix products. The
+  action means of that pass are the means of the main forward pass a few lines earlier (same
+  observations, same weights, the distribution is not touched in between), so
+  ``ReusedForwardSymmetry`` takes them from there, without autograd. With ``use_mirror_loss: true``
+  the stock loss (with its gradient) is kept.
 * **Shuffle once per update.** rsl-rl gathers every mini-batch from the flat rollout with its slice of
-  one random permutation (20 gathers per update). ``ShuffleOnceStorage`` gathers the whole rollout
-  with the same permutation once; each mini-batch is then a contiguous slice (a view) of it, with
-  the same rows in the same order.
+  one random permutation (epochs x mini-batches gathers per update). ``ShuffleOnceStorage`` gathers
+  the whole rollout with the same permutation once; each mini-batch is then a contiguous slice (a
+  view) of it, with the same rows in the same order.
 * **Fused Adam** (one kernel over all parameters instead of a ``foreach`` sequence), same defaults.
 * **Every core in the update.** Collection keeps the trainer's thread count (the simulator workers
   own the cores then); the update, during which the workers idle, runs with ``threads`` torch
-  threads (the weights came out bit-identical with 1 and 2 threads). Needs
-  ``OMP_WAIT_POLICY=PASSIVE`` on a shared machine (the ``learning`` package sets it as a default,
-  the Makefile explicitly): with OpenMP's default spin-waiting, two threads on two busy cores were
-  3-5x *slower* than one; sleeping, within +-10 % of one thread at load 5 on 2 cores.
+  threads. On a shared machine this needs ``OMP_WAIT_POLICY=PASSIVE`` (the ``learning`` package sets
+  it as a default, the Makefile explicitly): with OpenMP's default spin-waiting, extra threads on busy
+  cores make the update several times slower than one thread (docs/benchmarks.md "PPO update").
 
-``torch.compile`` of the actor and critic (rsl-rl's agent key ``torch_compile_mode: default``) is left
-off: ~10 % on the update at 256 robots, within the noise of a shared machine, for 15-30 s of
-compilation per start (docs/train.md "Update speed"); the time is in MKL's matrix products either way.
+``torch.compile`` of the actor and critic (rsl-rl's agent key ``torch_compile_mode``) is left off: the
+time is in MKL's matrix products either way, so it gains little for its compilation at every start
+(docs/train.md "Update speed").
 """
 
 from __future__ import annotations

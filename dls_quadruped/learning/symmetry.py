@@ -1,4 +1,4 @@
-"""Left-right mirror symmetry of the policy observation and the latent action (issue 14).
+"""Left-right mirror symmetry of the policy observation and the latent action.
 
 The mirror is the reflection about the base's x-z plane (y -> -y): left and right legs swap
 (FL <-> FR, RL <-> RR), lateral components of polar vectors change sign (v_y, g_y, p_y, F_y), and

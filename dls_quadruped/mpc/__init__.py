@@ -1,4 +1,4 @@
-"""Batched torch sampling MPC: SRBD rollouts, cost, action encodings, warm starts (SPEC 8-9).
+"""Batched torch sampling MPC: SRBD rollouts, cost, action encodings, warm starts (thesis 3.2, 5.1, Appendices A and C).
 
 Usage (B robots, 100 Hz, the thesis's model-based baseline optimising the forces only)::
 

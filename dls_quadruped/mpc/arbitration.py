@@ -1,4 +1,4 @@
-"""Arbitration between warm-start groups (issue 27 item 5): temporal coherence of the winning group.
+"""Arbitration between warm-start groups: temporal coherence of the winning group.
 
 With several warm starts in one solve (thesis 7.4, Algorithm 2) the plain argmin's group can switch up to
 10 times per second, and every switch changes the gait the robot is asked to follow. Two mechanisms, both

@@ -1,9 +1,9 @@
-"""Frozen configuration of the sampling MPC (SPEC 9, thesis 3.2, Tables 9, 10, 13).
+"""Frozen configuration of the sampling MPC (thesis 3.2, Tables 9, 10, 13).
 
 Three small dataclasses, all frozen and hashable (the compiled kernel is cached per config):
 
 * :class:`CostWeights` - diagonals of Q (Table 9) and R (Table 10);
-* :class:`EncodingConfig` - how a horizon of latent actions is encoded (SPEC 8, thesis 5.1);
+* :class:`EncodingConfig` - how a horizon of latent actions is encoded (thesis 5.1);
 * :class:`SamplerConfig` - samples, horizon, dt, sigmas, kernel choice, and the latent-action
   limits (reused from :class:`dls_quadruped.control.latent_action.LatentActionConfig`).
 """
@@ -74,7 +74,7 @@ class CostWeights:
 
 @dataclass(frozen=True)
 class EncodingConfig:
-    """Encoding of a horizon of H latent actions (SPEC 8, thesis 5.1, Table 13).
+    """Encoding of a horizon of H latent actions (thesis 5.1, Table 13).
 
     Attributes:
         p: encoding of the touch-down offsets p_xy: "discrete" | "spline" | "first".
@@ -110,7 +110,7 @@ class EncodingConfig:
 
 @dataclass(frozen=True)
 class SamplerConfig:
-    """Sampling MPC settings (SPEC 9, thesis 3.2 and 7.3).
+    """Sampling MPC settings (thesis 3.2 and 7.3).
 
     Attributes:
         num_samples: M, samples per robot (all warm-start groups together).

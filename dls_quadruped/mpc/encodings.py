@@ -1,4 +1,4 @@
-"""Encodings of a horizon of latent actions (thesis 5.1, Appendix A, Table 13; SPEC 8).
+"""Encodings of a horizon of latent actions (thesis 5.1, Appendix A, Table 13).
 
 A horizon is H latent actions, each the 28-vector [f(4), d(4), p_xy(4x2), F_xyz(4x3)] of
 :mod:`dls_quadruped.control.latent_action` (frame H, physical units), spaced dt apart.

@@ -1,4 +1,4 @@
-"""Sampling MPC controller (thesis Algorithm 2, SPEC 9): one batched solve over B robots x M samples.
+"""Sampling MPC controller (thesis 3.2, Algorithm 2): one batched solve over B robots x M samples.
 
     mpc = SamplingMPC(SamplerConfig(num_samples=10000, horizon=10))
     result = mpc.solve(state, refs, warm_starts=[mpc.naive_warm_start(default), policy_ws], proportions=(0.5, 0.5),

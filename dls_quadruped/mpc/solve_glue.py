@@ -1,10 +1,10 @@
-"""The fused CPU solve (issue 25): the elementwise torch code around the ``cpp`` kernel moved into C++ calls.
+"""The fused CPU solve: the elementwise torch code around the ``cpp`` kernel moved into C++ calls.
 
-:meth:`SamplingMPC.solve <dls_quadruped.mpc.sampler.SamplingMPC.solve>` with the ``cpp`` kernel on the CPU
-spent more time around the kernel than in it (1 thread, M = 10 000, N = 10: 4.25 ms solve around a 1.79 ms
-kernel): cleaning the inputs, the argmin, re-drawing and decoding the winner were ~150 small torch ops. The
-fused path keeps every number bit for bit (tests/mpc/test_solve_glue.py compares every field of the result
-with the torch path, ``SamplingMPC.fused = False``) and does:
+:meth:`SamplingMPC.solve <dls_quadruped.mpc.sampler.SamplingMPC.solve>` on the torch path with the ``cpp``
+kernel on the CPU spends a large share of its time around the kernel: cleaning the inputs, the argmin,
+re-drawing and decoding the winner are ~150 small torch ops (docs/benchmarks.md "MPC solve path" times the
+two paths side by side). The fused path keeps every number bit for bit (tests/mpc/test_solve_glue.py compares
+every field of the result with the torch path, ``SamplingMPC.fused = False``) and does:
 
 * input cleaning (non-finite entry -> 0, per-robot flags): :func:`clean_rows` in C++;
 * the kernel and the argmin in one C++ call (``mpc_solve`` in rollout_kernel.cpp) into preallocated
@@ -12,8 +12,8 @@ with the torch path, ``SamplingMPC.fused = False``) and does:
   (:mod:`arbitration`) then re-selects the winner from the same (B, M) costs with the torch path's call;
 * the winner: its noise counters, clip, contacts, forces, limits, frames and input-cost terms in C++
   (``solve_glue.cpp``, built with ``-ffp-contract=off`` and torch's evaluation order); the log, cos, sin,
-  the spline matmul and the sums stay torch calls on tensors of the old shapes, because their results
-  depend on torch's vector/scalar code paths and summation order.
+  the spline matmul and the sums stay torch calls on tensors of the torch path's shapes, because their
+  results depend on torch's vector/scalar code paths and summation order.
 
 The library is a plain shared object built at first use like the kernel (:mod:`cpp_kernel`, same cache
 directory); :func:`load` returns None (one ``RuntimeWarning``) if it cannot be built and the solve takes the

@@ -1,4 +1,4 @@
-"""Single rigid body dynamics (thesis Appendix C, SPEC 9): model, state, Euler maps, reference rollout.
+"""Single rigid body dynamics (thesis Appendix C): model, state, Euler maps, reference rollout.
 
 State (24): x = [p_c (3, world), v_c (3, world), Phi = (roll, pitch, yaw) (3), omega (3, BASE frame),
 p_f (4 x 3, world)]. Input per step: contact c (4, 0/1), touch-down targets p_td (4 x 3, world),

@@ -1,4 +1,4 @@
-"""Height scanner: a yaw-aligned grid of terrain heights around the base (SPEC 6, Table 2).
+"""Height scanner: a yaw-aligned grid of terrain heights around the base (thesis Table 2).
 
 The terrain is known, so instead of casting rays the scan reads ``Terrain.height_at`` (exact for
 MuJoCo's triangulated height field, see ``terrain.py``). Grid: 17 points along the base-yaw x axis

@@ -1,7 +1,7 @@
 """The simulator seam: what every backend offers, its configuration, and the registry that builds one by name.
 
 Everything above ``sim/`` (the env's managers, the MDP terms, the closed loop, the eval suite) talks to the
-simulator only through :class:`SimBackend`, so a second backend (MuJoCo Warp on a GPU, issue 26) slots in
+simulator only through :class:`SimBackend`, so a second backend (MuJoCo Warp on a GPU, ``sim/warp_backend.py``) slots in
 without touching them. The contract:
 
 * **Inputs on any device, any float dtype.** ``set_references``, ``reset``, ``set_external_wrench``,

@@ -1,7 +1,7 @@
 """Unitree AlienGo constants: the only place robot facts live.
 
 Every number here comes from published AlienGo data (Unitree's public robot
-description) as summarised in SPEC section 3; the MJCF in this folder is
+description); the MJCF in this folder is
 generated from the same facts and a test checks the two agree.
 
 Leg order everywhere in the project is FL, FR, RL, RR (the thesis writes LF, RF, LH, RH).
