@@ -89,7 +89,8 @@ demo: $(STAMP)
 demo-balance: $(STAMP)
 	$(PY) -m dls_quadruped.demo --num-envs $(NUM_ENVS) --seconds $(SECONDS_PER_PHASE) --out $(OUT)/demo_balance
 
-# `make bench DEVICE=cuda` runs the device benchmark instead (issue 26: env steps/s per N, MPC solve, closed loop on
+# Every benchmark writes JSON under $(OUT)/bench only (UPDATE_DOCS=1: bench-mpc also rewrites docs/benchmarks.md).
+# `make bench DEVICE=cuda` runs the device benchmark instead (env steps/s per N, MPC solve, closed loop on
 # the GPU; docs/gpu.md); `make bench-device DEVICE=cpu BACKEND=warp-cpu` runs it anywhere
 bench: $(if $(filter cuda%,$(DEVICE)),bench-device,bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop)
 
@@ -103,8 +104,10 @@ bench-env: $(STAMP)
 bench-terrain: $(STAMP)
 	$(PY) -m dls_quadruped.bench.terrain --out $(OUT)/bench
 
+# UPDATE_DOCS=1: the MPC benchmarks also rewrite their sections of docs/benchmarks.md (default: only $(OUT)/bench)
+UPDATE_DOCS ?=
 bench-mpc: $(STAMP)
-	$(PY) -m dls_quadruped.bench.mpc
+	$(PY) -m dls_quadruped.bench.mpc --out $(OUT)/bench $(if $(UPDATE_DOCS),--update-docs,)
 
 bench-rl: $(STAMP)
 	$(PY) -m dls_quadruped.bench.rl_env --out $(OUT)/bench
@@ -127,10 +130,10 @@ clean:
 	rm -rf $(VENV) results .pytest_cache
 
 # ---------------------------------------------------------------------------------------------
-# RL training and playback (issue 4; owner of this block: the env/learning helper).
+# RL training and playback.
 # `make train TASK=rough NUM_ENVS=256 ITERATIONS=500 DEVICE=cpu SEED=0 RESUME=1`, see docs/train.md.
-# Defaults sized for the 2-core dev machine (~2.9 s per iteration at 256 envs for the base task,
-# ~25 min in all; docs/benchmarks.md "Learning curve"). NUM_ENVS on the command line overrides TRAIN_NUM_ENVS.
+# Defaults sized for the 2-core dev machine (base, 256 envs: ~4.2 s per iteration on a loaded 2-core VM, so
+# ~35 min for 500; docs/workflow.md). NUM_ENVS on the command line overrides TRAIN_NUM_ENVS.
 TASK ?= base
 TRAIN_NUM_ENVS ?= $(if $(filter command line environment,$(origin NUM_ENVS)),$(NUM_ENVS),256)
 ITERATIONS ?= 500
@@ -145,8 +148,8 @@ DEVICE ?= cpu
 # empty: 0 for a new run, the checkpoint's for RESUME=1 / RESUME_FROM (another one is refused)
 SEED ?=
 RESUME ?=
-# RESUME_FROM=docs/policies/base_resume.pt continues from a checkpoint file (e.g. committed by a
-# session on another machine) in a new run dir; CHECKPOINT_COPY=PATH also writes every checkpoint
+# RESUME_FROM=runs/base/<run>/model_<it>.pt continues from a checkpoint file (e.g. copied from another
+# machine) in a new run dir; CHECKPOINT_COPY=PATH also writes every checkpoint
 # to PATH (the file to commit). See docs/train.md, "Runs that span machines".
 RESUME_FROM ?=
 CHECKPOINT_COPY ?=
@@ -159,10 +162,16 @@ TRAIN_WORKERS ?=
 # simulator backend (empty: the task's scene.backend, cpu); BACKEND=cuda DEVICE=cuda runs MuJoCo Warp on the GPU
 # (make install-gpu; docs/gpu.md)
 BACKEND ?=
+# CHECKPOINT: what `make play` plays (a model_<it>.pt, an exported policy.pt or docs/policies/<name>_actor.pt);
+# empty: the newest checkpoint of the task's latest run under runs/<task>/ (docs/play.md)
 CHECKPOINT ?=
 PLAY_SECONDS ?= 10
+# SET="agent.algorithm.entropy_coef=0.0 env.episode_length_s=10": task-file overrides for train, play and eval,
+# space-separated KEY=VALUE pairs, each passed as --set (write YAML lists without spaces: [0.5,1.0]; docs/env.md)
+SET ?=
+SET_ARGS = $(foreach kv,$(SET),--set '$(kv)')
 
-.PHONY: train play
+.PHONY: train play tasks
 
 train: $(STAMP)
 	OMP_NUM_THREADS=$(TRAIN_THREADS) OMP_WAIT_POLICY=PASSIVE $(PY) -m dls_quadruped.learning.train --task $(TASK) --num-envs $(TRAIN_NUM_ENVS) --iterations $(ITERATIONS) \
@@ -170,13 +179,18 @@ train: $(STAMP)
 		$(if $(INIT_STD),--init-std $(INIT_STD),) \
 		$(if $(RESUME_FROM),--resume-from $(RESUME_FROM),) $(if $(CHECKPOINT_COPY),--checkpoint-copy $(CHECKPOINT_COPY),) \
 		$(if $(TRAIN_WORKERS),--num-workers $(TRAIN_WORKERS),) $(if $(UPDATE_THREADS),--update-threads $(UPDATE_THREADS),) \
-		$(if $(BACKEND),--backend $(BACKEND),)
+		$(if $(BACKEND),--backend $(BACKEND),) $(SET_ARGS)
 
 play: $(STAMP)
-	$(PY) -m dls_quadruped.learning.play --task $(TASK) --seconds $(PLAY_SECONDS) $(if $(CHECKPOINT),--checkpoint $(CHECKPOINT),)
+	$(PY) -m dls_quadruped.learning.play --task $(TASK) --seconds $(PLAY_SECONDS) $(if $(CHECKPOINT),--checkpoint $(CHECKPOINT),) \
+		$(SET_ARGS)
+
+# the registered tasks (tasks/*.yaml), one line each
+tasks: $(STAMP)
+	$(PY) -m dls_quadruped.list_tasks
 
 # ---------------------------------------------------------------------------------------------
-# Policy evaluation (issue 14; scenarios in dls_quadruped/eval/scenarios.py, see docs/eval.md).
+# Policy evaluation (scenarios in dls_quadruped/eval/scenarios.py, see docs/eval.md).
 # `make eval POLICY=docs/policies/base_actor.pt SCENARIO=simple EPISODES=256 EVAL_OUT=results/eval/base`
 # Scenarios: simple, forward, survival, survival_sweep, stairs, speed, omni, cot, gait. EPISODES is per condition
 # (per speed, step height, grid cell); empty = the scenario's small default.
@@ -189,10 +203,21 @@ EVAL_OUT ?=
 
 eval: $(STAMP)
 	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval --policy $(POLICY) --scenario $(SCENARIO) $(if $(EPISODES),--episodes $(EPISODES),) \
-		$(if $(EVAL_OUT),--out $(EVAL_OUT),)
+		$(if $(EVAL_OUT),--out $(EVAL_OUT),) $(SET_ARGS)
+
+# Choose a run's checkpoint on the scenario's validation episodes (docs/train.md "Choosing a checkpoint"):
+# `make select RUN=runs/base/<run> SCENARIO=simple EVERY=50` writes RUN/selection/<scenario>/selection.json
+RUN ?=
+EVERY ?=
+
+.PHONY: select
+
+select: $(STAMP)
+	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval.select $(RUN) --scenario $(SCENARIO) $(if $(EVERY),--every $(EVERY),) \
+		$(if $(EPISODES),--episodes $(EPISODES),)
 
 # ---------------------------------------------------------------------------------------------
-# Distillation of an expert into a horizon student (issue 10; docs/distill.md). Defaults: Table 7
+# Distillation of an expert into a horizon student (docs/distill.md). Defaults: Table 7
 # (tasks/agents/distill.yaml), first-spline, H = 10, dt = 0.02 s, DAgger alpha = 0.6.
 # `make distill EXPERT=... ENCODING=discrete-discrete HORIZON=5 DT=0.04 ALGO=naive EPOCHS=20`
 # DISTILL_TASK: the env task the expert acts in (default: the config's, base), e.g. speed_full_range.

@@ -17,6 +17,8 @@ import sys
 from collections.abc import Callable
 from typing import Any, NoReturn
 
+import yaml
+
 from dls_quadruped.envs.config import ConfigError
 
 USER_ERROR_STATUS = 2
@@ -94,6 +96,64 @@ def torch_device(text: str) -> str:
     elif device.type != "cpu":
         raise argparse.ArgumentTypeError(f"unsupported device {text!r}; use cpu, cuda or cuda:<index>")
     return text
+
+
+SET_FORM = "KEY=VALUE, KEY a dotted path into the task file and VALUE YAML (e.g. --set env.episode_length_s=10)"
+"""The allowed form of ``--set``, quoted by its errors."""
+
+
+def set_pair(text: str) -> tuple[str, Any]:
+    """argparse type of ``--set``: ``KEY=VALUE`` -> (dotted key, value parsed as YAML).
+
+    ``agent.algorithm.entropy_coef=0.0`` -> ``("agent.algorithm.entropy_coef", 0.0)``; ``[0.5,1]`` is a list,
+    ``null`` deletes the key as it does in a task file. No ``=``, an empty key or key part (``a..b``), an
+    empty value and a value that is not YAML are refused, naming the pair and the allowed form.
+    """
+    key, sep, value = text.partition("=")
+    key = key.strip()
+    if not sep:
+        raise argparse.ArgumentTypeError(f"{text!r} has no '='; expected {SET_FORM}")
+    if not key or not all(key.split(".")):
+        raise argparse.ArgumentTypeError(f"{text!r}: empty key or key part; expected {SET_FORM}")
+    if not value.strip():
+        raise argparse.ArgumentTypeError(f"{text!r}: no value after '=' (null deletes a key); expected {SET_FORM}")
+    try:
+        parsed = yaml.safe_load(value)
+    except yaml.YAMLError as err:
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise argparse.ArgumentTypeError(f"{text!r}: the value is not YAML ({problem}); expected {SET_FORM}") from None
+    return key, parsed
+
+
+def add_set_argument(parser: argparse.ArgumentParser, note: str = "") -> None:
+    """Add the repeatable ``--set KEY=VALUE`` (``set_pair``) to ``parser``; read it with :func:`set_overrides`.
+
+    Args:
+        note: appended to the help (which task the pairs apply to, what they cannot change).
+    """
+    parser.add_argument("--set", dest="set", type=set_pair, action="append", default=[], metavar="KEY=VALUE",
+                        help="override a value of the task file, repeatable: KEY a dotted path "
+                             "(agent.algorithm.entropy_coef, env.episode_length_s), VALUE YAML (0.0, [0.5,1.0], "
+                             "null deletes the key); applied after the other flags and checked like the file"
+                             + (f"; {note}" if note else ""))
+
+
+def set_overrides(pairs: list[tuple[str, Any]]) -> dict:
+    """The nested overrides dict of ``--set`` pairs (``load_task(..., overrides=...)``), later pairs winning.
+
+    ``[("env.episode_length_s", 10), ("agent.algorithm.entropy_coef", 0.0)]`` ->
+    ``{"env": {"episode_length_s": 10}, "agent": {"algorithm": {"entropy_coef": 0.0}}}``.
+    """
+    out: dict = {}
+    for key, value in pairs:
+        *parents, leaf = key.split(".")
+        node = out
+        for part in parents:
+            if not isinstance(node.get(part), dict):
+                node[part] = {}
+            node = node[part]
+        node[leaf] = value
+    return out
 
 
 def user_errors() -> tuple[type[BaseException], ...]:

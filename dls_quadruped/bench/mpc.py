@@ -1,4 +1,4 @@
-"""MPC solve-time benchmark (issue 3 item 5): ``python -m dls_quadruped.bench.mpc [--quick]``.
+"""MPC solve-time benchmark: ``python -m dls_quadruped.bench.mpc [--quick]``.
 
 Times one full :meth:`SamplingMPC.solve` (validation, sampling, rollouts, argmin, decoding the
 winner) for M samples x N steps, B = 1 robot, two warm starts (naive + external, 50/50), every
@@ -6,16 +6,16 @@ variable optimised (sigma_f, sigma_d, sigma_p, sigma_F > 0, first-spline encodin
 ``fast``, ``cpp`` (CPU only) and ``reference`` kernels, on the CPU with the threads torch has and on CUDA when
 present. Median and p90 over ``--solves`` solves after warm-up (the first call compiles).
 
-Writes results/bench/mpc.json (with machine info), results/bench/mpc_solve_time.png, prints a
-markdown table and rewrites the "## MPC solve time" section of docs/benchmarks.md.
+Writes results/bench/mpc.json (with machine info), results/bench/mpc_solve_time.png and prints a
+markdown table; with ``--update-docs`` it also rewrites the "## MPC solve time" section of docs/benchmarks.md.
 
 Then (or alone, ``--builds-only``) the C++ kernel built three ways is timed side by side at M = 10 000,
-N = 10 (issue 15): for the host (``-march=native``), for ``x86-64-v3`` (AVX2 + FMA: a machine without
+N = 10: for the host (``-march=native``), for ``x86-64-v3`` (AVX2 + FMA: a machine without
 AVX-512) and without auto-vectorisation (``scalar``), taking turns solve by solve; full solve and kernel
 call medians, speed-ups over ``scalar`` and the kernel's share of the machine's fp32 peak go to
-results/bench/mpc_builds.json and the "## MPC C++ kernel builds" section of docs/benchmarks.md.
+results/bench/mpc_builds.json (and, with ``--update-docs``, the "## MPC C++ kernel builds" section of docs/benchmarks.md).
 
-Last, the fused solve vs the torch path side by side (issue 25, :mod:`dls_quadruped.bench.mpc_path`).
+Last, the fused solve vs the torch path side by side (:mod:`dls_quadruped.bench.mpc_path`).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ REPO = Path(__file__).resolve().parents[2]
 SECTION = "## MPC solve time"
 BUILDS_SECTION = "## MPC C++ kernel builds"
 ROLLOUT_MFLOP = 30.0
-"""fp32 work of one solve's kernel at M = 10 000, N = 10 (issue 15's estimate), scaled by M N elsewhere."""
+"""fp32 work of one solve's kernel at M = 10 000, N = 10 (an estimate from the kernel's arithmetic), scaled by M N elsewhere."""
 FLOP_PER_CYCLE = 32
 """fp32 FLOP per cycle and core with two 256-bit FMA pipes (2 x 8 lanes x 2): AMD Zen 2-4 (Zen 4 runs
 AVX-512 on the same two 256-bit pipes), Intel cores since Haswell. Peak per core = clock x this."""
@@ -189,7 +189,7 @@ def update_builds_docs(rows: list[dict], info: dict, path: Path) -> None:
                  "(two 256-bit FMA pipes), times the threads used" if peak else "fp32 peak unknown (no clock)")
     body = (
         f"{BUILDS_SECTION}\n\n"
-        "`python -m dls_quadruped.bench.mpc --builds-only` (also the last part of `make bench-mpc`; issue 15): the "
+        "`python -m dls_quadruped.bench.mpc --builds-only` (also the last part of `make bench-mpc`): the "
         "`cpp` kernel built for this CPU (`native`), for `x86-64-v3` (AVX2 + FMA: how it runs on a machine without "
         "AVX-512) and without auto-vectorisation (`scalar`), timed side by side in one process, the builds taking "
         f"turns solve by solve; the solve of the table above at M = {m}, N = {n}, medians over "
@@ -225,7 +225,8 @@ def _section_span(text: str, heading: str) -> tuple[int, int]:
 
 
 def run_builds(args: argparse.Namespace) -> None:
-    """Time the C++ kernel builds side by side on 1 and on torch's threads; print, write JSON and the docs."""
+    """Time the C++ kernel builds side by side on 1 and on torch's threads; print, write JSON (and the docs page with
+    ``--update-docs``)."""
     m, n = (4000, 5) if args.quick else (10000, 10)
     info = machine_info()
     mhz = _cpuinfo_field("cpu MHz")
@@ -242,7 +243,7 @@ def run_builds(args: argparse.Namespace) -> None:
           f"load {info['load_avg_1_5_15']} -> {info['load_avg_end']}")
     print("\n".join(build_notes(rows)))
     print(builds_table(rows, info["peak_gflops_per_core"]))
-    if not args.no_docs and not args.quick:
+    if args.update_docs and not args.quick:
         update_builds_docs(rows, info, args.docs)
 
 
@@ -339,7 +340,7 @@ def update_docs(table: str, info: dict, results: list[dict], path: Path) -> None
                  if load > 1.5 else "the machine was otherwise idle")
     body = (
         f"{SECTION}\n\n"
-        "`python -m dls_quadruped.bench.mpc` (issue 3 item 5): one full `SamplingMPC.solve` for B = 1 robot, "
+        "`python -m dls_quadruped.bench.mpc`: one full `SamplingMPC.solve` for B = 1 robot, "
         "two warm starts (50/50), f, d, p and F all sampled, first-spline encoding, dt = 0.02 s; median and p90 "
         f"over {results[0]['solves']} solves after warm-up. `fast` = the torch.compile'd fused kernel, `cpp` = the "
         "hand-written C++/OpenMP kernel, "
@@ -366,22 +367,24 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--solves", type=int, default=50, help="timed solves per point (default 50)")
     parser.add_argument("--reference-all", action="store_true", help="reference kernel at every N (default N = 10)")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "bench")
-    parser.add_argument("--docs", type=Path, default=REPO / "docs" / "benchmarks.md")
-    parser.add_argument("--no-docs", action="store_true", help="do not touch docs/benchmarks.md")
+    parser.add_argument("--docs", type=Path, default=REPO / "docs" / "benchmarks.md",
+                        help="the page --update-docs rewrites (default docs/benchmarks.md)")
+    parser.add_argument("--update-docs", action="store_true",
+                        help="also rewrite the MPC sections of --docs (default: write only under --out)")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (default: torch's choice)")
     parser.add_argument("--horizons", type=int, nargs="+", default=None, help="override the N grid")
     parser.add_argument("--samples", type=int, nargs="+", default=None, help="override the M grid")
     parser.add_argument("--builds-only", action="store_true",
                         help="only time the C++ kernel builds (native, x86-64-v3, scalar) side by side")
     parser.add_argument("--render", type=Path, default=None,
-                        help="only re-render the table, plot and docs from an existing mpc.json")
+                        help="only re-render the table and plot (and with --update-docs the docs) from an existing mpc.json")
     args = parser.parse_args(argv)
     if args.render is not None:
         data = json.loads(args.render.read_text())
         plot(data["results"], args.render.parent / "mpc_solve_time.png")
         table = markdown_table(data["results"])
         print(table)
-        if not args.no_docs:
+        if args.update_docs:
             update_docs(table, data["machine"], data["results"], args.docs)
         return
     if args.threads > 0:
@@ -416,12 +419,13 @@ def main(argv: list[str] | None = None) -> None:
     plot(results, args.out / "mpc_solve_time.png")
     table = markdown_table(results)
     print(table)
-    if not args.no_docs and not args.quick:
+    if args.update_docs and not args.quick:
         update_docs(table, info, results, args.docs)
     run_builds(args)
     from dls_quadruped.bench import mpc_path
 
-    mpc_path.run(argparse.Namespace(quick=args.quick, solves=200, out=args.out, docs=args.docs, no_docs=args.no_docs))
+    mpc_path.run(argparse.Namespace(quick=args.quick, solves=200, out=args.out, docs=args.docs,
+                                    update_docs=args.update_docs))
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The solve around the kernel, fused vs torch path (issue 25 item 3): ``python -m dls_quadruped.bench.mpc_path``.
+"""The solve around the kernel, fused vs torch path: ``python -m dls_quadruped.bench.mpc_path``.
 
 Also the last part of ``make bench-mpc``. Two SamplingMPCs with the same seed (so the same samples and winners),
 one on the fused path (``SamplingMPC.fused``, :mod:`dls_quadruped.mpc.solve_glue`) and one on the torch path,
@@ -8,7 +8,8 @@ problem: B = 1, M = 10 000, N = 10, naive + external warm start 50/50. Per path:
 (``SamplingMPC.kernel_seconds``), the thread's CPU time per solve (robust to other jobs taking the core), and
 the ratios solve / kernel (target <= 1.2).
 
-Writes results/bench/mpc_path.json and rewrites the "## MPC solve path" section of docs/benchmarks.md.
+Writes results/bench/mpc_path.json; with ``--update-docs`` it also rewrites the "## MPC solve path" section of
+docs/benchmarks.md.
 """
 
 from __future__ import annotations
@@ -94,7 +95,7 @@ def update_docs(rows: list[dict], info: dict, path: Path) -> None:
     r = rows[0]
     body = (
         f"{SECTION}\n\n"
-        "`python -m dls_quadruped.bench.mpc_path` (also the last part of `make bench-mpc`; issue 25): the fused "
+        "`python -m dls_quadruped.bench.mpc_path` (also the last part of `make bench-mpc`): the fused "
         "solve (`SamplingMPC.fused`, `mpc/solve_glue.py`: input cleaning, kernel + argmin in one C++ call, the "
         "winner's decoding in C++ around torch's log/sqrt/cos/sin/matmul/sums) and the torch path, two SamplingMPCs "
         "with the same seed taking turns solve by solve, the problem of \"MPC solve time\" "
@@ -119,7 +120,7 @@ def update_docs(rows: list[dict], info: dict, path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> list[dict]:
-    """Time both paths on 1 thread; print, write JSON and (unless ``--no-docs`` or ``--quick``) the docs."""
+    """Time both paths on 1 thread; print, write JSON and (with ``--update-docs``, not ``--quick``) the docs."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     info = {"cpu": cpu_model(), "cpu_count": os.cpu_count(), "torch": torch.__version__,
@@ -135,7 +136,7 @@ def run(args: argparse.Namespace) -> list[dict]:
     print(f"MPC solve path, M = {m}, N = {n}, 1 thread, {info['cpu']}, load {info['load_avg_1_5_15']} -> "
           f"{info['load_avg_end']}")
     print(table(rows))
-    if not args.no_docs and not args.quick:
+    if args.update_docs and not args.quick:
         update_docs(rows, info, args.docs)
     return rows
 
@@ -145,8 +146,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--quick", action="store_true", help="M = 2000, N = 5, 20 solves, docs untouched")
     parser.add_argument("--solves", type=int, default=200, help="timed solves per path (default 200)")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "bench")
-    parser.add_argument("--docs", type=Path, default=REPO / "docs" / "benchmarks.md")
-    parser.add_argument("--no-docs", action="store_true", help="do not touch docs/benchmarks.md")
+    parser.add_argument("--docs", type=Path, default=REPO / "docs" / "benchmarks.md",
+                        help="the page --update-docs rewrites (default docs/benchmarks.md)")
+    parser.add_argument("--update-docs", action="store_true",
+                        help="also rewrite the section of --docs (default: write only under --out)")
     run(parser.parse_args(argv))
 
 

@@ -5,6 +5,7 @@
     python -m dls_quadruped.closed_loop --controllers rl_warm_start --students base,speed [--shares 0.5,0.5] \\
         [--switching-cost 50] [--group-cost-smoothing 0.9]
     python -m dls_quadruped.closed_loop --scenario stairs --ground terrain --episodes 4 [--heights 0.05,0.1,0.15,0.2]
+    python -m dls_quadruped.closed_loop --controllers rl_baseline --set terminations.bad_orientation.params.limit_deg=60
 
 Every controller gets a fresh env with the same seed and the same scheduled episodes (commands,
 starting states, and any event or noise, ``envs/schedule.py``), so differences between controllers
@@ -44,10 +45,12 @@ import torch
 from dls_quadruped.cli import (
     ArgumentParser,
     UserError,
+    add_set_argument,
     non_negative_int,
     positive_float,
     positive_int,
     run_cli,
+    set_overrides,
 )
 from dls_quadruped.closed_loop.controllers import (
     CONTROLLERS,
@@ -60,6 +63,7 @@ from dls_quadruped.closed_loop.controllers import (
 from dls_quadruped.closed_loop.metrics import compare, summarize
 from dls_quadruped.closed_loop.runner import ClosedLoopTraces, run_closed_loop
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.eval.velocity_tracking import FIXED_SECTIONS, OVERRIDABLE_SECTIONS
 from dls_quadruped.mpc.baseline import OPTIMISABLE
 from dls_quadruped.mpc.config import ENCODING_KINDS, SamplerConfig
 
@@ -166,6 +170,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--video-seconds", type=positive_float, default=4.0)
     p.add_argument("--record-robots", type=non_negative_int, default=1)
     p.add_argument("--out", type=Path, default=Path("results/closed_loop"))
+    add_set_argument(p, f"of the base task every scenario starts from, in its sections {', '.join(OVERRIDABLE_SECTIONS)}: "
+                        f"the scenario sets {', '.join(FIXED_SECTIONS)} itself, so a key there is refused; recorded "
+                        "in summary.json's settings")
     args = p.parse_args(argv)
     parts = args.encoding.split("-")
     if len(parts) != 2 or any(k not in ENCODING_KINDS for k in parts):
@@ -192,7 +199,7 @@ rows, disturbances (friction, wrench, pushes), observation noise and termination
 eval suite's staircase test (``eval/stairs.py``: a ``stairs_up`` column, one row per step height, every
 robot on its row's platform facing the flight, no noise or perturbation)."""
 STAIRS_HEIGHTS = (0.05, 0.10, 0.15, 0.20)
-"""[m] the closed loop's default stairs step heights (issue 27 item 6: 5-20 cm), one terrain row each."""
+"""[m] the closed loop's default stairs step heights (5-20 cm), one terrain row each."""
 
 
 def _heights(text: str) -> tuple[float, ...]:
@@ -242,7 +249,7 @@ def _survival_layout(scenario: str) -> tuple[int, float, float]:
 
 def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int, replicas: int = 1,
              scenario: str = "simple", heights: tuple[float, ...] = STAIRS_HEIGHTS, device: str = "cpu",
-             backend: str = "cpu"):
+             backend: str = "cpu", overrides: dict | None = None):
     """The scenario's env with fixed commands and the Table-4 reward: E episodes (one per row of ``cmds``)
     played ``replicas`` times side by side (robot s E + e: episode e). ``simple``: the base task on flat
     ground, no noise or perturbation. ``survival`` / ``survival_sweep``: the eval suite's env of that
@@ -250,18 +257,19 @@ def make_env(cmds: np.ndarray, seconds: float, seed: int, num_workers: int, repl
     same scheduled disturbances (so a controller meets what the policy alone meets there). ``stairs``: the
     eval suite's staircase env (``eval.stairs.stairs_task``, one row per step height of ``heights``), episode
     e on row :func:`stairs_rows` (``cmds`` from :func:`commands` with the same heights). ``device``: the env's
-    torch device; ``backend``: the simulator (``sim/interface.py``, e.g. ``cuda`` with ``device="cuda"``)."""
+    torch device; ``backend``: the simulator (``sim/interface.py``, e.g. ``cuda`` with ``device="cuda"``);
+    ``overrides``: of the base task the scenario starts from (``eval.velocity_tracking.TaskEvalOptions``)."""
     import torch
 
     from dls_quadruped.envs.env import LocomotionEnv
-    from dls_quadruped.eval.scenario import EvalOptions
-    from dls_quadruped.eval.velocity_tracking import flat_task
+    from dls_quadruped.eval.velocity_tracking import TaskEvalOptions, flat_task
 
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; allowed: {list(SCENARIOS)}")
     e = len(cmds)
     tiled = np.tile(cmds, (replicas, 1))
-    opts = EvalOptions(episodes=len(tiled), seed=seed, num_workers=num_workers, episode_length_s=seconds)
+    opts = TaskEvalOptions(episodes=len(tiled), seed=seed, num_workers=num_workers, episode_length_s=seconds,
+                           task_overrides=overrides)
     if scenario == "simple":
         task = flat_task(tiled, opts)
     elif scenario == "stairs":
@@ -301,15 +309,17 @@ def terrain_of(env) -> dict:
 
 def run_controllers(configs: list[ControllerConfig], cmds: np.ndarray, seconds: float, seed: int,
                     num_workers: int, record_robots: int = 1, sampler_seeds: int = 1,
-                    scenario: str = "simple", heights: tuple[float, ...] = STAIRS_HEIGHTS) -> dict[str, ClosedLoopTraces]:
+                    scenario: str = "simple", heights: tuple[float, ...] = STAIRS_HEIGHTS,
+                    overrides: dict | None = None) -> dict[str, ClosedLoopTraces]:
     """Each controller in a fresh env (same seed, scheduled episodes, ``scenario``); traces by name. MPC
     controllers play every episode with ``sampler_seeds`` noise streams (``ClosedLoopTraces.replicas``);
     on a terrain scenario the traces carry each robot's terrain (``.terrain``, :func:`terrain_of`), on
-    ``stairs`` with ``terrain["stairs"]`` = {"heights", "steps"} (the summary's per-height success)."""
+    ``stairs`` with ``terrain["stairs"]`` = {"heights", "steps"} (the summary's per-height success); ``overrides``:
+    of the base task (:func:`make_env`)."""
     out = {}
     for cfg in configs:
         replicas = sampler_seeds if cfg.uses_mpc else 1
-        env = make_env(cmds, seconds, seed, num_workers, replicas, scenario, heights)
+        env = make_env(cmds, seconds, seed, num_workers, replicas, scenario, heights, overrides=overrides)
         try:
             terrain = terrain_of(env) if scenario != "simple" else None
             if scenario == "stairs":
@@ -441,10 +451,11 @@ def main(argv: list[str] | None = None) -> dict:
         raise UserError(str(err)) from None
     heights = args.heights or STAIRS_HEIGHTS
     cmds = commands(args.episodes, args.seed, args.vx, args.scenario, heights)
+    overrides = set_overrides(args.set)
     t0 = time.perf_counter()
     try:
         traces = run_controllers(configs, cmds, args.seconds, args.seed, args.num_workers, args.record_robots,
-                                 args.sampler_seeds, args.scenario, heights)
+                                 args.sampler_seeds, args.scenario, heights, overrides or None)
     except (ValueError, FileNotFoundError) as err:  # student/MPC mismatch, wrong observation size, bad file
         raise UserError(str(err)) from None
     from dls_quadruped.bench.machine import cpu_model
@@ -463,7 +474,7 @@ def main(argv: list[str] | None = None) -> dict:
                      "student": [str(x) for x in students] if students else str(args.student),
                      "shares": list(args.shares) if args.shares else None,
                      "switching_cost": args.switching_cost, "group_cost_smoothing": args.group_cost_smoothing,
-                     "cpu": cpu_model()},
+                     "task_overrides": overrides or None, "cpu": cpu_model()},
         "controllers": summaries,
         "paired": paired,
         "thesis_table14_first_spline": THESIS_TABLE14_FIRST_SPLINE,

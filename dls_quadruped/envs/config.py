@@ -15,6 +15,7 @@ import copy
 import dataclasses
 import inspect
 import math
+import re
 import types
 import typing
 from pathlib import Path
@@ -181,6 +182,39 @@ def available_tasks(tasks_dir: Path = TASKS_DIR) -> list[str]:
     return sorted(p.stem for p in tasks_dir.glob("*.yaml") if not p.name.startswith("_"))
 
 
+def task_description(path: Path) -> str:
+    """The first sentence of a task file's opening comment ("" if it has none).
+
+    The opening comment is the ``#`` lines before the first other line, up to an indented one (an example
+    command); e.g. ``tasks/base.yaml`` -> "Base task (Table 3): +-1 m/s omnidirectional, flat ground, ...".
+    """
+    words = []
+    for line in Path(path).read_text().splitlines():
+        if not line.startswith("#") or line.startswith("#  ") or not line[1:].strip():
+            break
+        words.append(line[1:].strip())
+    text = " ".join(words)
+    first = re.match(r"(.+?[.!?])(\s|$)", text)
+    return (first.group(1) if first else text).rstrip(":")
+
+
+def merge_overrides(*layers: dict | None) -> dict:
+    """One ``load_task`` overrides dict from several, later layers winning: mappings merge key by key,
+    any other value (``None`` included, which deletes the key in the task) replaces."""
+    out: dict = {}
+
+    def merge(into: dict, layer: dict) -> None:
+        for key, value in layer.items():
+            if isinstance(value, dict) and isinstance(into.get(key), dict):
+                merge(into[key], value)
+            else:
+                into[key] = copy.deepcopy(value)
+
+    for layer in layers:
+        merge(out, layer or {})
+    return out
+
+
 def load_task(task: str | Path, overrides: dict | None = None, validate: bool = True) -> TaskConfig:
     """Load a task by name (``tasks/<name>.yaml``) or path, resolving ``inherit`` chains.
 
@@ -191,7 +225,8 @@ def load_task(task: str | Path, overrides: dict | None = None, validate: bool = 
 
     Args:
         task: task name or YAML path.
-        overrides: optional dict deep-merged last (e.g. from the command line), recorded as "<override>".
+        overrides: optional dict deep-merged last (e.g. from the command line, ``cli.set_overrides``),
+            recorded as "<override>" and checked like the file (its top-level keys too).
         validate: check every present section (``envs.validate.validate_task``): types, ranges,
             term functions and parameters, the agent section against rsl-rl.
 
@@ -209,6 +244,9 @@ def load_task(task: str | Path, overrides: dict | None = None, validate: bool = 
     path = path.resolve()
     data, sources = _load_file(path, ())
     if overrides:
+        unknown = sorted(str(k) for k in set(overrides) - set(TOP_LEVEL_KEYS))
+        if unknown:
+            raise ConfigError(f"<override>: unknown top-level keys {unknown}; allowed: {list(TOP_LEVEL_KEYS)}")
         _merge(data, overrides, sources, "<override>")
     loaded = TaskConfig(path.stem, path, data, sources)
     missing = [name for name in REQUIRED_SECTIONS if name not in data]

@@ -1,12 +1,14 @@
-"""Evaluate a policy on a standard scenario (SPEC 10): JSON + plot.
+"""Evaluate a policy on a standard scenario (thesis 7.1): JSON + plot.
 
     python -m dls_quadruped.eval --policy docs/policies/base_actor.pt --scenario simple [--episodes 256] [--out DIR]
+    python -m dls_quadruped.eval --policy docs/policies/base_actor.pt --scenario speed --set env.episode_length_s=10
     make eval POLICY=docs/policies/base_actor.pt SCENARIO=simple
 
 ``--policy``: an exported actor (TorchScript, e.g. ``runs/base/<run>/exported/policy.pt``) or an
 rsl-rl checkpoint (``runs/base/<run>/model_<it>.pt``). Writes ``<out>/<scenario>.json`` and
 ``<out>/<scenario>.png`` (default ``results/eval/<policy stem>``) and prints the headline figures
-and the targets. ``--episodes`` is per condition (speed, step height, grid cell); each scenario has a
+and the targets. ``--split validation`` plays disjoint episodes of the same scenario, for choosing checkpoints; reports use
+the default ``test``. ``--episodes`` is per condition (speed, step height, grid cell); each scenario has a
 small default. Scenarios: see ``dls_quadruped/eval/scenarios.py`` and docs/eval.md.
 """
 
@@ -16,12 +18,27 @@ import argparse
 import time
 from pathlib import Path
 
-from dls_quadruped.cli import ArgumentParser, run_cli, torch_device
+from dls_quadruped.cli import (
+    ArgumentParser,
+    add_set_argument,
+    run_cli,
+    set_overrides,
+    torch_device,
+)
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.core.progress import label
 from dls_quadruped.eval.policy import check_policy_file
-from dls_quadruped.eval.scenario import EvalOptions
+from dls_quadruped.eval.scenario import (
+    SPLITS,
+    VALIDATION_SEED_OFFSET,
+    split_seed,
+)
 from dls_quadruped.eval.scenarios import SCENARIOS
+from dls_quadruped.eval.velocity_tracking import (
+    FIXED_SECTIONS,
+    OVERRIDABLE_SECTIONS,
+    TaskEvalOptions,
+)
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -34,11 +51,21 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="episodes per condition (per speed, step height, grid cell; the whole set for simple, "
                         "forward, survival), all in parallel; default: the scenario's small size")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--split", default="test", choices=SPLITS,
+                   help="episode set: test (what reports use) or validation (for choosing checkpoints; the same "
+                        f"scenario with disjoint episodes, seed + {VALIDATION_SEED_OFFSET})")
     p.add_argument("--num-workers", type=int, default=-1, help="simulator worker processes (-1: one per core)")
     p.add_argument("--episode-length-s", type=float, default=None, help="override the task's episode length [s]")
     p.add_argument("--device", type=torch_device, default="cpu", help="cpu, cuda or cuda:<index>")
     p.add_argument("--out", type=Path, default=None, help="output folder (default results/eval/<policy stem>)")
+    add_set_argument(p, f"of the base task every scenario starts from, in its sections {', '.join(OVERRIDABLE_SECTIONS)}: "
+                        f"the scenario sets {', '.join(FIXED_SECTIONS)} itself, so a key there is refused; recorded "
+                        "in the JSON as task_overrides")
     args = p.parse_args(argv)
+    try:
+        args.episode_seed = split_seed(args.seed, args.split)
+    except ValueError as err:
+        p.error(f"argument --seed: {err}")
     if args.episodes is not None and args.episodes < 1:
         p.error(f"argument --episodes: must be >= 1, got {args.episodes}")
     multiple = SCENARIOS[args.scenario].episodes_multiple
@@ -76,11 +103,16 @@ def main(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     scenario = SCENARIOS[args.scenario]
     check_policy_file(args.policy)  # before the env is built
-    opts = EvalOptions(episodes=args.episodes or scenario.default_episodes, seed=args.seed, num_workers=args.num_workers,
-                       episode_length_s=args.episode_length_s, device=args.device)
+    overrides = set_overrides(args.set)
+    opts = TaskEvalOptions(episodes=args.episodes or scenario.default_episodes, seed=args.episode_seed,
+                           num_workers=args.num_workers, episode_length_s=args.episode_length_s, device=args.device,
+                           task_overrides=overrides or None)
     t0 = time.perf_counter()
     with label(f"eval {scenario.name}"):  # every rollout's bar (a line every ~15 s in a log) says whose it is
         res = scenario.evaluate(args.policy, opts)
+    res["split"] = args.split
+    if overrides:
+        res["task_overrides"] = overrides
     res["wall_s"] = round(time.perf_counter() - t0, 1)
     out = args.out or Path("results/eval") / args.policy.stem
     out.mkdir(parents=True, exist_ok=True)
@@ -92,4 +124,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    run_cli(main)  # user errors (missing policy, bad flag) as one line, exit 2 (issue 9)
+    run_cli(main)  # user errors (missing policy, bad flag) as one line, exit 2

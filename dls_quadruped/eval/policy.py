@@ -50,7 +50,8 @@ def input_size(module: torch.jit.ScriptModule) -> int | None:
     return None
 
 
-def load_policy(path: str | Path, env, agent: dict | None = None) -> Policy:
+def load_policy(path: str | Path, env, agent: dict | None = None, flag: str = "--policy",
+                same_task: bool = False) -> Policy:
     """A deterministic policy ``obs TensorDict -> (B, A) actions`` for ``env``, checked on the
     env's current observation.
 
@@ -59,6 +60,9 @@ def load_policy(path: str | Path, env, agent: dict | None = None) -> Policy:
         env: the env it will act in (a checkpoint needs it to build the runner).
         agent: rsl-rl runner config for a checkpoint (default: ``agent.yaml`` next to it, else the
             env's task ``agent`` section).
+        flag: the command-line flag that named ``path``, first word of every error.
+        same_task: refuse a checkpoint trained on a task of another name (``play``); an evaluation
+            scenario builds its own task, so by default only the observation and action sizes must fit.
 
     Raises:
         FileNotFoundError: no such file. UserError: unreadable, or it does not fit the env.
@@ -72,14 +76,14 @@ def load_policy(path: str | Path, env, agent: dict | None = None) -> Policy:
         width = sum(int(env.get_observations()[g].shape[-1]) for g in groups)
         expected = input_size(actor)
         if expected is not None and expected != width:
-            raise UserError(f"--policy {path}: the actor takes {expected} observation inputs, the evaluation env "
-                            f"gives {width} (groups {groups} of task {_task_name(env)}); evaluate a policy "
-                            f"trained on this observation layout")
+            raise UserError(f"{flag} {path}: the actor takes {expected} observation inputs, the env of task "
+                            f"{_task_name(env)} gives {width} (groups {groups}); use a policy trained on this "
+                            "observation layout")
 
         def exported(obs: TensorDict) -> torch.Tensor:
             return actor(torch.cat([obs[g] for g in groups], dim=-1))
 
-        return _checked(exported, env, path)
+        return _checked(exported, env, path, flag)
     from dls_quadruped.learning.runner import (
         AtomicOnPolicyRunner,
         CheckpointMismatch,
@@ -90,20 +94,20 @@ def load_policy(path: str | Path, env, agent: dict | None = None) -> Policy:
     try:
         ckpt = read_checkpoint(path)
     except ValueError as err:
-        raise UserError(f"--policy {path}: unreadable, neither a TorchScript actor nor an rsl-rl checkpoint "
+        raise UserError(f"{flag} {path}: unreadable, neither a TorchScript actor nor an rsl-rl checkpoint "
                         f"({err})") from None
     if agent is None:
         run_agent = path.parent / "agent.yaml"
         agent = yaml.safe_load(run_agent.read_text()) if run_agent.is_file() else env.cfg["agent"]
     runner = AtomicOnPolicyRunner(env, runner_config(agent), log_dir=None, device=str(env.device))
     try:
-        runner.load_checkpoint(ckpt, str(path), env_state=False)
+        runner.load_checkpoint(ckpt, str(path), env_state=False, check_task=same_task)
     except CheckpointMismatch as err:
-        raise UserError(f"--policy {err}") from None
-    return _checked(runner.get_inference_policy(device=str(env.device)), env, path)
+        raise UserError(f"{flag} {err}") from None
+    return _checked(runner.get_inference_policy(device=str(env.device)), env, path, flag)
 
 
-def _checked(policy: Policy, env, path: Path) -> Policy:
+def _checked(policy: Policy, env, path: Path, flag: str) -> Policy:
     """``policy`` after one call on the env's observation: (num_envs, num_actions) finite-shaped
     output, or a ``UserError``."""
     try:
@@ -111,10 +115,10 @@ def _checked(policy: Policy, env, path: Path) -> Policy:
             out = policy(env.get_observations())
     except RuntimeError as err:  # a size mismatch inside the network
         first = " ".join(str(err).strip().splitlines()[:2])
-        raise UserError(f"--policy {path}: does not fit the observations of task {_task_name(env)} ({first})") from None
+        raise UserError(f"{flag} {path}: does not fit the observations of task {_task_name(env)} ({first})") from None
     want = (env.num_envs, env.num_actions)
     if tuple(out.shape) != want:
-        raise UserError(f"--policy {path}: outputs {tuple(out.shape[1:])} actions per robot, the env takes "
+        raise UserError(f"{flag} {path}: outputs {tuple(out.shape[1:])} actions per robot, the env takes "
                         f"{env.num_actions} (the latent action)")
     return policy
 

@@ -16,6 +16,28 @@ from dls_quadruped.envs.config import TASKS_DIR, TaskConfig, load_task
 EVAL_REWARDS_FILE = TASKS_DIR / "_base_rewards.yaml"
 """Table 4, base column: the evaluation reward of every scenario and policy."""
 
+SPLITS = ("test", "validation")
+"""Episode sets: checkpoints and experts are chosen on ``validation`` and reported on ``test``."""
+
+VALIDATION_SEED_OFFSET = 1_000_003
+"""``validation`` episodes of seed s are the ``test`` episodes of seed s + this: every command, push and noise
+draw comes from (seed, episode key) (``envs/schedule.py``, the scenarios' command generators), so the two
+sets share no episode for any seed below the offset, and repeated seeds 0, 1, 2, ... of a report stay test."""
+
+
+def split_seed(seed: int, split: str) -> int:
+    """The seed whose episodes are ``split``'s episodes of ``seed`` (``SPLITS``).
+
+    Raises:
+        ValueError: an unknown split, or a seed outside [0, VALIDATION_SEED_OFFSET) (its sets would overlap).
+    """
+    if split not in SPLITS:
+        raise ValueError(f"unknown episode split {split!r}; allowed: {list(SPLITS)}")
+    if not 0 <= seed < VALIDATION_SEED_OFFSET:
+        raise ValueError(f"seed must be in [0, {VALIDATION_SEED_OFFSET}) so test and validation episodes stay "
+                         f"disjoint, got {seed}")
+    return seed + VALIDATION_SEED_OFFSET if split == "validation" else seed
+
 
 @dataclass(frozen=True)
 class EvalOptions:

@@ -23,12 +23,18 @@ terminations) with the evaluation reward (Table 4, base column). Reported:
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from dls_quadruped.envs.config import load_task
+from dls_quadruped.envs.config import (
+    TOP_LEVEL_KEYS,
+    ConfigError,
+    load_task,
+    merge_overrides,
+)
 from dls_quadruped.eval import metrics as M
 from dls_quadruped.eval.rollout import Traces, run_episodes
 from dls_quadruped.eval.scenario import (
@@ -49,7 +55,7 @@ THESIS_RL_REWARD = 2.365
 """Per-step base-task reward of the thesis's RL baseline (Table 14)."""
 
 TARGETS = {
-    # name: (metric path in the results, "min"/"max", bound) -- issue 14, item 3
+    # the simple task's acceptance bounds; name: (metric path in the results, "min"/"max", bound)
     "survival": ("survival.rate", "min", 1.0),
     **{f"slope_{a}": (f"axes.{a}.slope", "min", 0.9) for a in AXES},
     **{f"abs_mean_error_{a}": (f"axes.{a}.abs_mean_error", "max", 0.03) for a in AXES},
@@ -82,12 +88,42 @@ def forward_commands(episodes: int, seed: int) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ env
+FIXED_SECTIONS = ("terrain", "observations", "events", "commands", "rewards", "curriculum")
+"""Sections of the task that every evaluation env (``flat_task`` and the scenarios built on it) sets itself."""
+OVERRIDABLE_SECTIONS = tuple(k for k in TOP_LEVEL_KEYS if k not in FIXED_SECTIONS)
+"""Sections a task override (``--set``) of an evaluation env can change."""
+
+
+@dataclass(frozen=True)
+class TaskEvalOptions(EvalOptions):
+    """``EvalOptions`` with overrides of the task the evaluation env starts from.
+
+    Attributes:
+        task_overrides: nested dict (``cli.set_overrides``) deep-merged onto the task after ``num_workers`` and
+            ``episode_length_s``, within ``OVERRIDABLE_SECTIONS``; None: none.
+    """
+
+    task_overrides: dict | None = None
+
+
 def flat_task(commands: np.ndarray, opts: EvalOptions, task: str = "base"):
     """``task`` on flat ground, without observation noise or perturbation events, with one fixed
-    command per env for the whole episode, the evaluation reward and no curriculum."""
-    cfg = load_task(task, overrides={"scene": {"num_workers": opts.num_workers},
-                                     "env": {} if opts.episode_length_s is None
-                                     else {"episode_length_s": float(opts.episode_length_s)}})
+    command per env for the whole episode, the evaluation reward and no curriculum.
+
+    ``opts.task_overrides`` (a ``TaskEvalOptions``) apply to ``task`` first; one touching a section the
+    evaluation env sets itself (``FIXED_SECTIONS``) would be silently replaced and is refused.
+
+    Raises:
+        ConfigError: an override of a fixed section, or one the task file's checks refuse.
+    """
+    extra = getattr(opts, "task_overrides", None) or {}
+    fixed = sorted(set(extra) & set(FIXED_SECTIONS))
+    if fixed:
+        raise ConfigError(f"<override>: {fixed}: the evaluation env sets these sections itself; an override can "
+                          f"change {list(OVERRIDABLE_SECTIONS)}")
+    cfg = load_task(task, overrides=merge_overrides({"scene": {"num_workers": opts.num_workers},
+                                                     "env": {} if opts.episode_length_s is None
+                                                     else {"episode_length_s": float(opts.episode_length_s)}}, extra))
     episode_s = float(cfg.data["env"]["episode_length_s"])
     observations = {g: {**spec, "noise_scale": 0.0} for g, spec in cfg.data["observations"].items()}
     reset = {k: v for k, v in cfg.data["events"].items() if k == "reset_robot"}

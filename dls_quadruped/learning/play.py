@@ -1,12 +1,23 @@
-"""Run a trained policy and write plots (and a video where offscreen rendering works).
+"""Play a policy on a task and write plots (and a video where offscreen rendering works).
 
+    python -m dls_quadruped.learning.play --task rough                      # the newest checkpoint of the latest run
     python -m dls_quadruped.learning.play --task base --checkpoint runs/base/<run>/model_100.pt --seconds 10
+    python -m dls_quadruped.learning.play --task base --checkpoint docs/policies/base_actor.pt
+    python -m dls_quadruped.learning.play --task base --set commands.base_velocity.params.max_speed=0.5 --seconds 20
 
-Writes to ``<out>`` (default: next to the checkpoint, ``play/``): ``tracking.png`` (commanded vs
-measured v_x, v_y, omega_z of env 0), ``gait.png`` (Hildebrand-style gait diagram: one row per leg,
-a bar while the foot is in contact), ``play.npz`` (the raw traces) and ``video.gif`` of env 0
-(MuJoCo offscreen rendering, EGL by default; 25 frames/s; if rendering is unavailable the reason is
-printed and the plots are still written). GIF because Pillow comes with matplotlib; no video codec
+``--checkpoint`` takes an rsl-rl checkpoint (``model_<it>.pt``), an exported TorchScript actor
+(``runs/<task>/<run>/exported/policy.pt``) or a committed one (``docs/policies/<name>_actor.pt``); without
+it, play takes the newest readable ``model_<it>.pt`` of the task's latest run under ``--log-root``
+(``runs/<task>/``) and stops with one line when there is none. ``--zero-action`` plays the zero latent
+action instead (the feed-forward trot of the low-level controller). ``--set KEY=VALUE`` overrides the
+task file (``cli.add_set_argument``).
+
+Writes to ``<out>`` (default: ``play/`` next to a checkpoint under ``--log-root``, else
+``<log-root>/<task>/play/<file stem>``): ``tracking.png`` (commanded vs measured v_x, v_y, omega_z of
+env 0), ``gait.png`` (Hildebrand-style gait diagram: one row per leg, a bar while the foot is in
+contact), ``play.npz`` (the raw traces of env 0, its raw latent action included) and ``video.gif`` of
+env 0 (MuJoCo offscreen rendering, EGL by default; 25 frames/s; if rendering is unavailable the reason
+is printed and the plots are still written). GIF because Pillow comes with matplotlib; no video codec
 dependency is needed.
 """
 
@@ -29,21 +40,21 @@ import torch
 from dls_quadruped.cli import (
     ArgumentParser,
     UserError,
+    add_set_argument,
     non_negative_int,
     positive_float,
     positive_int,
     run_cli,
+    set_overrides,
 )
-from dls_quadruped.envs.config import load_task
+from dls_quadruped.envs.config import load_task, merge_overrides
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.envs.mdp.observations import base_lin_vel, foot_contact
-from dls_quadruped.learning.runner import (
-    AtomicOnPolicyRunner,
-    CheckpointMismatch,
-    read_checkpoint,
-    runner_config,
-)
+from dls_quadruped.eval.policy import load_policy
+from dls_quadruped.learning.runner import latest_run, newest_readable_checkpoint
 from dls_quadruped.robots.aliengo import constants as C
+
+CHECKPOINT_KINDS = "a model_<it>.pt, an exported policy.pt or a committed docs/policies/<name>_actor.pt"
 
 
 class Recorder:
@@ -78,12 +89,15 @@ class Recorder:
 
 def rollout(env: LocomotionEnv, policy, steps: int, recorder: Recorder | None = None,
             frame_every: int = 2) -> dict[str, np.ndarray]:
-    """Run ``policy`` (TensorDict -> (B, 28)) for ``steps`` policy steps; traces of env 0."""
+    """Run ``policy`` (TensorDict -> (B, 28)) for ``steps`` policy steps; traces of env 0: time [s], command
+    (steps, 3), measured velocity (steps, 3), foot contact (steps, 4), raw latent action (steps, 28)."""
     obs = env.get_observations()
-    cmd, vel, contact = [], [], []
+    cmd, vel, contact, act = [], [], [], []
     with torch.no_grad():
         for k in range(steps):
-            obs, _, _, _ = env.step(policy(obs))
+            action = policy(obs)
+            act.append(action[0].cpu().numpy().copy())
+            obs, _, _, _ = env.step(action)
             if recorder is not None and k % frame_every == 0:
                 recorder.capture(env)
             v = base_lin_vel(env)
@@ -91,7 +105,7 @@ def rollout(env: LocomotionEnv, policy, steps: int, recorder: Recorder | None = 
             vel.append(np.r_[v[0, :2].cpu().numpy(), env.state.base_ang_vel_b[0, 2].item()])
             contact.append(foot_contact(env)[0].cpu().numpy())
     return {"t": np.arange(1, steps + 1) * env.step_dt, "command": np.array(cmd), "velocity": np.array(vel),
-            "contact": np.array(contact)}
+            "contact": np.array(contact), "action": np.array(act)}
 
 
 def plot_tracking(trace: dict, path: Path) -> None:
@@ -124,35 +138,60 @@ def plot_gait(trace: dict, path: Path, dt: float) -> None:
     plt.close(fig)
 
 
+def run_checkpoint(task_dir: Path, task: str) -> Path:
+    """The newest readable ``model_<it>.pt`` of the latest run in ``task_dir`` (``runs/<task>``).
+
+    Raises:
+        UserError: no run holds a checkpoint, or the latest run's are all unreadable.
+    """
+    run = latest_run(task_dir)
+    if run is None:
+        raise UserError(f"no checkpoint under {task_dir}/; train one with make train TASK={task}, "
+                        f"or pass --checkpoint ({CHECKPOINT_KINDS})")
+    found = newest_readable_checkpoint(run, prog="play")
+    if found is None:
+        raise UserError(f"no readable checkpoint in {run}, the latest run under {task_dir}/; "
+                        f"pass --checkpoint ({CHECKPOINT_KINDS})")
+    return found[0]
+
+
+def default_out(source: Path | None, task: str, log_root: Path) -> Path:
+    """``play/`` next to a checkpoint under ``log_root``; else ``<log_root>/<task>/play/<file stem>``
+    (``zero_action`` for no policy), so a committed policy's folder gets nothing written into it."""
+    if source is not None and source.resolve().is_relative_to(log_root.resolve()):
+        return source.parent / "play"
+    return log_root / task / "play" / (source.stem if source is not None else "zero_action")
+
+
 def main(argv: list[str] | None = None) -> Path:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--task", default="base")
-    p.add_argument("--checkpoint", type=Path, default=None, help="model_<it>.pt; none = zero action (feed-forward)")
+    p.add_argument("--task", default="base", help="task name in tasks/ (python -m dls_quadruped.list_tasks) or a YAML path")
+    p.add_argument("--checkpoint", type=Path, default=None,
+                   help=f"what to play: {CHECKPOINT_KINDS}; default: the newest readable model_<it>.pt of the "
+                        "task's latest run under --log-root")
+    p.add_argument("--zero-action", action="store_true",
+                   help="play the zero latent action (the low-level controller's feed-forward trot), no policy")
+    p.add_argument("--log-root", type=Path, default=Path("runs"), help="train's runs: <log-root>/<task>/<run>/")
     p.add_argument("--num-envs", type=positive_int, default=4)
     p.add_argument("--seconds", type=positive_float, default=10.0)
     p.add_argument("--out", type=Path, default=None)
     p.add_argument("--num-workers", type=non_negative_int, default=0)
     p.add_argument("--no-video", action="store_true")
+    add_set_argument(p)
     args = p.parse_args(argv)
+    if args.zero_action and args.checkpoint is not None:
+        p.error("argument --zero-action: not with --checkpoint (play one or the other)")
     if args.checkpoint is not None and not args.checkpoint.is_file():
-        p.error(f"--checkpoint {args.checkpoint}: no such file (expected a runs/<task>/<run>/model_<it>.pt)")
-    ckpt = None
-    if args.checkpoint is not None:
-        try:
-            ckpt = read_checkpoint(args.checkpoint)
-        except ValueError as err:
-            raise UserError(f"--checkpoint {args.checkpoint}: unreadable ({err})") from None
-    task = load_task(args.task, overrides={"scene": {"num_workers": args.num_workers}})
+        p.error(f"--checkpoint {args.checkpoint}: no such file (expected {CHECKPOINT_KINDS})")
+    task = load_task(args.task, overrides=merge_overrides({"scene": {"num_workers": args.num_workers}},
+                                                          set_overrides(args.set)))
+    source = None if args.zero_action else args.checkpoint or run_checkpoint(args.log_root / task.name, task.name)
+    print(f"[play] task {task.name}: " + (f"playing {source}" if source is not None else "zero action"))
+    out = args.out or default_out(source, task.name, args.log_root)
     env = LocomotionEnv(task, num_envs=args.num_envs, verbose=False)
-    out = args.out or (args.checkpoint.parent / "play" if args.checkpoint else Path("runs") / task.name / "play")
     try:
-        if ckpt is not None:
-            runner = AtomicOnPolicyRunner(env, runner_config(task.data["agent"]), log_dir=None)
-            try:  # the networks only: play shows the task's own command ranges and terrain
-                runner.load_checkpoint(ckpt, str(args.checkpoint), env_state=False)
-            except CheckpointMismatch as err:
-                raise UserError(f"--checkpoint {err} (task {task.name})") from None
-            policy = runner.get_inference_policy()
+        if source is not None:  # the networks only: play shows the task's own command ranges and terrain
+            policy = load_policy(source, env, flag="--checkpoint", same_task=True)
         else:
             def policy(obs):
                 return torch.zeros(env.num_envs, env.num_actions)

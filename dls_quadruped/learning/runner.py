@@ -70,7 +70,7 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
 
     def __init__(self, env, train_cfg: dict, log_dir: str | None = None, device: str = "cpu",
                  save_every_s: float | None = None, fast_update: bool = True, update_threads: int | None = None):
-        check_symmetry_cfg(env, train_cfg)  # a bad mirror map fails here, naming its term (issue 14)
+        check_symmetry_cfg(env, train_cfg)  # a bad mirror map fails here, naming its term
         super().__init__(env, train_cfg, log_dir=log_dir, device=device)
         if fast_update:
             speed_up_update(self.alg, update_threads)  # before any checkpoint loads into the optimiser
@@ -176,15 +176,16 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         self._last_save_time = time.monotonic()
         self.logger.save_model(path, self.current_learning_iteration)
 
-    def load_checkpoint(self, ckpt: dict, path: str, env_state: bool = True) -> None:
+    def load_checkpoint(self, ckpt: dict, path: str, env_state: bool = True, check_task: bool = True) -> None:
         """Load an already read checkpoint: networks, optimiser, iteration and (if saved and
         ``env_state``) the env state.
 
         Raises:
-            CheckpointMismatch: the checkpoint was trained on other observation or action sizes.
+            CheckpointMismatch: the checkpoint was trained on other observation or action sizes, or
+                (``check_task``) on a task of another name.
         """
         self._check_sizes(ckpt, path)
-        if (why := resume_state.mismatch(ckpt, self)) is not None:
+        if check_task and (why := resume_state.mismatch(ckpt, self)) is not None:
             raise CheckpointMismatch(f"{path} {why}")
         try:
             self.alg.load(ckpt, None, True)
@@ -234,8 +235,10 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
     def _check_sizes(self, ckpt: dict, path: str) -> None:
         env_dims = dict(self.env.obs_dims)
         if "obs_dims" in ckpt and (ckpt["obs_dims"] != env_dims or ckpt["num_actions"] != self.env.num_actions):
+            trained_on = f" on task '{ckpt['task']['name']}'" if "task" in ckpt else ""
+            here = f"task '{self.env.task.name}'" if hasattr(self.env, "task") else "this task"
             raise CheckpointMismatch(f"{path} was trained with observations {ckpt['obs_dims']} and "
-                                     f"{ckpt['num_actions']} actions; this task has {env_dims} and "
+                                     f"{ckpt['num_actions']} actions{trained_on}; {here} has {env_dims} and "
                                      f"{self.env.num_actions}")
 
 
@@ -259,16 +262,16 @@ def read_checkpoint(path: Path) -> dict:
     return ckpt
 
 
-def newest_readable_checkpoint(run_dir: Path, note=print) -> tuple[Path, dict] | None:
+def newest_readable_checkpoint(run_dir: Path, note=print, prog: str = "train") -> tuple[Path, dict] | None:
     """The highest-iteration ``model_<it>.pt`` of ``run_dir`` that loads, and its contents.
 
-    Unreadable ones are skipped with a one-line ``note`` naming them.
+    Unreadable ones are skipped with a one-line ``note`` naming them (``[<prog>] note: ...``).
     """
     for _, path in sorted(checkpoints(run_dir), reverse=True):
         try:
             return path, read_checkpoint(path)
         except ValueError as err:
-            note(f"[train] note: skipping unreadable checkpoint {path} ({err})")
+            note(f"[{prog}] note: skipping unreadable checkpoint {path} ({err})")
     return None
 
 

@@ -2,6 +2,7 @@
 
     python -m dls_quadruped.learning.train --task rough --num-envs 64 --iterations 100 --device cpu --seed 0
     python -m dls_quadruped.learning.train --task rough --resume          # continue the latest run
+    python -m dls_quadruped.learning.train --task base --set agent.algorithm.entropy_coef=0.0 --set env.episode_length_s=10
     python -m dls_quadruped.learning.train --task speed --init-from docs/policies/base_networks.pt
     python -m dls_quadruped.learning.train --task base --checkpoint-copy docs/policies/base_resume.pt
     python -m dls_quadruped.learning.train --task base --resume-from docs/policies/base_resume.pt  # another machine
@@ -41,13 +42,15 @@ import torch
 from dls_quadruped.cli import (
     ArgumentParser,
     UserError,
+    add_set_argument,
     non_negative_int,
     positive_float,
     positive_int,
     run_cli,
+    set_overrides,
     torch_device,
 )
-from dls_quadruped.envs.config import load_task, save_resolved
+from dls_quadruped.envs.config import load_task, merge_overrides, save_resolved
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.learning import resume_state
 from dls_quadruped.learning.distributed import (
@@ -114,6 +117,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         "on the machine; the simulator workers idle then; 0: the trainer's own count)")
     p.add_argument("--stock-update", action="store_true",
                    help="rsl-rl's PPO update as shipped, without learning/fast_update.py (same numbers, slower)")
+    add_set_argument(p, "recorded in the run's task.yaml")
     return p.parse_args(argv)
 
 
@@ -230,7 +234,7 @@ def main(argv: list[str] | None = None) -> Path:
 
 def _train(args: argparse.Namespace, ranks: Ranks) -> Path:
     scene = {k: v for k, v in (("num_workers", args.num_workers), ("backend", args.backend)) if v is not None}
-    task = load_task(args.task, overrides={"scene": scene} if scene else None)
+    task = load_task(args.task, overrides=merge_overrides({"scene": scene} if scene else None, set_overrides(args.set)))
     if args.init_from is not None and args.resume:
         raise UserError("--init-from starts a new run and --resume continues one; give only one of them")
     if args.resume_from is not None and (args.resume or args.init_from is not None):
