@@ -79,22 +79,15 @@ def torch_device(text: str) -> str:
     """argparse type: a torch device this machine has ("cpu", "cuda", "cuda:1", ...).
 
     Refuses a misspelt device ("cpux": torch's own message, shortened to the allowed kinds we run on)
-    and a CUDA device on a build or machine without one, before anything is built.
+    and a CUDA device on a build or machine without one, before anything is built
+    (:func:`~dls_quadruped.core.device.checked_device`).
     """
-    import torch
+    from dls_quadruped.core.device import checked_device
 
     try:
-        device = torch.device(text)
-    except RuntimeError:
-        raise argparse.ArgumentTypeError(f"unknown device {text!r}; use cpu, cuda or cuda:<index>") from None
-    if device.type == "cuda":
-        if not torch.cuda.is_available():
-            why = "this torch build has no CUDA" if not torch.backends.cuda.is_built() else "no CUDA GPU is visible"
-            raise argparse.ArgumentTypeError(f"{text}: {why}; use cpu")
-        if device.index is not None and device.index >= torch.cuda.device_count():
-            raise argparse.ArgumentTypeError(f"{text}: only {torch.cuda.device_count()} CUDA device(s) visible")
-    elif device.type != "cpu":
-        raise argparse.ArgumentTypeError(f"unsupported device {text!r}; use cpu, cuda or cuda:<index>")
+        checked_device(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
     return text
 
 

@@ -30,7 +30,6 @@ from pathlib import Path
 
 import torch
 
-from dls_quadruped.bench.machine import cpu_model
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.closed_loop.__main__ import (
     DEFAULT_POLICY,
@@ -41,6 +40,7 @@ from dls_quadruped.closed_loop.__main__ import (
 from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
 from dls_quadruped.closed_loop.runner import run_closed_loop
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.core.machine import cpu_model
 from dls_quadruped.core.progress import progress
 from dls_quadruped.mpc.config import SamplerConfig
 

@@ -27,9 +27,9 @@ from pathlib import Path
 
 import torch
 
-from dls_quadruped.bench.machine import cpu_model
 from dls_quadruped.cli import ArgumentParser, run_cli, torch_device
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.core.machine import cpu_model
 
 GPU_SIZES = (256, 1024, 4096, 16384)
 CPU_SIZES = (64, 256)
@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None) -> None:
     device = torch.device(args.device)
     gpu = device.type == "cuda"
     backend = args.backend or ("cuda" if gpu else "cpu")
-    from dls_quadruped.sim.interface import check_backend
+    from dls_quadruped.sim.registry import check_backend
 
     try:
         check_backend(backend)

@@ -31,9 +31,9 @@ from mujoco.batch import Batch
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.control.dynamics import LegDynamics
 from dls_quadruped.core.progress import progress
-from dls_quadruped.eval.balance_run import home_state
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.interface import SimConfig, make_backend
+from dls_quadruped.sim.interface import SimConfig, home_state
+from dls_quadruped.sim.registry import make_backend
 
 
 def _standing_torques(model: mujoco.MjModel) -> np.ndarray:

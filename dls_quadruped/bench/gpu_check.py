@@ -102,7 +102,8 @@ def compile_times(backend: str, device: torch.device) -> dict:
 
     from dls_quadruped.bench.reference_runs import ROUGH_TERRAIN
     from dls_quadruped.robots.aliengo import constants as C
-    from dls_quadruped.sim.interface import SimConfig, make_backend
+    from dls_quadruped.sim.interface import SimConfig
+    from dls_quadruped.sim.registry import make_backend
     from dls_quadruped.sim.terrain import build_scene
 
     out = {}

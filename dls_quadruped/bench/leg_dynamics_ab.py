@@ -21,10 +21,10 @@ from pathlib import Path
 
 import torch
 
-from dls_quadruped.bench.machine import cpu_model
 from dls_quadruped.bench.terrain_ab import interleaved_rates, make_env
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.core.machine import cpu_model
 
 MODES = ("pinocchio", "mujoco")
 

@@ -1,17 +1,5 @@
-"""What machine a benchmark ran on: every result file quotes the CPU model beside its timings."""
+"""The CPU model for bench scripts: :func:`dls_quadruped.core.machine.cpu_model`, which code below ``bench/`` imports."""
 
-from __future__ import annotations
+from dls_quadruped.core.machine import cpu_model
 
-import platform
-from pathlib import Path
-
-
-def cpu_model() -> str:
-    """The CPU's model name from /proc/cpuinfo (Linux), else what ``platform`` knows."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
+__all__ = ["cpu_model"]

@@ -32,21 +32,14 @@ from unittest import mock
 
 import torch
 
-from dls_quadruped.bench.machine import cpu_model
+from dls_quadruped.bench.mpc_common import BUILDS_SECTION, section_span, solve_problem
 from dls_quadruped.cli import ArgumentParser, run_cli
+from dls_quadruped.core.machine import cpu_model
 from dls_quadruped.core.progress import progress
-from dls_quadruped.mpc import (
-    Refs,
-    SamplerConfig,
-    SamplingMPC,
-    SRBDState,
-    cpp_kernel,
-    warm_start,
-)
+from dls_quadruped.mpc import SamplerConfig, SamplingMPC, cpp_kernel, warm_start
 
 REPO = Path(__file__).resolve().parents[2]
 SECTION = "## MPC solve time"
-BUILDS_SECTION = "## MPC C++ kernel builds"
 ROLLOUT_MFLOP = 30.0
 """fp32 work of one solve's kernel at M = 10 000, N = 10 (an estimate from the kernel's arithmetic), scaled by M N elsewhere."""
 FLOP_PER_CYCLE = 32
@@ -112,7 +105,7 @@ def time_cpp_builds(num_samples: int, horizon: int, solves: int, threads: int, w
     ``SamplingMPC.kernel_seconds``' increment."""
     libs = {v: cpp_kernel.load(v) for v in build_variants()}
     libs = {v: lib for v, lib in libs.items() if lib is not None}
-    state, refs, phase = _problem("cpu")
+    state, refs, phase = solve_problem("cpu")
     runs = {}
     for v in libs:
         cfg = SamplerConfig(num_samples=num_samples, horizon=horizon, kernel="cpp")
@@ -207,21 +200,14 @@ def update_builds_docs(rows: list[dict], info: dict, path: Path) -> None:
     )
     text = path.read_text() if path.exists() else "# Benchmarks\n"
     if BUILDS_SECTION in text:
-        start, end = _section_span(text, BUILDS_SECTION)
+        start, end = section_span(text, BUILDS_SECTION)
         text = text[:start] + body + text[end:]
     elif SECTION in text:
-        _, end = _section_span(text, SECTION)
+        _, end = section_span(text, SECTION)
         text = text[:end].rstrip("\n") + "\n\n" + body + text[end:]
     else:
         text = text.rstrip("\n") + "\n\n" + body
     path.write_text(text)
-
-
-def _section_span(text: str, heading: str) -> tuple[int, int]:
-    """Start of ``heading`` in ``text`` and the start of the next '## ' section (or the end of the text)."""
-    start = text.index(heading)
-    nxt = text.find("\n## ", start + len(heading))
-    return start, (nxt + 1 if nxt >= 0 else len(text))
 
 
 def run_builds(args: argparse.Namespace) -> None:
@@ -247,21 +233,11 @@ def run_builds(args: argparse.Namespace) -> None:
         update_builds_docs(rows, info, args.docs)
 
 
-def _problem(device: str) -> tuple[SRBDState, Refs, torch.Tensor]:
-    feet = torch.tensor([[0.24, 0.134, 0.0265], [0.24, -0.134, 0.0265], [-0.24, 0.134, 0.0265],
-                         [-0.24, -0.134, 0.0265]])
-    state = SRBDState(torch.tensor([[0.0, 0.0, 0.32]]), torch.tensor([[0.3, 0.0, 0.0]]), torch.tensor([[0.02, -0.01, 0.0]]),
-                      torch.tensor([[0.1, 0.0, 0.0]]), feet[None].clone()).to(device)
-    refs = Refs(torch.tensor([0.33]), torch.tensor([[0.5, 0.0]]), torch.tensor([0.0]), feet[None].clone()).to(device)
-    phase = torch.tensor([[0.1, 0.6, 0.6, 0.1]], device=device)
-    return state, refs, phase
-
-
 def time_solves(num_samples: int, horizon: int, kernel: str, device: str, solves: int, warmup: int = 3) -> dict:
     """Median / p90 wall time [ms] of ``solves`` solves after ``warmup`` (first one timed as compile)."""
     cfg = SamplerConfig(num_samples=num_samples, horizon=horizon, kernel=kernel)
     mpc = SamplingMPC(cfg, device=device, seed=0)
-    state, refs, phase = _problem(device)
+    state, refs, phase = solve_problem(device)
     default = warm_start.nominal_trot(1, cfg).to(device)
     external = warm_start.nominal_trot(1, cfg, freq=1.8).to(device)
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
@@ -353,9 +329,8 @@ def update_docs(table: str, info: dict, results: list[dict], path: Path) -> None
     )
     text = path.read_text() if path.exists() else "# Benchmarks\n"
     if SECTION in text:
-        start = text.index(SECTION)
-        nxt = text.find("\n## ", start + len(SECTION))
-        text = text[:start] + body + (text[nxt + 1:] if nxt >= 0 else "")
+        start, end = section_span(text, SECTION)
+        text = text[:start] + body + text[end:]
     else:
         text = text.rstrip("\n") + "\n\n" + body
     path.write_text(text)

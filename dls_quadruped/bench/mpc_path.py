@@ -23,8 +23,9 @@ from pathlib import Path
 
 import torch
 
-from dls_quadruped.bench.machine import cpu_model
+from dls_quadruped.bench.mpc_common import BUILDS_SECTION, section_span, solve_problem
 from dls_quadruped.cli import ArgumentParser, run_cli
+from dls_quadruped.core.machine import cpu_model
 from dls_quadruped.mpc import SamplerConfig, SamplingMPC, warm_start
 
 REPO = Path(__file__).resolve().parents[2]
@@ -34,9 +35,7 @@ PATHS = ("fused", "torch")
 
 def time_paths(num_samples: int = 10000, horizon: int = 10, solves: int = 200, warmup: int = 10) -> list[dict]:
     """Median times [ms] per path of :data:`PATHS`, taking turns solve by solve on the current torch threads."""
-    from dls_quadruped.bench.mpc import _problem
-
-    state, refs, phase = _problem("cpu")
+    state, refs, phase = solve_problem("cpu")
     cfg = SamplerConfig(num_samples=num_samples, horizon=horizon, kernel="cpp")
     default, external = warm_start.nominal_trot(1, cfg), warm_start.nominal_trot(1, cfg, freq=1.8)
     mpcs = {}
@@ -90,8 +89,6 @@ def table(rows: list[dict]) -> str:
 
 def update_docs(rows: list[dict], info: dict, path: Path) -> None:
     """Replace (or append after '## MPC C++ kernel builds') the '## MPC solve path' section of ``path``."""
-    from dls_quadruped.bench.mpc import BUILDS_SECTION, _section_span
-
     r = rows[0]
     body = (
         f"{SECTION}\n\n"
@@ -109,10 +106,10 @@ def update_docs(rows: list[dict], info: dict, path: Path) -> None:
     )
     text = path.read_text() if path.exists() else "# Benchmarks\n"
     if SECTION in text:
-        start, end = _section_span(text, SECTION)
+        start, end = section_span(text, SECTION)
         text = text[:start] + body + text[end:]
     elif BUILDS_SECTION in text:
-        _, end = _section_span(text, BUILDS_SECTION)
+        _, end = section_span(text, BUILDS_SECTION)
         text = text[:end].rstrip("\n") + "\n\n" + body + text[end:]
     else:
         text = text.rstrip("\n") + "\n\n" + body

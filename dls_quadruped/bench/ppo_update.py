@@ -1,4 +1,4 @@
-"""PPO iteration benchmark (``make bench-ppo``, part of ``make bench``; issue 25 item 1).
+"""PPO iteration benchmark (``make bench-ppo``, part of ``make bench``).
 
 For each robot count N, one env and one rsl-rl runner per variant, all from the same seed; the
 variants take turns iteration by iteration (the order alternating), so a change of the machine's
@@ -8,6 +8,9 @@ load hits them alike and their ratios are measured side by side:
 * ``fast_1_thread``: ``learning/fast_update.py``'s update, still on ``--threads`` threads;
 * ``fast``: the same with ``--update-threads`` threads in the update (default every core), as
   ``make train`` runs;
+* ``fast_no_diag``: ``fast`` without ``learning/diagnostics.py``'s hooks and the action manager's clip
+  and stance masks (``make train`` always records them); ``fast`` / ``fast_no_diag`` is what the
+  diagnostics cost an iteration (``fast`` reads them out every iteration, as the trainer does);
 * ``fast_bf16`` (only with ``--variants``): ``fast`` with rsl-rl's ``use_mixed_precision`` (the
   update's forward passes and losses under ``torch.autocast`` in bfloat16; a task sets it with
   ``agent.algorithm.use_mixed_precision: true``). It changes the update's rounding, so it is not
@@ -39,13 +42,14 @@ from dls_quadruped.bench.rl_env import make_runner, ppo_iteration
 from dls_quadruped.cli import ArgumentParser, non_negative_int, positive_int, run_cli
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
+from dls_quadruped.learning.diagnostics import TrainingDiagnostics
 from dls_quadruped.learning.fast_update import (
     available_cores,
     default_update_threads,
     speed_up_update,
 )
 
-VARIANTS = ("stock", "fast_1_thread", "fast")
+VARIANTS = ("stock", "fast_1_thread", "fast", "fast_no_diag")
 """The default variants; ``stock`` is always run (every ratio is to it)."""
 ALL_VARIANTS = (*VARIANTS, "fast_bf16")
 
@@ -69,7 +73,7 @@ def bench_size(task: str, n: int, iterations: int, update_threads: int,
     cfg = load_task(task)
     env = LocomotionEnv(cfg, num_envs=n, verbose=False)
     try:
-        runners = {}
+        runners, diagnostics = {}, {}
         for name in variants:
             torch.manual_seed(0)  # the same initial networks for every variant
             runners[name] = make_runner(env, cfg.data)
@@ -77,11 +81,20 @@ def bench_size(task: str, n: int, iterations: int, update_threads: int,
                 speed_up_update(runners[name].alg, threads=0 if name == "fast_1_thread" else update_threads)
             if name == "fast_bf16":
                 runners[name].alg.use_mixed_precision = True  # rsl-rl's flag, read by every update
+            if name != "fast_no_diag":
+                diagnostics[name] = TrainingDiagnostics.attach(runners[name])
         timings: dict[str, list[dict[str, float]]] = {name: [] for name in variants}
         for i in range(iterations + 1):
             order = variants if i % 2 == 0 else variants[::-1]
             for name in order:
-                it = {**ppo_iteration(env, runners[name]), "load_1min": os.getloadavg()[0]}
+                env.action_manager.record_diagnostics = name in diagnostics
+                it = ppo_iteration(env, runners[name])
+                if name in diagnostics:  # the trainer reads them out once per iteration, after the update
+                    t0 = time.perf_counter()
+                    diagnostics[name].scalars()
+                    it["learning_s"] += time.perf_counter() - t0
+                    it["total_s"] += time.perf_counter() - t0
+                it["load_1min"] = os.getloadavg()[0]
                 print(f"[bench.ppo_update] N={n} {name} iteration {i}{' (warm-up)' if i == 0 else ''}: "
                       f"collection {it['collection_s']:.2f} s, update {it['learning_s']:.2f} s "
                       f"(load {it['load_1min']:.1f})", flush=True)
@@ -94,6 +107,8 @@ def bench_size(task: str, n: int, iterations: int, update_threads: int,
     for s in summary.values():
         s["end_to_end_vs_stock"] = s["samples_per_s"] / stock["samples_per_s"]
         s["update_vs_stock"] = stock["update_s"] / s["update_s"]
+    if "fast" in summary and "fast_no_diag" in summary:  # what the diagnostics add to an iteration's wall time
+        summary["fast"]["diagnostics_overhead"] = summary["fast"]["total_s"] / summary["fast_no_diag"]["total_s"] - 1.0
     return {"task": task, "num_envs": n, "iterations": timings, "summary": summary}
 
 

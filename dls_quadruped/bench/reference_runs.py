@@ -39,7 +39,8 @@ from dls_quadruped.control.latent_action import (
 )
 from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.interface import SimBackend, SimConfig, make_backend
+from dls_quadruped.sim.interface import SimBackend, SimConfig
+from dls_quadruped.sim.registry import make_backend
 from dls_quadruped.sim.terrain import TerrainConfig, build_scene
 
 REFERENCE_PATH = Path(__file__).with_name("reference_runs.npz")

@@ -27,7 +27,8 @@ from dls_quadruped.core.progress import progress
 from dls_quadruped.mpc.baseline import BaselineConfig, ModelBasedBaseline
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.interface import SimConfig, make_backend
+from dls_quadruped.sim.interface import SimConfig, home_state
+from dls_quadruped.sim.registry import make_backend
 
 
 def _rms(x: np.ndarray) -> float:
@@ -37,8 +38,6 @@ def _rms(x: np.ndarray) -> float:
 def measure(vx: float = 0.5, seconds: float = 6.0, samples: int = 10_000, bandwidth: float = 0.0,
             settle_s: float = 1.0, seed: int = 0) -> dict:
     """Swing tracking and touch-down errors [m] of one robot walking at ``vx`` (statistics after ``settle_s``)."""
-    from dls_quadruped.eval.balance_run import home_state
-
     model = mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))
     cfg = BaselineConfig(sampler=SamplerConfig(num_samples=samples))
     decimation = round(cfg.sampler.mpc_period / model.opt.timestep)

@@ -27,9 +27,9 @@ from pathlib import Path
 import torch
 
 import dls_quadruped.envs.managers.scene as scene_module
-from dls_quadruped.bench.machine import cpu_model
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.core.machine import cpu_model
 from dls_quadruped.core.progress import progress
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv

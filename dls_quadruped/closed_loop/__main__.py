@@ -63,6 +63,7 @@ from dls_quadruped.closed_loop.controllers import (
 from dls_quadruped.closed_loop.metrics import compare, summarize
 from dls_quadruped.closed_loop.runner import ClosedLoopTraces, run_closed_loop
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.core.machine import cpu_model
 from dls_quadruped.eval.velocity_tracking import FIXED_SECTIONS, OVERRIDABLE_SECTIONS
 from dls_quadruped.mpc.baseline import OPTIMISABLE
 from dls_quadruped.mpc.config import ENCODING_KINDS, SamplerConfig
@@ -458,8 +459,6 @@ def main(argv: list[str] | None = None) -> dict:
                                  args.sampler_seeds, args.scenario, heights, overrides or None)
     except (ValueError, FileNotFoundError) as err:  # student/MPC mismatch, wrong observation size, bad file
         raise UserError(str(err)) from None
-    from dls_quadruped.bench.machine import cpu_model
-
     summaries, paired = summarize_all(traces)
     summary = {
         "settings": {"controllers": list(args.controllers), "episodes": len(cmds), "seconds": args.seconds,

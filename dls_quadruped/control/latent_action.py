@@ -37,6 +37,10 @@ ACTION_GROUPS: tuple[tuple[str, slice], ...] = (("f", slice(0, 4)), ("d", slice(
 """(name, index range) of each component of the 28-vector: frequency, duty, foothold offset, force."""
 F_Z_INDICES = tuple(16 + 3 * leg + 2 for leg in range(C.NUM_LEGS))
 """Indices of F_z (FL, FR, RL, RR) in the 28-vector."""
+RAW_LIMIT = 1e6
+"""Raw entries are clamped to +-RAW_LIMIT before use: far beyond the few tens that reach every limit of Table 1,
+and small enough that the squared violation, the action rate and the friction-cone norm stay finite in float32
+(1e20 is clipped and penalised as 1e6 is, not as an overflow to inf that a reward reads as 0)."""
 
 TerrainHeightFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 """height_w = fn(x_w, y_w): ground height [m] under world points; inputs and output share any shape."""
@@ -254,13 +258,8 @@ def clip(action: LatentAction, cfg: LatentActionConfig) -> tuple[LatentAction, t
     return clipped, violation
 
 
-def to_world(
-    action: LatentAction,
-    base_pos_w: torch.Tensor,
-    base_yaw: torch.Tensor,
-    terrain_height_fn: TerrainHeightFn,
-    cfg: LatentActionConfig,
-) -> tuple[torch.Tensor, torch.Tensor]:
+def to_world(action: LatentAction, base_pos_w: torch.Tensor, base_yaw: torch.Tensor,
+             terrain_height_fn: TerrainHeightFn, cfg: LatentActionConfig) -> tuple[torch.Tensor, torch.Tensor]:
     """Touch-down targets and forces in the world frame.
 
     p_td_w.xy = base_xy + Rz(yaw) (nominal_xy + p_h); p_td_w.z = terrain(p_td_w.xy) + foot radius
@@ -310,11 +309,18 @@ class LowLevelReferences:
     violation: torch.Tensor
 
 
-def validate_raw(raw: torch.Tensor, check_finite: bool = True) -> None:
+def finite_entries(raw: torch.Tensor, cfg: LatentActionConfig) -> torch.Tensor:
+    """(..., 28) bool: the entry and its physical value scale * raw are finite (-3e38 is a finite raw entry, but
+    its force overflows float32 to -inf: it is refused as an inf is)."""
+    return torch.isfinite(raw * scale_vector(cfg, raw.dtype, raw.device))
+
+
+def validate_raw(raw: torch.Tensor, check_finite: bool = True, cfg: LatentActionConfig | None = None) -> None:
     """Raise (ValueError, TypeError for a non-tensor) unless raw is a finite (B, 28) tensor, naming what is wrong.
 
     ``check_finite=False`` checks the type and shape only: the finiteness check reads the tensor back to the
-    host (a device synchronisation), which a caller that has already replaced non-finite rows skips."""
+    host (a device synchronisation), which a caller that has already replaced non-finite rows skips. With
+    ``cfg`` (raw network units), an entry whose physical value overflows (:func:`finite_entries`) is refused too."""
     if not isinstance(raw, torch.Tensor):
         raise TypeError(f"latent action must be a torch.Tensor of shape (B, {ACTION_DIM}), got {type(raw).__name__}")
     if raw.dim() != 2 or raw.shape[1] != ACTION_DIM:
@@ -324,15 +330,14 @@ def validate_raw(raw: torch.Tensor, check_finite: bool = True) -> None:
         )
     if not check_finite:
         return
-    bad = ~torch.isfinite(raw)
+    bad = ~(torch.isfinite(raw) if cfg is None else finite_entries(raw, cfg))
     if bad.any():
         robots = torch.nonzero(bad.any(dim=1)).flatten().tolist()
         comps = [ACTION_COMPONENT_NAMES[i] for i in torch.nonzero(bad.any(dim=0)).flatten().tolist()]
         shown = robots if len(robots) <= 20 else robots[:20] + [f"... ({len(robots)} robots)"]
-        raise ValueError(
-            f"latent action has non-finite values (NaN/inf) for robots {shown} in components {comps}; "
-            f"every entry must be finite"
-        )
+        what = "NaN/inf" if cfg is None else "NaN/inf, or inf once scaled to physical units"
+        raise ValueError(f"latent action has non-finite values ({what}) for robots {shown} in components {comps}; "
+                         "every entry must be finite")
 
 
 class ActionInterface:
@@ -359,13 +364,13 @@ class ActionInterface:
         Raises:
             ValueError: wrong shape or non-finite entries (names robots and components).
         """
-        validate_raw(raw, check_finite)
+        validate_raw(raw, check_finite, self.cfg)
         self._check_state(raw.shape[0], num_stance, base_pos_w, base_yaw)
+        raw = raw.clamp(-RAW_LIMIT, RAW_LIMIT)
         return self._references(denormalise(raw, num_stance, self.cfg), base_pos_w, base_yaw)
 
-    def from_physical(
-        self, action: LatentAction, base_pos_w: torch.Tensor, base_yaw: torch.Tensor
-    ) -> LowLevelReferences:
+    def from_physical(self, action: LatentAction, base_pos_w: torch.Tensor,
+                      base_yaw: torch.Tensor) -> LowLevelReferences:
         """Same pipeline for an action already in physical units (e.g. the balance controller's).
 
         Args:
@@ -380,11 +385,8 @@ class ActionInterface:
 
     @staticmethod
     def _check_state(batch: int, num_stance: torch.Tensor, base_pos_w: torch.Tensor, base_yaw: torch.Tensor) -> None:
-        for name, value, shape in (
-            ("num_stance", num_stance, (batch,)),
-            ("base_pos_w", base_pos_w, (batch, 3)),
-            ("base_yaw", base_yaw, (batch,)),
-        ):
+        for name, value, shape in (("num_stance", num_stance, (batch,)), ("base_pos_w", base_pos_w, (batch, 3)),
+                                   ("base_yaw", base_yaw, (batch,))):
             if tuple(value.shape) != shape:
                 raise ValueError(f"{name} must have shape {shape} for a batch of {batch} actions, got {tuple(value.shape)}")
 

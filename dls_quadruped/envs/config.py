@@ -18,6 +18,7 @@ import math
 import re
 import types
 import typing
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +69,15 @@ class TaskConfig:
         if not isinstance(value, dict):
             raise self.error(name, f"must be a mapping, got {type(value).__name__}")
         return value
+
+
+_TASK_CHECKS: list[Callable[[TaskConfig], None]] = []
+
+
+def register_task_check(check: Callable[[TaskConfig], None]) -> None:
+    """Run ``check`` on every task ``load_task`` validates (``envs/__init__.py`` registers ``envs/validate.py``)."""
+    if check not in _TASK_CHECKS:
+        _TASK_CHECKS.append(check)
 
 
 def _record(sources: dict[str, str], value: Any, prefix: str, src: str) -> None:
@@ -227,8 +237,8 @@ def load_task(task: str | Path, overrides: dict | None = None, validate: bool = 
         task: task name or YAML path.
         overrides: optional dict deep-merged last (e.g. from the command line, ``cli.set_overrides``),
             recorded as "<override>" and checked like the file (its top-level keys too).
-        validate: check every present section (``envs.validate.validate_task``): types, ranges,
-            term functions and parameters, the agent section against rsl-rl.
+        validate: check every present section (:func:`register_task_check`: ``envs.validate.validate_task``):
+            types, ranges, term functions and parameters, the agent section against rsl-rl.
 
     Raises:
         ConfigError: naming the file, the dotted key and what is allowed.
@@ -254,12 +264,8 @@ def load_task(task: str | Path, overrides: dict | None = None, validate: bool = 
         raise ConfigError(f"{path}: no {' and no '.join(repr(m) for m in missing)} section (in the file or what it "
                           f"inherits); a task needs {list(REQUIRED_SECTIONS)}: add {'it' if len(missing) == 1 else 'them'}, or "
                           "`inherit: _common.yaml` (tasks/) for the shared ones")
-    if validate:
-        from dls_quadruped.envs.validate import (
-            validate_task,  # imports the managers, which import this module
-        )
-
-        validate_task(loaded)
+    for check in _TASK_CHECKS if validate else ():
+        check(loaded)
     return loaded
 
 

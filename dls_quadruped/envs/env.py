@@ -164,7 +164,8 @@ class LocomotionEnv(VecEnv):
 
         Returns:
             (actions on ``device`` as float32 with non-finite rows replaced by zeros,
-             (num_envs,) bool mask of the rows that were not finite).
+             (num_envs,) bool mask of the rows that were not finite: NaN/inf, or an entry whose physical
+             value overflows, as -3e38 does in a force, ``ActionManager.finite_rows``).
 
         Raises:
             TypeError: not a tensor/array of numbers. ValueError: wrong shape (no broadcasting:
@@ -182,7 +183,7 @@ class LocomotionEnv(VecEnv):
         if tuple(actions.shape) != want:
             raise ValueError(f"actions must have shape {want} (num_envs, num_actions), got {tuple(actions.shape)}")
         actions = actions.detach().to(device=self.device, dtype=torch.float32)
-        nonfinite = ~torch.isfinite(actions).all(dim=1)
+        nonfinite = ~self.action_manager.finite_rows(actions)
         # unconditional (no `if nonfinite.any()`): a host read here would stall a GPU pipeline every step
         actions = torch.where(nonfinite[:, None], torch.zeros_like(actions), actions)
         return actions, nonfinite

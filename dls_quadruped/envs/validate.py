@@ -1,10 +1,10 @@
 """Check every section of a task when it loads, without building anything.
 
-``load_task`` calls ``validate_task``: the same resolvers the managers use at build time run here
-(term functions, parameter names, types and ranges, manager keys), plus the dataclass sections
-(``env``, ``scene``, ``terrain``, ``actions.latent``) and the ``agent`` section against rsl-rl. A
-bad value therefore fails with the file and dotted key before a run directory, a simulator or a
-worker exists. Sections a file does not have (fragments such as ``_base_rewards.yaml``) are skipped.
+``load_task`` calls ``validate_task`` (the ``envs`` package registers it): the same resolvers the
+managers use at build time run here (term functions, parameter names, types and ranges, manager keys),
+plus the dataclass sections (``env``, ``scene``, ``terrain``, ``actions.latent``) and the ``agent``
+section against rsl-rl. A bad value therefore fails with the file and dotted key before a run
+directory, a simulator or a worker exists. Sections a file does not have (fragments such as ``_base_rewards.yaml``) are skipped.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ def validate_task(task: TaskConfig) -> None:
     from dls_quadruped.envs.managers.reward import resolve_rewards
     from dls_quadruped.envs.managers.scene import SceneConfig
     from dls_quadruped.envs.managers.termination import resolve_terminations
-    from dls_quadruped.learning.agent_config import check_agent_section
+    from dls_quadruped.envs.agent_config import check_agent_section
     from dls_quadruped.sim.terrain import TerrainConfig
 
     data = task.data

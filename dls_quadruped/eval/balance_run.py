@@ -22,7 +22,8 @@ from dls_quadruped.control.latent_action import (
 )
 from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.interface import SimConfig, make_backend
+from dls_quadruped.sim.interface import SimConfig, home_state
+from dls_quadruped.sim.registry import make_backend
 
 
 @dataclass
@@ -55,18 +56,6 @@ class BalanceRun:
     summary: dict = field(default_factory=dict)
 
 
-def home_state(num: int, seed: int, noise: float = 0.0, yaw: float | torch.Tensor = 0.0) -> dict[str, torch.Tensor]:
-    """Home-keyframe reset targets, optionally with uniform joint noise [rad] (seeded) and base yaw [rad]."""
-    gen = torch.Generator().manual_seed(seed)
-    joint = torch.as_tensor(C.NOMINAL_JOINT_POS, dtype=torch.float64).expand(num, 12).clone()
-    joint += noise * (2 * torch.rand(num, 12, generator=gen, dtype=torch.float64) - 1)
-    pos = torch.tensor([0.0, 0.0, C.STANDING_BASE_HEIGHT + 0.005], dtype=torch.float64).expand(num, 3)
-    half = torch.as_tensor(yaw, dtype=torch.float64).expand(num) / 2
-    zero = torch.zeros(num, dtype=torch.float64)
-    quat = torch.stack([torch.cos(half), zero, zero, torch.sin(half)], dim=1)
-    return {"base_pos_w": pos, "base_quat_w": quat, "joint_pos": joint}
-
-
 def run_balance(
     num_envs: int = 64,
     stand_seconds: float = 10.0,
@@ -87,7 +76,7 @@ def run_balance(
 
     On a terrain scene (``model`` from ``sim.terrain.build_scene``) pass ``height_fn =
     terrain.height_at`` so touch-down targets get the true terrain height, and spawn the robots
-    at ``origin_w`` (x, y) [m] on a flat patch at z = 0. ``backend``: the simulator (``sim/interface.py``); the
+    at ``origin_w`` (x, y) [m] on a flat patch at z = 0. ``backend``: the simulator (``sim/registry.py``); the
     controller and the records read its state on the CPU.
     """
     model = model if model is not None else mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))

@@ -31,6 +31,8 @@ from dls_quadruped.cli import (
 )
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.envs.config import load_task
+from dls_quadruped.learning import checkpoint_file
+from dls_quadruped.learning.checkpoint_file import UnsafeCheckpoint
 from dls_quadruped.learning.dataset import DatasetError
 from dls_quadruped.learning.distill_config import (
     ALGORITHMS,
@@ -164,7 +166,9 @@ def _run_dir(args: argparse.Namespace) -> Path | None:
 def _read_checkpoint(run_dir: Path) -> dict:
     path = run_dir / CHECKPOINT
     try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
+        state = checkpoint_file.load(path)
+    except UnsafeCheckpoint as err:
+        raise UserError(f"--resume: {path} is {err}") from None
     except Exception as err:  # noqa: BLE001 -- any unpickling failure means unreadable
         raise UserError(f"--resume: {path} is unreadable ({type(err).__name__}); the datasets in {run_dir} are "
                         "kept: start a new run with --run-dir elsewhere") from None

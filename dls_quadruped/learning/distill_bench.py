@@ -18,9 +18,9 @@ from pathlib import Path
 
 import torch
 
-from dls_quadruped.bench.machine import cpu_model
 from dls_quadruped.cli import ArgumentParser, positive_int, run_cli
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.core.machine import cpu_model
 from dls_quadruped.learning.collect import collect
 from dls_quadruped.learning.dataset import DiskDataset
 from dls_quadruped.learning.distill import distill_task, load_expert

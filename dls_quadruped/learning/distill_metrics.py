@@ -21,7 +21,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from dls_quadruped.eval.metrics import wilson_interval
+from dls_quadruped.core.stats import wilson_interval
 from dls_quadruped.learning.dataset import DiskDataset
 
 

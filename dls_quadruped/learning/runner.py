@@ -10,6 +10,7 @@ terrain levels, command ranges, reward weights, RNG, the episodes in progress), 
 ``num_actions`` and the task's name so a resume onto another task is refused before anything is
 written, and ``learning/resume_state.py``'s part (numpy/python RNG, logger counters, configs,
 versions): a run continued from it, anywhere, takes the iteration the uninterrupted run would have.
+Checkpoints are read without running code from them (``learning/checkpoint_file.py``).
 ``copy_to`` names a second file every checkpoint is also written to (atomically; one to commit).
 Besides rsl-rl's every-``save_interval`` saves, the runner saves when ``save_every_s`` seconds of
 wall time passed since the last save and, after SIGINT/SIGTERM, at the end of the current
@@ -39,7 +40,8 @@ import torch
 import yaml
 from rsl_rl.runners import OnPolicyRunner
 
-from dls_quadruped.learning import resume_state
+from dls_quadruped.learning import checkpoint_file, resume_state
+from dls_quadruped.learning.checkpoint_file import UnsafeCheckpoint
 from dls_quadruped.learning.diagnostics import TrainingDiagnostics
 from dls_quadruped.learning.distributed import any_rank, init_distributed
 from dls_quadruped.learning.fast_update import speed_up_update
@@ -252,9 +254,12 @@ class CheckpointMismatch(ValueError):
 
 
 def read_checkpoint(path: Path) -> dict:
-    """``torch.load`` a checkpoint on the CPU; any failure (truncated, not a checkpoint) -> ``ValueError``."""
+    """Load a checkpoint on the CPU without running code from it (:func:`checkpoint_file.load`); any failure
+    (truncated, not a checkpoint, naming a function to call) -> ``ValueError``, one line."""
     try:
-        ckpt = torch.load(path, weights_only=False, map_location="cpu")
+        ckpt = checkpoint_file.load(path)
+    except UnsafeCheckpoint:
+        raise
     except Exception as err:  # unpickling fails in many ways; all mean "unreadable"
         raise ValueError(f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}") from err
     if not isinstance(ckpt, dict) or "iter" not in ckpt or "actor_state_dict" not in ckpt:

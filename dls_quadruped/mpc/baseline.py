@@ -37,7 +37,8 @@ from dls_quadruped.mpc.encodings import block_slices, fit_spline
 from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
 from dls_quadruped.mpc.srbd import com_height_reference, srbd_state_from_base
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.interface import SimConfig, make_backend
+from dls_quadruped.sim.interface import SimConfig, home_state
+from dls_quadruped.sim.registry import make_backend
 
 
 @dataclass(frozen=True)
@@ -263,10 +264,8 @@ def run_baseline(
 
     ``model`` defaults to the scene's plane; a terrain scene (``sim.terrain.build_scene``) works
     too, with the robots spawned at ``origin_w`` (x, y) [m] on a flat patch at z = 0. ``backend``: the simulator
-    (``sim/interface.py``); the controller reads its state on the CPU.
+    (``sim/registry.py``); the controller reads its state on the CPU.
     """
-    from dls_quadruped.eval.balance_run import home_state
-
     model = model if model is not None else mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))
     decimation = int(round(cfg.sampler.mpc_period / model.opt.timestep))
     ctrl = ModelBasedBaseline(num_robots, cfg, device, seed)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import torch
 
+from dls_quadruped.core.device import checked_device
 from dls_quadruped.mpc import arbitration, cpp_kernel, solve_glue, warm_start
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import (
@@ -109,6 +110,16 @@ def _check_tensor(name: str, value: object, shape: tuple[int, ...]) -> None:
         raise ValueError(f"{name} must be a tensor of shape {shape}, got {tuple(getattr(value, 'shape', ())) or type(value).__name__}")
 
 
+def _check_phase(phase: torch.Tensor) -> None:
+    """Refuse a finite phase outside the gait cycle (a non-finite one sends its robot to the fallback). 1.0 passes:
+    the simulator's float64 phase just below 1 rounds to it in a float32 state."""
+    outside = torch.isfinite(phase) & ((phase < 0.0) | (phase > 1.0))
+    if bool(outside.any()):
+        robots = torch.nonzero(outside.any(dim=1)).flatten().tolist()
+        raise ValueError(f"phase must be in [0, 1) (the fraction of the gait cycle), got {phase[outside][:4].tolist()} "
+                         f"for robots {robots[:10]}")
+
+
 class SamplingMPC:
     """Batched sampling MPC with warm starts (Algorithm 2).
 
@@ -121,9 +132,12 @@ class SamplingMPC:
 
     def __init__(self, cfg: SamplerConfig | None = None, model: SRBDModel | None = None,
                  device: torch.device | str = "cpu", seed: int = 0):
+        try:
+            self.device = checked_device(device)
+        except ValueError as err:
+            raise ValueError(f"SamplingMPC: {err}") from None
         self.cfg = cfg if cfg is not None else SamplerConfig()
         self.model = model if model is not None else robot_srbd_model()
-        self.device = torch.device(device)
         self.dim = encoded_dim(self.cfg.encoding)
         self.generator = torch.Generator().manual_seed(seed)
         self.last_result: MPCResult | None = None
@@ -222,6 +236,7 @@ class SamplingMPC:
         b = state.batch_size
         refs.validate(b)
         _check_tensor("phase", phase, (b, 4))
+        _check_phase(phase)
         if isinstance(warm_starts, torch.Tensor) or len(warm_starts) == 0:
             raise ValueError("warm_starts must be a non-empty list of (B, D) or (D,) encoded actions "
                              f"(D = {self.dim} for encoding p={self.cfg.encoding_p!r}, F={self.cfg.encoding_F!r})")
@@ -280,7 +295,7 @@ class SamplingMPC:
             :class:`MPCResult`.
 
         Raises:
-            ValueError: wrong shapes, non-finite warm starts, bad proportions, M < G.
+            ValueError: wrong shapes, non-finite warm starts, bad proportions, M < G, a phase outside [0, 1).
         """
         if phase is None:
             raise ValueError("phase must be given: (B, 4) gait phase in [0, 1)")

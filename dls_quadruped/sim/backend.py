@@ -170,7 +170,9 @@ def check_main_guard() -> None:
     builds the simulator at module level outside ``if __name__ == "__main__":`` would start
     workers from the workers (Python refuses, the workers die). Detected before any worker starts
     from the calling frames: a module-level frame of ``__main__`` whose line is not inside such a
-    guard in the script's source.
+    guard in the script's source. A script the workers cannot re-import at all (``python - <<EOF`` reads it
+    from standard input, ``__file__`` is ``<stdin>``) is refused whatever its guard: its workers would die
+    while the parent blocks writing their start data.
 
     Raises:
         WorkerError: naming the script and line, with the fix.
@@ -179,6 +181,11 @@ def check_main_guard() -> None:
     path = getattr(main, "__file__", None)
     if path is None or getattr(main, "__spec__", None) is not None:  # interactive, -c, -m: nothing re-imported
         return
+    if not os.path.isfile(os.path.join(mp.process.ORIGINAL_DIR or "", path)):  # where spawn looks for it
+        raise WorkerError(
+            f"{path} starts simulator worker processes from a script that is not a file; the workers re-import "
+            "the script (spawn) and cannot. Save it to a file with that code under an `if __name__ == \"__main__\":` "
+            "guard (see docs/env.md) or use num_workers=0 (scene.num_workers: 0)")
     frame = sys._getframe(1)
     while frame is not None:
         if frame.f_code.co_name == "<module>" and frame.f_globals.get("__name__") == "__main__":

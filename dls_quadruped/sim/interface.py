@@ -1,4 +1,4 @@
-"""The simulator seam: what every backend offers, its configuration, and the registry that builds one by name.
+"""The simulator seam: what every backend offers and its configuration.
 
 Everything above ``sim/`` (the env's managers, the MDP terms, the closed loop, the eval suite) talks to the
 simulator only through :class:`SimBackend`, so a second backend (MuJoCo Warp on a GPU, ``sim/warp_backend.py``) slots in
@@ -16,19 +16,14 @@ without touching them. The contract:
 * **Snapshots are opaque.** ``snapshot()`` returns what ``restore`` of a backend of the same kind and number of
   robots needs for a bit-identical next step (a checkpoint's episodes in progress).
 
-Backends are built with :func:`make_backend` from a name (``scene.backend`` in a task file)::
+Backends are built by name (``scene.backend`` in a task file) with ``make_backend`` of the registry,
+``sim/registry.py``, which imports the backends and so lives apart from the protocol they implement::
 
     sim = make_backend("cpu", model, num_envs=64, cfg=SimConfig(num_workers=0))
-
-``cpu`` is :class:`dls_quadruped.sim.backend.VecSim` (MuJoCo's C batch + Pinocchio, worker processes);
-``warp-cpu`` and ``cuda`` are :class:`dls_quadruped.sim.warp_backend.WarpSim` (MuJoCo Warp on Warp's CPU device or
-on a CUDA GPU, the optional ``[gpu]`` extra, docs/gpu.md). A new backend registers a factory with
-:func:`register_backend`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol, Self, runtime_checkable
 
@@ -38,6 +33,7 @@ import torch
 
 from dls_quadruped.control.lowlevel import LowLevelConfig
 from dls_quadruped.core.state import RobotState
+from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.regions import RegionConfig
 
 
@@ -120,6 +116,18 @@ def standing_references(command: dict[str, torch.Tensor], rows: slice | torch.Te
             t[rows] = value
 
 
+def home_state(num: int, seed: int, noise: float = 0.0, yaw: float | torch.Tensor = 0.0) -> dict[str, torch.Tensor]:
+    """Home-keyframe reset targets, optionally with uniform joint noise [rad] (seeded) and base yaw [rad]."""
+    gen = torch.Generator().manual_seed(seed)
+    joint = torch.as_tensor(C.NOMINAL_JOINT_POS, dtype=torch.float64).expand(num, 12).clone()
+    joint += noise * (2 * torch.rand(num, 12, generator=gen, dtype=torch.float64) - 1)
+    pos = torch.tensor([0.0, 0.0, C.STANDING_BASE_HEIGHT + 0.005], dtype=torch.float64).expand(num, 3)
+    half = torch.as_tensor(yaw, dtype=torch.float64).expand(num) / 2
+    zero = torch.zeros(num, dtype=torch.float64)
+    quat = torch.stack([torch.cos(half), zero, zero, torch.sin(half)], dim=1)
+    return {"base_pos_w": pos, "base_quat_w": quat, "joint_pos": joint}
+
+
 @runtime_checkable
 class SimBackend(Protocol):
     """N AlienGo robots simulated and controlled by the low-level controller as one batch (see the module
@@ -184,108 +192,3 @@ class SimBackend(Protocol):
     def __enter__(self) -> Self: ...
 
     def __exit__(self, *exc: object) -> None: ...
-
-
-class BackendUnavailableError(RuntimeError):
-    """A registered backend that cannot run here: its optional packages or its device are missing."""
-
-
-BackendFactory = Callable[[mujoco.MjModel, int, SimConfig], SimBackend]
-
-
-@dataclass(frozen=True)
-class BackendSpec:
-    """A registered backend: its factory and a line for ``--help`` and error messages."""
-
-    name: str
-    factory: BackendFactory
-    description: str
-
-
-_BACKENDS: dict[str, BackendSpec] = {}
-
-
-def register_backend(name: str, factory: BackendFactory, description: str) -> None:
-    """Make ``factory(model, num_envs, cfg)`` available as backend ``name`` (e.g. from a plugin module).
-
-    Raises:
-        ValueError: ``name`` is empty or already registered.
-    """
-    if not isinstance(name, str) or not name:
-        raise ValueError(f"backend name must be a non-empty string, got {name!r}")
-    if name in _BACKENDS:
-        raise ValueError(f"backend {name!r} is already registered")
-    _BACKENDS[name] = BackendSpec(name, factory, description)
-
-
-def unregister_backend(name: str) -> None:
-    """Remove backend ``name`` (tests that register a temporary one); unknown names are ignored."""
-    _BACKENDS.pop(name, None)
-
-
-def backend_names() -> tuple[str, ...]:
-    """The registered backends, in registration order."""
-    return tuple(_BACKENDS)
-
-
-def check_backend(name: Any) -> str:
-    """``name`` if it is a registered backend, else a one-line ``ValueError`` naming the allowed ones."""
-    if name not in _BACKENDS:
-        allowed = ", ".join(f"{s.name} ({s.description})" for s in _BACKENDS.values())
-        raise ValueError(f"unknown simulator backend {name!r}; allowed: {allowed}")
-    return name
-
-
-def make_backend(name: str, model: mujoco.MjModel, num_envs: int, cfg: SimConfig = SimConfig()) -> SimBackend:
-    """Build backend ``name`` for ``num_envs`` robots of ``model``.
-
-    Raises:
-        ValueError: an unknown name (the message lists the registered ones).
-        BackendUnavailableError: the backend's packages or device are missing (one line: what, and how to
-            install it).
-    """
-    return _BACKENDS[check_backend(name)].factory(model, num_envs, cfg)
-
-
-def _cpu_backend(model: mujoco.MjModel, num_envs: int, cfg: SimConfig) -> SimBackend:
-    if cfg.leg_dynamics == "pinocchio":
-        try:
-            import pinocchio  # noqa: F401  (the workers import it; fail here with one line instead)
-        except ImportError:
-            raise BackendUnavailableError(
-                "simulator backend 'cpu' with leg_dynamics 'pinocchio' needs Pinocchio (pinocchio is not "
-                "installed): pip install pin, or SimConfig(leg_dynamics='mujoco'), or a Warp backend") from None
-    from dls_quadruped.sim.backend import VecSim
-
-    return VecSim(model, num_envs, cfg)
-
-
-register_backend("cpu", _cpu_backend, "MuJoCo C batch + Pinocchio on the CPU, one worker process per core")
-
-
-def _warp_backend(device: str) -> BackendFactory:
-    """Factory of the MuJoCo Warp backend on ``device``; imports MuJoCo Warp only when a backend is built."""
-
-    def factory(model: mujoco.MjModel, num_envs: int, cfg: SimConfig) -> SimBackend:
-        name = "warp-cpu" if device == "cpu" else device
-        try:
-            from dls_quadruped.sim.warp_backend import WarpSim
-        except ImportError as err:
-            if err.name not in ("warp", "mujoco_warp") and not (err.name or "").startswith(("warp.", "mujoco_warp.")):
-                raise
-            raise BackendUnavailableError(
-                f"simulator backend {name!r} needs MuJoCo Warp ({err.name} is not installed): "
-                "pip install -e .[gpu] (or make install-gpu); docs/gpu.md") from None
-        try:
-            return WarpSim(model, num_envs, cfg, device=device)
-        except RuntimeError as err:
-            if "needs a CUDA" in str(err):
-                raise BackendUnavailableError(str(err)) from None
-            raise
-
-    return factory
-
-
-register_backend("warp-cpu", _warp_backend("cpu"),
-                 "MuJoCo Warp on Warp's CPU device, float32 (optional [gpu] extra; for checks, slow)")
-register_backend("cuda", _warp_backend("cuda"), "MuJoCo Warp on a CUDA GPU, float32 (optional [gpu] extra)")

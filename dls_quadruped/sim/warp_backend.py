@@ -1,7 +1,7 @@
 """MuJoCo Warp backend: N AlienGo robots as N worlds of one MuJoCo Warp model, with the low-level
 controller in torch on the same device, and no host round trip per physics step.
 
-Registered in ``sim/interface.py`` as ``warp-cpu`` (Warp's CPU device: correctness checks on any machine) and
+Registered in ``sim/registry.py`` as ``warp-cpu`` (Warp's CPU device: correctness checks on any machine) and
 ``cuda`` (Warp on torch's current CUDA device); ``pip install -e .[gpu]`` installs ``mujoco-warp`` (docs/gpu.md).
 
 Design:

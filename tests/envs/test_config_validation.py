@@ -60,6 +60,27 @@ CASES = [
      "agent.algorithm.symmetry_cfg.use_data_augmentaton", "'use_data_augmentation'"),
     ({"agent": {"algorithm": {"symmetry_cfg": {"data_augmentation_func": "m:f", "mirror_loss_coeff": "big"}}}},
      "agent.algorithm.symmetry_cfg.mirror_loss_coeff", "must be a number"),
+    # the PPO recipe's options (issue 37 item 8): values rsl-rl would accept silently and train something else
+    ({"agent": {"algorithm": {"entropy_coef": -0.01}}}, "agent.algorithm.entropy_coef", "must be >= 0"),
+    ({"agent": {"algorithm": {"desired_kl": 0.0}}}, "agent.algorithm.desired_kl", "must be > 0"),
+    ({"agent": {"algorithm": {"schedule": "adaptve"}}}, "agent.algorithm.schedule",
+     r"must be one of \['adaptive', 'fixed'\], got 'adaptve'"),
+    ({"agent": {"actor": {"distribution_cfg": {"class_name": "GaussianDistribution", "std_range": [1.0, 0.1]}}}},
+     "agent.actor.distribution_cfg.std_range", r"0 < min < max, got \[1.0, 0.1\]"),
+    ({"agent": {"actor": {"distribution_cfg": {"class_name": "GaussianDistribution", "std_range": [0.0, 1.0]}}}},
+     "agent.actor.distribution_cfg.std_range", "0 < min < max"),
+    ({"agent": {"actor": {"distribution_cfg": {"class_name": "GaussianDistribution", "std_range": [0.1]}}}},
+     "agent.actor.distribution_cfg.std_range", "must be a list of 2"),
+    ({"agent": {"actor": {"distribution_cfg": {"class_name": "GaussianDistribution", "init_std": 1.0,
+                                               "std_range": [0.05, 0.5]}}}},
+     "agent.actor.distribution_cfg.init_std", r"must lie in std_range \[0.05, 0.5\]"),
+    ({"agent": {"actor": {"distribution_cfg": {"class_name": "GaussianDistribution", "std_type": "exp"}}}},
+     "agent.actor.distribution_cfg.std_type", r"must be one of \['scalar', 'log'\]"),
+    ({"agent": {"actor": {"distribution_cfg": {"class_name": "TanhGaussian"}}}},
+     "agent.actor.distribution_cfg.class_name",
+     r"unknown distribution 'TanhGaussian'; allowed: \[.*'BetaDistribution'.*'GaussianDistribution'"),
+    ({"agent": {"actor": {"distribution_cfg": {"class_name": "MLPModel"}}}},
+     "agent.actor.distribution_cfg.class_name", "'MLPModel' is not an action distribution; allowed"),
 ]
 
 
@@ -76,6 +97,15 @@ def test_bad_value_fails_at_load_naming_file_and_key(tmp_path, body, key, messag
     text = str(err.value)
     assert text.startswith(f"{tmp_path / 'bad.yaml'}: {key}: "), text
     assert re.search(message, text), text
+
+
+def test_beta_action_range_must_be_ordered():
+    # a task cannot switch a Gaussian to BetaDistribution by merging (init_std stays, and Beta has none), so the
+    # range check is called directly
+    from dls_quadruped.envs.agent_config import _recipe_problem
+
+    assert "min < max" in _recipe_problem("action_range", [1.0, -1.0], {})
+    assert _recipe_problem("action_range", [-2.0, 2.0], {}) is None
 
 
 def test_rsl_rl_symmetry_settings_are_accepted(tmp_path):

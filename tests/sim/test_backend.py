@@ -14,9 +14,10 @@ from dls_quadruped.control.latent_action import (
     flat_ground,
     to_world,
 )
-from dls_quadruped.eval.balance_run import _yaw, home_state, run_balance
+from dls_quadruped.eval.balance_run import _yaw, run_balance
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.backend import SimConfig, VecSim
+from dls_quadruped.sim.interface import home_state
 
 
 @pytest.fixture(scope="module")

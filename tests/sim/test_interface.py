@@ -1,5 +1,6 @@
-"""The simulator seam (``sim/interface.py``): the registry, and that everything above ``sim/`` -- the env's
-managers and MDP terms, checkpoints, the closed-loop MPC -- uses only the ``SimBackend`` protocol.
+"""The simulator seam (``sim/interface.py``): the registry (``sim/registry.py``), and that everything above
+``sim/`` -- the env's managers and MDP terms, checkpoints, the closed-loop MPC -- uses only the ``SimBackend``
+protocol.
 
 The strict backend below wraps the CPU backend and exposes nothing but the protocol, and copies every input it
 receives (so no caller can rely on the backend aliasing its tensors) and every state it returns (so no caller can
@@ -20,9 +21,8 @@ from dls_quadruped.envs.config import ConfigError, load_task
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.backend import VecSim
-from dls_quadruped.sim.interface import (
-    SimBackend,
-    SimConfig,
+from dls_quadruped.sim.interface import SimBackend, SimConfig
+from dls_quadruped.sim.registry import (
     backend_names,
     make_backend,
     register_backend,

@@ -26,12 +26,11 @@ from dls_quadruped.control.latent_action import (
     to_world,
 )
 from dls_quadruped.core.state import RobotState
-from dls_quadruped.eval.balance_run import _yaw, home_state
+from dls_quadruped.eval.balance_run import _yaw
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.interface import (
+from dls_quadruped.sim.interface import SimBackend, SimConfig, home_state
+from dls_quadruped.sim.registry import (
     BackendUnavailableError,
-    SimBackend,
-    SimConfig,
     backend_names,
     make_backend,
 )

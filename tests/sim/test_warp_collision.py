@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 import torch
 
-from dls_quadruped.sim.interface import SimConfig, make_backend
+from dls_quadruped.sim.interface import SimConfig
 from dls_quadruped.sim.regions import RegionConfig
+from dls_quadruped.sim.registry import make_backend
 from dls_quadruped.sim.terrain import TERRAIN_TYPES, TerrainConfig, build_scene
 
 pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")

@@ -1,4 +1,4 @@
-"""Action manager: the latent action (f, d, p, F) of SPEC 5.
+"""Action manager: the latent action (f, d, p, F) of thesis 4.2.2 (Tables 1 and 5).
 
 Raw (B, 28) network output -> ``control.latent_action.ActionInterface`` (normalise, clip, frame H ->
 world, touch-down z from the terrain's exact height lookup) -> the simulator backend's ``set_references``.
@@ -12,8 +12,11 @@ import torch
 from dls_quadruped.control.gait import contact_sequence
 from dls_quadruped.control.latent_action import (
     ACTION_DIM,
+    RAW_LIMIT,
     ActionInterface,
     LatentActionConfig,
+    finite_entries,
+    validate_raw,
 )
 from dls_quadruped.core.rotations import yaw_from_quat
 from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
@@ -35,7 +38,8 @@ class ActionManager:
     Also, of the last processed action (training diagnostics, ``learning/diagnostics.py``): ``saturated``
     (B, 28) bool, True where the Table 1 / friction-cone clip changed the entry; ``stance_frac`` (B, 4), the
     fraction of the physics steps the action was held for in which each leg was in stance (the low-level
-    controller ignores a stance leg's foothold p and a swinging leg's force F).
+    controller ignores a stance leg's foothold p and a swinging leg's force F). Both are skipped while
+    ``record_diagnostics`` is False (``bench/ppo_update.py`` times the iteration without them).
     """
 
     def __init__(self, task: TaskConfig, env):
@@ -51,6 +55,7 @@ class ActionManager:
         self.applied_physical = torch.zeros_like(self.raw_action)
         self.saturated = torch.zeros(n, ACTION_DIM, dtype=torch.bool, device=dev)
         self.stance_frac = torch.ones(n, 4, device=dev)
+        self.record_diagnostics = True
 
     def process(self, raw: torch.Tensor, replan: bool = False, finite: bool = False,
                 num_physics_steps: int | None = None) -> None:
@@ -58,25 +63,37 @@ class ActionManager:
 
         ``replan``: a second action within the same policy step (``LocomotionEnv.apply_action``): the previous
         action stays the one before the policy step. ``finite``: ``raw`` is known to be finite
-        (``LocomotionEnv.check_actions`` replaced the rows that were not), so it is not read back to check.
-        ``num_physics_steps``: how many physics steps the action will be held for (None: ``env.decimation``);
-        sets ``stance_frac``."""
+        (``LocomotionEnv.check_actions`` replaced the rows that were not, :meth:`finite_rows`), so it is not read
+        back to check; otherwise a non-finite entry raises before any buffer changes. ``num_physics_steps``: how
+        many physics steps the action will be held for (None: ``env.decimation``); sets ``stance_frac``.
+
+        The raw action is kept clamped to +-``RAW_LIMIT``, so the action rate, the violation and the applied action
+        of an entry of 1e20 are those of 1e6 (finite), not an overflow."""
+        raw = raw.to(self.raw_action)
+        if not finite:
+            validate_raw(raw, cfg=self.cfg)
         if not replan:
             self.prev_raw_action[:] = self.raw_action
-        self.raw_action[:] = raw.to(self.raw_action)
+        self.raw_action[:] = raw.clamp(-RAW_LIMIT, RAW_LIMIT)
         s = self.env.state
         num_stance = s.contact_cmd.sum(dim=-1)
         refs = self.interface(self.raw_action, num_stance, s.base_pos_w, yaw_from_quat(s.base_quat_w),
-                              check_finite=not finite)
+                              check_finite=False)
         self.violation[:] = refs.violation
         self.applied_action[:] = self.raw_action - refs.violation
         self.applied_physical[:] = refs.action.to_vector()
-        self.saturated[:] = refs.violation != 0
-        # the gait generator's contacts over the coming physics steps, from the current phase and the new f, d
-        steps = self.env.decimation if num_physics_steps is None else num_physics_steps
-        _, contact = contact_sequence(s.phase.to(refs.f), refs.f, refs.d, self.env.physics_dt, steps)  # (B, N, 4)
-        self.stance_frac[:] = contact.to(self.stance_frac.dtype).mean(dim=-2)
+        if self.record_diagnostics:
+            self.saturated[:] = refs.violation != 0
+            # the gait generator's contacts over the coming physics steps, from the current phase and the new f, d
+            steps = self.env.decimation if num_physics_steps is None else num_physics_steps
+            _, contact = contact_sequence(s.phase.to(refs.f), refs.f, refs.d, self.env.physics_dt, steps)  # (B, N, 4)
+            self.stance_frac[:] = contact.to(self.stance_frac.dtype).mean(dim=-2)
         self.env.scene.sim.set_references(refs.f, refs.d, refs.p_td_w, refs.F_w)
+
+    def finite_rows(self, raw: torch.Tensor) -> torch.Tensor:
+        """(B,) bool: every entry of the robot's (B, 28) raw action and its physical value is finite
+        (``latent_action.finite_entries``); on the device, no host read."""
+        return finite_entries(raw, self.cfg).all(dim=1)
 
     def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
         # saturated and stance_frac stay: they describe the action just held, read after the step's resets

@@ -20,21 +20,15 @@ import torch
 from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.height_scan import HeightScanConfig, scan_pattern
-from dls_quadruped.sim.interface import (
-    LEG_DYNAMICS,
-    SimBackend,
-    SimConfig,
-    backend_names,
-    check_backend,
-    make_backend,
-)
+from dls_quadruped.sim.interface import LEG_DYNAMICS, SimBackend, SimConfig
 from dls_quadruped.sim.regions import RegionConfig
+from dls_quadruped.sim.registry import backend_names, check_backend, make_backend
 from dls_quadruped.sim.terrain import TerrainConfig, build_scene
 
 
 @dataclass(frozen=True)
 class SceneConfig:
-    """backend: the simulator (``sim/interface.py`` registry; ``cpu`` = MuJoCo's C batch + Pinocchio);
+    """backend: the simulator (``sim/registry.py``; ``cpu`` = MuJoCo's C batch + Pinocchio);
     num_workers: simulator worker processes (-1 one per core, 0 in-process);
     max_init_level: envs start on rows U{0..max_init_level};
     terrain_regions: on a tiled terrain, each robot collides only with the geoms near it

@@ -36,6 +36,10 @@ INJECTED = {"device", "multi_gpu_cfg"}
 POSITIVE_INTS = ("num_steps_per_env", "save_interval", "max_iterations", "num_learning_epochs", "num_mini_batches")
 UNIT_INTERVAL = ("gamma", "lam")
 POSITIVE = ("learning_rate", "clip_param")
+NON_NEGATIVE = ("entropy_coef", "value_loss_coef")
+SCHEDULES = ("adaptive", "fixed")
+"""rsl-rl's PPO adapts the learning rate to ``desired_kl`` with ``adaptive``; any other string is silently fixed."""
+STD_TYPES = ("scalar", "log")
 
 _CFG_READ = re.compile(r"\bcfg(?:\[|\.get\()\s*[\"'](\w+)[\"']")
 _POPPED = re.compile(r"alg_cfg\.pop\(\s*[\"'](\w+)[\"']")
@@ -61,6 +65,30 @@ def _resolve(task: TaskConfig, key: str, spec: Any) -> Callable:
         raise task.error(f"{key}.class_name", f"unknown class {spec['class_name']!r} ({err})") from None
 
 
+def distribution_classes() -> list[str]:
+    """The names of rsl-rl's action distributions (``rsl_rl.modules.distribution``)."""
+    from rsl_rl.modules import distribution
+
+    return sorted(n for n, c in vars(distribution).items()
+                  if isinstance(c, type) and issubclass(c, distribution.Distribution) and c is not distribution.Distribution)
+
+
+def _resolve_distribution(task: TaskConfig, key: str, spec: dict) -> Callable:
+    """The distribution class of ``spec``; an unknown name or a class that is no distribution names the choices."""
+    from rsl_rl.modules.distribution import Distribution
+
+    allowed = f"allowed: {distribution_classes()} or 'module:Class' of a Distribution subclass"
+    if "class_name" not in spec:
+        raise task.error(key, f"must be a mapping with a 'class_name'; {allowed}")
+    try:
+        cls = _resolve(task, key, spec)
+    except Exception:  # noqa: BLE001 - re-raised with the allowed names
+        raise task.error(f"{key}.class_name", f"unknown distribution {spec['class_name']!r}; {allowed}") from None
+    if not (isinstance(cls, type) and issubclass(cls, Distribution)):
+        raise task.error(f"{key}.class_name", f"{spec['class_name']!r} is not an action distribution; {allowed}")
+    return cls
+
+
 def _check_keys(task: TaskConfig, key: str, spec: dict, allowed: dict[str, Any]) -> None:
     """Unknown keys and values that do not fit the annotations ``allowed`` maps them to."""
     for name, value in spec.items():
@@ -73,8 +101,52 @@ def _check_keys(task: TaskConfig, key: str, spec: dict, allowed: dict[str, Any])
             problem = f"must be in [0, 1], got {value}"
         if problem is None and name in POSITIVE and not value > 0.0:
             problem = f"must be > 0, got {value}"
+        if problem is None and name in NON_NEGATIVE and not value >= 0.0:
+            problem = f"must be >= 0 (0 switches the term off), got {value}"
         if problem is not None:
             raise task.error(f"{key}.{name}", problem)
+        problem = _recipe_problem(name, value, spec)
+        if problem is not None:
+            raise task.error(f"{key}.{name}", problem)
+
+
+def _pair(value: Any) -> tuple[float, float] | None:
+    if isinstance(value, (list, tuple)) and len(value) == 2 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        return float(value[0]), float(value[1])
+    return None
+
+
+def _recipe_problem(name: str, value: Any, spec: dict) -> str | None:
+    """Range checks of the PPO recipe options whose types already passed (None: fine).
+
+    rsl-rl accepts these silently and trains something else: an unknown ``schedule`` is a fixed learning
+    rate, ``std_range`` is a clamp (inverted, every std is its upper end), ``init_std`` outside it is
+    clamped at the first sample.
+    """
+    if name == "desired_kl" and value is not None and not value > 0.0:
+        return f"must be > 0 (or null with schedule: fixed), got {value}"
+    if name == "schedule" and value not in SCHEDULES:
+        return f"must be one of {list(SCHEDULES)}, got {value!r}"
+    if name == "std_type" and value not in STD_TYPES:
+        return f"must be one of {list(STD_TYPES)}, got {value!r}"
+    if name == "std_range":
+        pair = _pair(value)
+        if pair is None:
+            return f"must be [min, max], two numbers, got {value!r}"
+        if not 0.0 < pair[0] < pair[1]:
+            return f"must be [min, max] with 0 < min < max, got {list(value)}"
+    if name == "init_std":
+        if not value > 0.0:
+            return f"must be > 0, got {value}"
+        pair = _pair(spec.get("std_range"))
+        if pair is not None and 0.0 < pair[0] < pair[1] and not pair[0] <= value <= pair[1]:
+            return f"must lie in std_range {list(spec['std_range'])} (rsl-rl would clamp it), got {value}"
+    if name == "action_range":
+        pair = _pair(value)
+        if pair is None or not pair[0] < pair[1]:
+            return f"must be [min, max] with min < max, got {value!r}"
+    return None
 
 
 def _keyword_params(cls: Callable, with_default_only: bool, exclude: set[str]) -> dict[str, Any]:
@@ -90,7 +162,7 @@ def _check_model(task: TaskConfig, key: str, spec: Any) -> None:
     allowed = {"class_name": str, **_keyword_params(cls, True, set())}
     _check_keys(task, key, spec, allowed)
     if isinstance(spec.get("distribution_cfg"), dict):
-        dist = _resolve(task, f"{key}.distribution_cfg", spec["distribution_cfg"])
+        dist = _resolve_distribution(task, f"{key}.distribution_cfg", spec["distribution_cfg"])
         _check_keys(task, f"{key}.distribution_cfg", spec["distribution_cfg"],
                     {"class_name": str, **_keyword_params(dist, True, set())})
 
