@@ -24,9 +24,6 @@ PACKAGE = REPO / "dls_quadruped"
 ARCHITECTURE = REPO / "docs" / "architecture.md"
 
 KNOWN_UPWARD: dict[tuple[str, str], str] = {
-    # distill_task drops the curricula with replace_sections, an operation on a TaskConfig that lives in the
-    # eval suite's scenario module.
-    ("learning/distill.py", "eval/scenario.py"): "move replace_sections into envs/config.py",
 }
 """Upward imports (importer, imported: paths under ``dls_quadruped/``) not removed yet, each with its fix.
 An entry whose import is gone fails :func:`test_known_upward_edges_still_exist`: delete it then."""

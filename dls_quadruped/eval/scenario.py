@@ -6,12 +6,12 @@ The table of scenarios by name is ``scenarios.SCENARIOS``.
 from __future__ import annotations
 
 import copy
-import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from dls_quadruped.envs.config import TASKS_DIR, TaskConfig, load_task
+from dls_quadruped.envs.config import TASKS_DIR, load_task
+from dls_quadruped.envs.sections import replace_sections  # noqa: F401 - the scenarios build their tasks with it
 
 EVAL_REWARDS_FILE = TASKS_DIR / "_base_rewards.yaml"
 """Table 4, base column: the evaluation reward of every scenario and policy."""
@@ -88,13 +88,3 @@ class Scenario:
 def eval_rewards() -> dict:
     """The evaluation reward terms (Table 4, base column), as a task ``rewards`` section."""
     return copy.deepcopy(load_task(EVAL_REWARDS_FILE).data["rewards"])
-
-
-def replace_sections(task: TaskConfig, sections: dict, source: str) -> TaskConfig:
-    """A copy of ``task`` whose top-level ``sections`` are replaced whole (not deep-merged), their
-    provenance recorded as ``source``."""
-    data = copy.deepcopy(task.data)
-    data.update(copy.deepcopy(sections))
-    sources = {k: v for k, v in task.sources.items() if k.split(".")[0] not in sections}
-    sources.update({name: source for name in sections})
-    return dataclasses.replace(task, data=data, sources=sources)

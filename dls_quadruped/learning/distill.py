@@ -141,7 +141,7 @@ def check_expert(expert, path: str | Path, obs_dim: int, num_actions: int) -> No
 
 def distill_task(task: str, num_workers: int | None):
     """The expert's task without curricula (fixed, full reward weights), 15 s episodes."""
-    from dls_quadruped.eval.scenario import replace_sections
+    from dls_quadruped.envs.sections import replace_sections
 
     cfg = load_task(task, overrides={"scene": {"num_workers": num_workers}} if num_workers is not None else None)
     return replace_sections(cfg, {"curriculum": {}}, source="<distill: no curriculum>")
