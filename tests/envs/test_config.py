@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from dls_quadruped.envs.config import ConfigError, load_task
+from dls_quadruped.envs.config import TASKS_DIR, ConfigError, load_task
 from dls_quadruped.envs.managers.base import resolve_terms
 from dls_quadruped.envs.mdp import rewards as reward_mdp
 
@@ -54,18 +54,39 @@ def test_unknown_task_lists_available():
         load_task("no_such_task")
 
 
+TABLE6 = (1e-3, 0.99, 0.95, 5, 4, 0.2, 0.005, 0.1, "adaptive")
+"""Thesis Table 6: lr, gamma, lambda, epochs, mini-batches, clip, entropy, desired KL, schedule."""
+
+
+def _ppo(agent: dict) -> tuple:
+    alg = agent["algorithm"]
+    return (alg["learning_rate"], alg["gamma"], alg["lam"], alg["num_learning_epochs"], alg["num_mini_batches"],
+            alg["clip_param"], alg["entropy_coef"], alg["desired_kl"], alg["schedule"])
+
+
 @pytest.mark.parametrize("name", TASKS)
-def test_tasks_resolve_and_match_table6(name):
+def test_tasks_resolve_and_follow_table6_but_the_entropy_bonus(name):
     task = load_task(name)
     resolve_terms(task, "rewards", reward_mdp, {"weight": ...})
     agent = task.data["agent"]
-    alg = agent["algorithm"]
     assert agent["actor"]["hidden_dims"] == [512, 256, 128] == agent["critic"]["hidden_dims"]
     assert agent["actor"]["activation"] == "elu" and agent["num_steps_per_env"] == 24
-    assert (alg["learning_rate"], alg["gamma"], alg["lam"], alg["num_learning_epochs"], alg["num_mini_batches"],
-            alg["clip_param"], alg["entropy_coef"], alg["desired_kl"], alg["schedule"]) == (
-        1e-3, 0.99, 0.95, 5, 4, 0.2, 0.005, 0.1, "adaptive")
+    assert _ppo(agent) == (*TABLE6[:6], 0.0, *TABLE6[7:])  # the default recipe: no entropy bonus
     assert agent["actor"]["distribution_cfg"]["init_std"] == 1.0
+
+
+def test_the_thesis_variant_is_table6_exactly(tmp_path):
+    thesis = load_task("base_thesis").data["agent"]
+    assert _ppo(thesis) == TABLE6
+    assert thesis["actor"]["distribution_cfg"] == {"class_name": "GaussianDistribution", "init_std": 1.0,
+                                                  "std_type": "scalar", "std_range": [1e-6, 1e6]}  # rsl-rl's defaults
+    # the fragment applies to any task: rough with Table 6
+    path = tmp_path / "rough_thesis.yaml"
+    path.write_text(f"inherit: [{TASKS_DIR / 'rough.yaml'}, {TASKS_DIR / '_ppo_thesis.yaml'}]\n")
+    rough_thesis, rough = load_task(path), load_task("rough")
+    assert _ppo(rough_thesis.data["agent"]) == TABLE6
+    assert {k: v for k, v in rough_thesis.data.items() if k != "agent"} == \
+        {k: v for k, v in rough.data.items() if k != "agent"}
 
 
 @pytest.mark.parametrize("task", ["climb", "rough"])
@@ -73,10 +94,10 @@ def test_finetune_is_its_task_without_entropy_and_with_a_std_cap(task):
     """tasks/<task>_finetune.yaml (climb's second stage; rough retrained without the bonus) changes only the
     agent's exploration: the env, rewards and curricula are the task's, and rsl-rl's own signature check
     (agent_config) accepts the std clamp."""
-    from dls_quadruped.learning.agent_config import check_agent_section
+    from dls_quadruped.envs.agent_config import check_agent_section
 
     climb, fine = load_task(task), load_task(f"{task}_finetune")
     assert {k: v for k, v in fine.data.items() if k != "agent"} == {k: v for k, v in climb.data.items() if k != "agent"}
-    assert fine.data["agent"]["algorithm"]["entropy_coef"] == 0.0 != climb.data["agent"]["algorithm"]["entropy_coef"]
+    assert fine.data["agent"]["algorithm"]["entropy_coef"] == 0.0
     assert fine.data["agent"]["actor"]["distribution_cfg"]["std_range"] == [0.05, 1.0]
     check_agent_section(fine)  # load_task ran it too; explicit here

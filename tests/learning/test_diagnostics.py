@@ -130,11 +130,16 @@ def test_training_diagnostics_values_by_hand():
     assert "kl_mean" not in diag.scalars() and "clip_frac" not in diag.scalars()
 
 
-def test_short_run_logs_every_diagnostic_in_range(tmp_path):
-    run_dir = train.main(["--task", "base", "--num-envs", "16", "--iterations", "2", "--num-workers", "0",
+def test_default_recipe_run_logs_every_diagnostic_and_its_std_does_not_grow(tmp_path):
+    # 10 iterations of the default recipe (tasks/_common.yaml) on 16 robots, seed 0: the mean std went
+    # 1.00015 -> 0.99777 here; the thesis's Table 6 settings (tasks/base_thesis.yaml) grow it over the same
+    # 10 iterations, 1.00037 -> 1.00349 (docs/train.md "Recipe")
+    run_dir = train.main(["--task", "base", "--num-envs", "16", "--iterations", "10", "--num-workers", "0",
                           "--log-root", str(tmp_path)])
     rows = read_run(run_dir)
-    assert [r["iteration"] for r in rows] == [0, 1]
+    assert [r["iteration"] for r in rows] == list(range(10))
+    stds = [r["action_std"] for r in rows]
+    assert stds[-1] < stds[0], f"the default recipe's action std grew over 10 iterations: {stds}"
     diag_cols = [c for c, tag in COLUMNS.items() if tag.startswith("Diagnostics/")] + ["learning_rate"]
     for r in rows:
         for c in diag_cols:
