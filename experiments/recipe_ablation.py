@@ -1,6 +1,6 @@
 """PPO recipe ablation at one fixed budget: which change makes the exploration std fall (docs/train.md "Recipe").
 
-    python experiments/recipe_ablation.py run  --variants thesis ent0 --seeds 0 1 --iterations 100 --num-envs 256
+    python experiments/recipe_ablation.py run  --variants thesis ent0 --seeds 0 1 --iterations 200 --num-envs 256
     python experiments/recipe_ablation.py eval --every 50 --episodes 64       # validation reward of the checkpoints
     python experiments/recipe_ablation.py report --out docs/train/recipe_ablation
 
@@ -167,21 +167,17 @@ def cmd_report(a: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = p.add_subparsers(dest="cmd", required=True)
-    r = sub.add_parser("run")
-    r.add_argument("--variants", nargs="+", default=None)
-    r.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
-    r.add_argument("--jobs", nargs="+", default=None, metavar="VARIANT:SEED", help="instead of variants x seeds")
-    r.add_argument("--iterations", type=int, default=100)
-    r.add_argument("--num-envs", type=int, default=256)
-    r.add_argument("--save-interval", type=int, default=25)
-    r.add_argument("--threads", type=int, default=1)
-    e = sub.add_parser("eval")
-    e.add_argument("--every", type=int, default=50)
-    e.add_argument("--episodes", type=int, default=64)
-    e.add_argument("--threads", type=int, default=1)
-    o = sub.add_parser("report")
-    o.add_argument("--out", type=Path, default=ROOT / "docs" / "train" / "recipe_ablation")
+    p.add_argument("cmd", choices=("run", "eval", "report"), help="train the runs, score their checkpoints, or report")
+    p.add_argument("--variants", nargs="+", default=None, help="run: variants (default: every file)")
+    p.add_argument("--seeds", nargs="+", type=int, default=[0, 1], help="run: seeds")
+    p.add_argument("--jobs", nargs="+", default=None, metavar="VARIANT:SEED", help="run: instead of variants x seeds")
+    p.add_argument("--iterations", type=int, default=200, help="run: PPO iterations per run")
+    p.add_argument("--num-envs", type=int, default=256, help="run: robots")
+    p.add_argument("--save-interval", type=int, default=25, help="run: checkpoint every K iterations")
+    p.add_argument("--threads", type=int, default=1, help="torch threads per process")
+    p.add_argument("--every", type=int, default=50, help="eval: score checkpoints whose iteration is a multiple")
+    p.add_argument("--episodes", type=int, default=64, help="eval: validation episodes")
+    p.add_argument("--out", type=Path, default=ROOT / "docs" / "train" / "recipe_ablation", help="report: folder")
     a = p.parse_args(argv)
     if a.cmd == "run":
         a.variants = a.variants or variants()

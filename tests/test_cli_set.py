@@ -90,10 +90,10 @@ def test_merge_overrides_merges_mappings_and_replaces_the_rest():
 
 def test_overrides_are_checked_like_the_task_file():
     base = load_task("base")
-    task = load_task("base", overrides=set_overrides([set_pair("agent.algorithm.entropy_coef=0.0"),
+    task = load_task("base", overrides=set_overrides([set_pair("agent.algorithm.entropy_coef=0.005"),
                                                       set_pair("rewards.flat_orientation=null")]))
-    assert base.data["agent"]["algorithm"]["entropy_coef"] != 0.0 and "flat_orientation" in base.data["rewards"]
-    assert task.data["agent"]["algorithm"]["entropy_coef"] == 0.0 and "flat_orientation" not in task.data["rewards"]
+    assert base.data["agent"]["algorithm"]["entropy_coef"] != 0.005 and "flat_orientation" in base.data["rewards"]
+    assert task.data["agent"]["algorithm"]["entropy_coef"] == 0.005 and "flat_orientation" not in task.data["rewards"]
     assert task.source_of("agent.algorithm.entropy_coef") == "<override>"
     for pair, message in (("env.episode_lenght_s=10", "<override>: env.episode_lenght_s: unknown key; allowed: ["),
                           ("env.decimation=2.5", "<override>: env.decimation: must be an integer, got float 2.5"),
@@ -110,15 +110,15 @@ def test_train_set_reaches_the_run_config(tmp_path):
     task.write_text(yaml.safe_dump({"inherit": str(TASKS_DIR / "base.yaml"),
                                     "agent": {"actor": {"hidden_dims": [8]}, "critic": {"hidden_dims": [8]}}}))
     base = load_task(task).data
-    assert base["agent"]["algorithm"]["entropy_coef"] != 0.0 and base["env"]["episode_length_s"] != 4.0
+    assert base["agent"]["algorithm"]["entropy_coef"] != 0.005 and base["env"]["episode_length_s"] != 4.0
     assert base["scene"]["num_workers"] != 0
     run_dir = train.main(["--task", str(task), "--num-envs", "2", "--iterations", "1", "--log-root", str(tmp_path),
-                          "--set", "agent.algorithm.entropy_coef=0.0", "--set", "env.episode_length_s=4",
+                          "--set", "agent.algorithm.entropy_coef=0.005", "--set", "env.episode_length_s=4",
                           "--set", "scene.num_workers=0"])
     resolved = yaml.safe_load((run_dir / "task.yaml").read_text())
     agent = yaml.safe_load((run_dir / "agent.yaml").read_text())
     assert resolved["env"]["episode_length_s"] == 4 and resolved["scene"]["num_workers"] == 0
-    assert resolved["agent"]["algorithm"]["entropy_coef"] == 0.0 and agent["algorithm"]["entropy_coef"] == 0.0
+    assert resolved["agent"]["algorithm"]["entropy_coef"] == 0.005 and agent["algorithm"]["entropy_coef"] == 0.005
 
 
 def test_train_refuses_a_bad_set_before_anything_is_written(tmp_path, capsys):

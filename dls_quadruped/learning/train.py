@@ -2,7 +2,7 @@
 
     python -m dls_quadruped.learning.train --task rough --num-envs 64 --iterations 100 --device cpu --seed 0
     python -m dls_quadruped.learning.train --task rough --resume          # continue the latest run
-    python -m dls_quadruped.learning.train --task base --set agent.algorithm.entropy_coef=0.0 --set env.episode_length_s=10
+    python -m dls_quadruped.learning.train --task base --set agent.algorithm.entropy_coef=0.005 --set env.episode_length_s=10
     python -m dls_quadruped.learning.train --task speed --init-from docs/policies/base_networks.pt
     python -m dls_quadruped.learning.train --task base --checkpoint-copy docs/policies/base_resume.pt
     python -m dls_quadruped.learning.train --task base --resume-from docs/policies/base_resume.pt  # another machine
@@ -80,7 +80,8 @@ DEFAULT_SAVE_EVERY_MIN = 5.0
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="base", help="task name in tasks/ or a YAML path")
-    p.add_argument("--num-envs", type=positive_int, default=None)
+    p.add_argument("--num-envs", type=positive_int, default=None,
+                   help="robots (default: the task's env.num_envs; with --resume / --resume-from, the checkpoint's)")
     p.add_argument("--iterations", type=positive_int, default=None,
                    help="PPO iterations (default: agent.max_iterations)")
     p.add_argument("--device", type=torch_device, default="cpu", help="cpu, cuda or cuda:<index>")
@@ -219,6 +220,14 @@ def _choose_seed(args: argparse.Namespace, found: tuple[Path, dict] | None) -> i
     return saved
 
 
+def checkpoint_num_envs(ckpt: dict) -> int | None:
+    """The number of robots a checkpoint's episodes in progress were saved with (None: it does not say, and
+    the task's ``env.num_envs`` applies). A continued run keeps it unless ``--num-envs`` says otherwise."""
+    episodes = (ckpt.get("env_state") or {}).get("episodes") or {}
+    n = episodes.get("num_envs")
+    return int(n) if n is not None else None
+
+
 def main(argv: list[str] | None = None) -> Path:
     """Train; returns the run directory."""
     args = parse_args(argv)
@@ -252,7 +261,8 @@ def _train(args: argparse.Namespace, ranks: Ranks) -> Path:
     cfg["seed"] = base_seed
     seed = base_seed + ranks.rank  # other robots' rollouts on every rank; rank 0's weights win (broadcast)
     torch.manual_seed(seed)
-    env = LocomotionEnv(task, num_envs=args.num_envs, device=args.device, seed=seed)
+    num_envs = args.num_envs if args.num_envs is not None or found is None else checkpoint_num_envs(found[1])
+    env = LocomotionEnv(task, num_envs=num_envs, device=args.device, seed=seed)
     try:
         runner = AtomicOnPolicyRunner(env, cfg, log_dir=str(run_dir), device=args.device,
                                       save_every_s=60.0 * args.save_every_min,

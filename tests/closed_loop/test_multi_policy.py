@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -108,9 +107,21 @@ def test_winner_switches_per_second_by_hand() -> None:
     assert np.isnan(winner_switches_per_s(np.array([[[0]], [[-1]]], dtype=np.int16), 0.02))[0]
 
 
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "dls_quadruped.closed_loop", *args], cwd=REPO, capture_output=True,
-                          text=True, timeout=120, check=False)
+def _cli(capsys, *args: str) -> subprocess.CompletedProcess:
+    """The closed loop's command line, in this process (as ``python -m dls_quadruped.closed_loop``: ``run_cli``
+    prints a user error as one line on stderr and exits 2; ``tests/test_entry_points.py`` checks that the
+    interpreter-level entry point behaves the same)."""
+    from dls_quadruped.cli import run_cli
+    from dls_quadruped.closed_loop.__main__ import main
+
+    capsys.readouterr()
+    try:
+        run_cli(main, list(args))
+        code = 0
+    except SystemExit as exit_:
+        code = exit_.code
+    out = capsys.readouterr()
+    return subprocess.CompletedProcess(args, code, out.out, out.err)
 
 
 @pytest.mark.parametrize("args, words", [
@@ -122,8 +133,8 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
     (("--controllers", "rl_warm_start", "--students", "base", "--encoding", "discrete-discrete"),
      "neither a file nor a committed student"),
 ])
-def test_cli_refuses_bad_students_in_one_line(args, words) -> None:
-    res = _cli(*args, "--episodes", "2", "--seconds", "0.1", "--samples", "100")
+def test_cli_refuses_bad_students_in_one_line(capsys, args, words) -> None:
+    res = _cli(capsys, *args, "--episodes", "2", "--seconds", "0.1", "--samples", "100")
     assert res.returncode == 2, res.stderr
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and words in lines[0] and "Traceback" not in res.stderr
@@ -134,8 +145,8 @@ def test_cli_refuses_bad_students_in_one_line(args, words) -> None:
     ("--switching-cost", "nan", "got nan"),
     ("--group-cost-smoothing", "1", "SamplerConfig.group_cost_smoothing must be in [0, 1)"),
 ])
-def test_cli_refuses_bad_arbitration_in_one_line(flag, value, words) -> None:
-    res = _cli("--controllers", "rl_warm_start", "--students", "base,base", flag, value, "--episodes", "2",
+def test_cli_refuses_bad_arbitration_in_one_line(capsys, flag, value, words) -> None:
+    res = _cli(capsys, "--controllers", "rl_warm_start", "--students", "base,base", flag, value, "--episodes", "2",
                "--seconds", "0.1", "--samples", "100")
     assert res.returncode == 2, res.stderr
     lines = res.stderr.strip().splitlines()

@@ -139,3 +139,20 @@ def test_resume_from_a_truncated_file_is_one_line(uninterrupted, tmp_path):
     with pytest.raises(UserError, match=r"^--resume-from: cannot read .*broken.pt: "):
         train.main(args(REPO / "tasks" / "base.yaml", tmp_path / "resumed", "--resume-from", str(broken)))
     assert not (tmp_path / "resumed").exists()
+
+
+def test_resume_without_num_envs_keeps_the_checkpoints_robots(uninterrupted, tmp_path):
+    """The tiny task's own ``env.num_envs`` is not the 4 robots it was trained with: a continued run without
+    ``--num-envs`` keeps the checkpoint's 4 (and so continues exactly), instead of restarting every episode
+    on the task's default."""
+    task, run_dir = uninterrupted
+    assert train.checkpoint_num_envs(read_checkpoint(run_dir / "model_1.pt")) == 4
+    assert train.checkpoint_num_envs({"iter": 3}) is None  # a checkpoint without episodes: the task's count
+    resumed_dir = tmp_path / "resumed"
+    argv = args(task, resumed_dir, "--iterations", "1", "--resume-from", str(run_dir / "model_1.pt"))
+    i = argv.index("--num-envs")
+    del argv[i:i + 2]
+    train.main(argv)
+    got = read_checkpoint(resumed_dir / "model_2.pt")
+    assert got["env_state"]["episodes"]["num_envs"] == 4
+    assert differences(read_checkpoint(run_dir / "model_2.pt"), got) == []
