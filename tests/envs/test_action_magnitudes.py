@@ -9,21 +9,14 @@ import pytest
 import torch
 
 from dls_quadruped.control.latent_action import RAW_LIMIT, ActionInterface
-from dls_quadruped.envs.config import load_task
-from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.envs.gym_spaces import action_bounds
 from dls_quadruped.envs.mdp import observations as obs_mdp
 from dls_quadruped.envs.mdp import rewards
 
-SMALL = {"scene": {"num_workers": 0},
-         "terrain": {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0}}
-
 
 @pytest.fixture(scope="module")
-def env():
-    e = LocomotionEnv(load_task("base", overrides=SMALL), num_envs=3, verbose=False)
-    yield e
-    e.close()
+def env(small_base_env):
+    return small_base_env  # tests/conftest.py
 
 
 @pytest.mark.parametrize("sign", [1.0, -1.0])

@@ -10,15 +10,12 @@ import torch
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
 
-SMALL = {"scene": {"num_workers": 0},
-         "terrain": {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0}}
+SMALL = {"scene": {"num_workers": 0}, "terrain": {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0}}
 
 
 @pytest.fixture(scope="module")
-def env():
-    e = LocomotionEnv(load_task("base", overrides=SMALL), num_envs=3, verbose=False)
-    yield e
-    e.close()
+def env(small_base_env):
+    return small_base_env  # tests/conftest.py
 
 
 def _snapshot(env) -> list[torch.Tensor]:
