@@ -162,7 +162,7 @@ TRAIN_WORKERS ?=
 # simulator backend (empty: the task's scene.backend, cpu); BACKEND=cuda DEVICE=cuda runs MuJoCo Warp on the GPU
 # (make install-gpu; docs/gpu.md)
 BACKEND ?=
-# CHECKPOINT: what `make play` plays (a model_<it>.pt, an exported policy.pt or docs/policies/<name>_actor.pt);
+# CHECKPOINT: what `make play` plays (a model_<it>.pt, an exported policy.pt2 or docs/policies/<name>_actor.pt);
 # empty: the newest checkpoint of the task's latest run under runs/<task>/ (docs/play.md)
 CHECKPOINT ?=
 PLAY_SECONDS ?= 10

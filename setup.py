@@ -8,7 +8,7 @@ setup(
     description="AlienGo in MuJoCo with a latent-action low-level controller, PPO policies and a torch sampling MPC",
     python_requires=">=3.11",
     packages=find_packages(include=["dls_quadruped", "dls_quadruped.*"]),
-    package_data={"dls_quadruped": ["robots/aliengo/*.xml", "mpc/*.cpp", "bench/*.npz"]},
+    package_data={"dls_quadruped": ["robots/aliengo/*.xml", "mpc/*.cpp", "mpc/*.h", "bench/*.npz"]},
     install_requires=[
         "torch>=2.4",
         "mujoco>=4.0",

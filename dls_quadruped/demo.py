@@ -28,7 +28,6 @@ from dls_quadruped.cli import (
 )
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.balance_run import BalanceRun, run_balance
-from dls_quadruped.sim.interface import SimConfig
 from dls_quadruped.viz.video import render_gif
 
 
@@ -72,7 +71,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--out", type=Path, default=Path("results/demo"))
     args = parser.parse_args(argv)
     run = run_balance(num_envs=args.num_envs, stand_seconds=args.seconds, trot_seconds=args.seconds, seed=args.seed,
-                      sim_cfg=SimConfig(num_workers=args.workers))
+                      num_workers=args.workers)
     args.out.mkdir(parents=True, exist_ok=True)
     text = write_json(run.summary, args.out / "summary.json")
     plot_run(run, args.out / "balance.png")

@@ -18,7 +18,7 @@ fi
 for spec in "${specs[@]}"; do
   set -- $spec
   dir=$out/$1_H$2_dt$3
-  if [ -f "$dir/exported/student.pt" ]; then echo "have $dir"; continue; fi
+  if [ -f "$dir/exported/student.pt2" ] || [ -f "$dir/exported/student.pt" ]; then echo "have $dir"; continue; fi
   resume=""; [ -f "$dir/checkpoint.pt" ] && resume="--resume"
   echo "=== $dir start $(date -u +%T)"
   OMP_NUM_THREADS=1 .venv/bin/python -m dls_quadruped.learning.distill --encoding "$1" --horizon "$2" --dt "$3" \

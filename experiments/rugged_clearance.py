@@ -6,7 +6,7 @@ The survival task's terrain and observation noise (``eval/survival.py``) with it
 at each ``--difficulty`` (a fraction of the rough task's range: rugged amplitude a = 1 + 7 d cm), events
 reduced to the start pose (``strength = 0``: no friction spread, wrench or pushes), simple-task commands,
 seed-fixed. Prints, per difficulty, the robots that fell within ``--seconds``, their median time to the
-fall and the termination terms that ended them. docs/experiments.md ("Rugged tiles past +-4 cm") quotes it:
+fall and the termination terms that ended them. docs/experiments/experts.md ("Rugged tiles past ±4 cm") quotes it:
 the swing apex is 6 cm above the higher of lift-off and touch-down, while neighbouring rugged vertices
 differ by up to 2a.
 """

@@ -18,7 +18,7 @@ sampler minimised beside it (``rollout_cost_full``).
 
 Students: ``rl_warm_start`` needs a student distilled for the cell's encoding, horizon and dt: the
 committed ``docs/policies/base_student_first_spline_h10.pt`` for first-spline, H = 10, dt = 0.02 s,
-otherwise ``<students>/<p>-<F>_H<H>_dt<dt>/exported/student.pt`` (``--students``, default
+otherwise ``<students>/<p>-<F>_H<H>_dt<dt>/exported/student.pt2`` (``--students``, default
 ``results/experiments/students``), made by ``experiments/make_students.sh`` (``make distill`` per
 encoding). A cell whose student is missing is skipped with a note in the table (never silently
 replaced by another).
@@ -42,12 +42,13 @@ import numpy as np
 import torch
 
 from dls_quadruped.cli import ArgumentParser
-from dls_quadruped.closed_loop.__main__ import commands, run_controllers
-from dls_quadruped.closed_loop.controllers import GROUNDS, ControllerConfig
+from dls_quadruped.closed_loop.controllers import ControllerConfig
+from dls_quadruped.closed_loop.episodes import commands, run_controllers
 from dls_quadruped.closed_loop.metrics import summarize
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.core.progress import progress
 from dls_quadruped.mpc.config import SamplerConfig
+from dls_quadruped.mpc.inputs import GROUNDS
 from experiments.distill_common import write_table
 from experiments.rl_common import pyplot, save  # noqa: F401 (the tables' plot helpers, shared with the 7.1 scripts)
 
@@ -74,9 +75,10 @@ class Cell:
     policy: str | None = None                     # rl_baseline: this expert (else --policy)
     scenario: str = "simple"                      # closed_loop scenario (simple, survival, survival_sweep, stairs;
                                                   # stairs: --episodes per step height, closed_loop.STAIRS_HEIGHTS)
-    ground: str | None = None                     # ground the MPC plans on (controllers.GROUNDS); None: flat on
+    ground: str | None = None                     # ground the MPC plans on (mpc.inputs.GROUNDS); None: flat on
                                                   # the simple scenario, stance_feet (blind) on the others
     seconds: float | None = None                  # episode length [s] of this cell unless --seconds is given
+    push_speed: float | None = None               # the pushes scenario's push speed [m/s]
                                                   # (None: the scale's)
 
     def __post_init__(self) -> None:
@@ -87,7 +89,7 @@ class Cell:
         """The ground the cell's MPC plans on (``ground``, or the scenario's default)."""
         if self.ground is not None:
             return self.ground
-        return "flat" if self.scenario == "simple" else "stance_feet"
+        return "flat" if self.scenario in ("simple", "pushes") else "stance_feet"
 
 
 def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
@@ -96,7 +98,7 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     p.add_argument("--scale", choices=sorted(SCALES), default="small")
     p.add_argument("--out", type=Path, default=REPO / "results" / "experiments" / name)
     p.add_argument("--students", type=Path, default=REPO / "results" / "experiments" / "students",
-                   help="folder of students <p>-<F>_H<H>_dt<dt>/exported/student.pt")
+                   help="folder of students <p>-<F>_H<H>_dt<dt>/exported/student.pt2")
     p.add_argument("--policy", type=Path, default=POLICY)
     p.add_argument("--episodes", type=int, default=None, help="override the scale's episodes per cell (even)")
     p.add_argument("--seconds", type=float, default=None, help="override the scale's episode length [s]")
@@ -135,8 +137,9 @@ def student_path(students: Path, p: str, F: str, horizon: int, dt: float) -> Pat
     dt = 0.02 s) uses the committed student (``docs/policies``, the demo's), so every table shares it."""
     if (p, F, horizon, dt) == ("first", "spline", 10, 0.02) and COMMITTED_STUDENT.is_file():
         return COMMITTED_STUDENT
-    path = students / f"{p}-{F}_H{horizon}_dt{dt:g}" / "exported" / "student.pt"
-    return path if path.is_file() else None
+    exported = students / f"{p}-{F}_H{horizon}_dt{dt:g}" / "exported"
+    # student.pt: an older distillation run's TorchScript export
+    return next((path for path in (exported / "student.pt2", exported / "student.pt") if path.is_file()), None)
 
 
 def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
@@ -168,7 +171,7 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
                 out[cell.name] = {"skipped": why}
                 print(f"[{args.out.name}] {cell.name}: skipped ({why})", flush=True)
                 continue
-        elif cell.controller == "rl_warm_start":
+        elif cell.controller in ("rl_warm_start", "student"):
             if cell.student:
                 student = Path(cell.student) if Path(cell.student).is_file() else None
                 why = f"no student {cell.student}"
@@ -192,11 +195,12 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
         seconds = args.seconds if getattr(args, "seconds_given", False) else cell.seconds or args.seconds
         traces = run_controllers([cfg], commands(args.episodes, args.seed, cell.vx, cell.scenario), seconds, args.seed,
                                  args.num_workers, sampler_seeds=args.sampler_seeds,
-                                 scenario=cell.scenario)[cell.controller]
+                                 scenario=cell.scenario, push_speed=cell.push_speed)[cell.controller]
         summary = summarize(traces, replicas=traces.replicas)
         student_txt = [str(x) for x in student] if isinstance(student, tuple) else str(student) if student else None
         summary.update({"cell": cell.name, "student": student_txt, "row": cell.row, "policy": str(policy),
-                        "scenario": cell.scenario, "ground": cell.plan_ground(), "shares": list(cell.shares) if cell.shares else None,
+                        "scenario": cell.scenario, "push_speed": cell.push_speed, "ground": cell.plan_ground(),
+                        "shares": list(cell.shares) if cell.shares else None,
                         "sampler": cell.sampler, "optimise": list(cell.optimise), "vx": cell.vx,
                         "naive_share": cell.naive_share, "seconds": seconds, "git_commit": _commit(),
                         "seconds_wall": time.monotonic() - t0})

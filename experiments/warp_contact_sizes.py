@@ -24,7 +24,9 @@ FIELDS = ("contacts_max", "candidates_max", "nefc_max", "pairs_tested_max")
 
 def measure(task: str, num_envs: int, steps: int, action_scale: float, seed: int = 0) -> dict[str, float]:
     """Largest per-world use over ``steps`` policy steps of random actions (every physics step looked at)."""
-    from dls_quadruped.sim.warp_collision import ALLOCATION_OVERFLOWS  # needs the [gpu] extra: not at import
+    from dls_quadruped.sim.warp_collision import (
+        ALLOCATION_OVERFLOWS,  # needs the [gpu] extra: not at import
+    )
 
     # every row of the terrain from the start (the curriculum's hardest rows too), generous sizes
     overrides = {"scene": {"backend": "warp-cpu", "num_workers": 0, "nconmax": 256, "njmax": 1024, "max_init_level": 99}}

@@ -7,12 +7,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 import torch
 import yaml
 
 from dls_quadruped import demo
-from dls_quadruped.cli import run_cli
 from dls_quadruped.core.json_io import dumps
 from dls_quadruped.envs.config import TASKS_DIR
 from dls_quadruped.eval import __main__ as eval_main
@@ -20,17 +18,6 @@ from dls_quadruped.learning import play, train
 from dls_quadruped.mpc import run as mpc_run
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def _one_line_error(capsys, main, argv) -> str:
-    with pytest.raises(SystemExit) as exit_:
-        run_cli(main, argv)
-    assert exit_.value.code == 2
-    captured = capsys.readouterr()
-    lines = captured.err.strip().splitlines()
-    assert len(lines) == 1, captured.err
-    assert "error:" in lines[0] and "Traceback" not in captured.err + captured.out
-    return lines[0]
 
 
 def _bad_task(tmp_path: Path) -> Path:
@@ -49,41 +36,41 @@ def _checkpoint_of_small_task(tmp_path: Path) -> Path:
     return run_dir / "model_0.pt"
 
 
-def test_train_user_errors(tmp_path, capsys):
-    assert "--num-envs: must be >= 1" in _one_line_error(capsys, train.main, ["--num-envs", "0"])
-    assert "--iterations: must be >= 1" in _one_line_error(capsys, train.main, ["--iterations", "0"])
-    assert "unknown task 'nope'" in _one_line_error(capsys, train.main, ["--task", "nope"])
-    line = _one_line_error(capsys, train.main, ["--task", str(_bad_task(tmp_path))])
+def test_train_user_errors(tmp_path, one_line_error):
+    assert "--num-envs: must be >= 1" in one_line_error(train.main, ["--num-envs", "0"])
+    assert "--iterations: must be >= 1" in one_line_error(train.main, ["--iterations", "0"])
+    assert "unknown task 'nope'" in one_line_error(train.main, ["--task", "nope"])
+    line = one_line_error(train.main, ["--task", str(_bad_task(tmp_path))])
     assert "bad.yaml: env.decimation: must be an integer" in line
-    assert "--resume: no run" in _one_line_error(capsys, train.main, ["--resume", "--log-root", str(tmp_path / "x")])
+    assert "--resume: no run" in one_line_error(train.main, ["--resume", "--log-root", str(tmp_path / "x")])
     assert not (tmp_path / "x").exists()
 
 
-def test_play_user_errors(tmp_path, capsys):
-    assert "no such file" in _one_line_error(capsys, play.main, ["--checkpoint", str(tmp_path / "none.pt")])
-    assert "--seconds: must be a finite number" in _one_line_error(capsys, play.main, ["--seconds", "nan"])
+def test_play_user_errors(tmp_path, capsys, one_line_error):
+    assert "no such file" in one_line_error(play.main, ["--checkpoint", str(tmp_path / "none.pt")])
+    assert "--seconds: must be a finite number" in one_line_error(play.main, ["--seconds", "nan"])
     (tmp_path / "junk.pt").write_bytes(b"junk")
-    assert "unreadable" in _one_line_error(capsys, play.main, ["--checkpoint", str(tmp_path / "junk.pt")])
+    assert "unreadable" in one_line_error(play.main, ["--checkpoint", str(tmp_path / "junk.pt")])
     ckpt = _checkpoint_of_small_task(tmp_path)
     capsys.readouterr()
-    line = _one_line_error(capsys, play.main, ["--checkpoint", str(ckpt), "--task", "base", "--no-video"])
+    line = one_line_error(play.main, ["--checkpoint", str(ckpt), "--task", "base", "--no-video"])
     assert "'policy': 72" in line and "'policy': 259" in line
 
 
-def test_mpc_run_and_demo_user_errors(capsys):
-    assert "--seconds: must be > 0" in _one_line_error(capsys, mpc_run.main, ["--seconds", "0"])
-    assert "--samples: must be >= 1" in _one_line_error(capsys, mpc_run.main, ["--samples", "0"])
-    assert "--vx: must be a finite number" in _one_line_error(capsys, mpc_run.main, ["--vx", "nan"])
-    assert "must cover at least one MPC period" in _one_line_error(capsys, mpc_run.main, ["--seconds", "0.001"])
-    assert "--num-envs: must be >= 1" in _one_line_error(capsys, demo.main, ["--num-envs", "0"])
-    assert "--seconds: must be > 0" in _one_line_error(capsys, demo.main, ["--seconds", "-1"])
+def test_mpc_run_and_demo_user_errors(one_line_error):
+    assert "--seconds: must be > 0" in one_line_error(mpc_run.main, ["--seconds", "0"])
+    assert "--samples: must be >= 1" in one_line_error(mpc_run.main, ["--samples", "0"])
+    assert "--vx: must be a finite number" in one_line_error(mpc_run.main, ["--vx", "nan"])
+    assert "must cover at least one MPC period" in one_line_error(mpc_run.main, ["--seconds", "0.001"])
+    assert "--num-envs: must be >= 1" in one_line_error(demo.main, ["--num-envs", "0"])
+    assert "--seconds: must be > 0" in one_line_error(demo.main, ["--seconds", "-1"])
 
 
-def test_eval_user_errors(tmp_path, capsys):
-    assert "--episodes: invalid int value" in _one_line_error(capsys, eval_main.main, ["--policy", "p.pt", "--episodes",
-                                                                                      "many"])
-    line = _one_line_error(capsys, eval_main.main, ["--policy", str(tmp_path / "none.pt"), "--episodes", "2",
-                                                    "--num-workers", "0"])
+def test_eval_user_errors(tmp_path, one_line_error):
+    assert "--episodes: invalid int value" in one_line_error(eval_main.main, ["--policy", "p.pt", "--episodes",
+                                                                            "many"])
+    line = one_line_error(eval_main.main, ["--policy", str(tmp_path / "none.pt"), "--episodes", "2",
+                                          "--num-workers", "0"])
     assert "none.pt not found" in line
 
 

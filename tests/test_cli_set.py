@@ -12,27 +12,17 @@ import yaml
 from dls_quadruped.cli import (
     ArgumentParser,
     add_set_argument,
-    run_cli,
     set_overrides,
     set_pair,
 )
 from dls_quadruped.closed_loop import __main__ as closed_loop
+from dls_quadruped.closed_loop import episodes as closed_loop_episodes
 from dls_quadruped.envs.config import TASKS_DIR, ConfigError, load_task, merge_overrides
 from dls_quadruped.eval import __main__ as eval_main
 from dls_quadruped.learning import train
 
 REPO = Path(__file__).resolve().parents[1]
 POLICY = REPO / "docs" / "policies" / "base_actor.pt"
-
-
-def _one_line_error(capsys, main, argv) -> str:
-    with pytest.raises(SystemExit) as exit_:
-        run_cli(main, argv)
-    assert exit_.value.code == 2
-    captured = capsys.readouterr()
-    lines = captured.err.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in captured.err + captured.out, captured.err
-    return lines[0]
 
 
 @pytest.mark.parametrize(("text", "key", "value"), [
@@ -121,11 +111,11 @@ def test_train_set_reaches_the_run_config(tmp_path):
     assert resolved["agent"]["algorithm"]["entropy_coef"] == 0.005 and agent["algorithm"]["entropy_coef"] == 0.005
 
 
-def test_train_refuses_a_bad_set_before_anything_is_written(tmp_path, capsys):
-    line = _one_line_error(capsys, train.main, ["--task", "base", "--log-root", str(tmp_path), "--set", "env.seed"])
+def test_train_refuses_a_bad_set_before_anything_is_written(tmp_path, one_line_error):
+    line = one_line_error(train.main, ["--task", "base", "--log-root", str(tmp_path), "--set", "env.seed"])
     assert "argument --set: 'env.seed' has no '='" in line
-    line = _one_line_error(capsys, train.main, ["--task", "base", "--log-root", str(tmp_path),
-                                                "--set", "agent.algorithm.entropy_coef=much"])
+    line = one_line_error(train.main, ["--task", "base", "--log-root", str(tmp_path),
+                                       "--set", "agent.algorithm.entropy_coef=much"])
     assert "<override>: agent.algorithm.entropy_coef: must be a number, got str 'much'" in line
     assert not any(tmp_path.iterdir())
 
@@ -139,9 +129,9 @@ def test_eval_set_reaches_the_evaluation_env(tmp_path):
     assert res["task_overrides"] == {"env": {"episode_length_s": 0.4}}
 
 
-def test_eval_refuses_a_section_the_scenario_sets_itself(tmp_path, capsys):
-    line = _one_line_error(capsys, eval_main.main, ["--policy", str(POLICY), "--episodes", "2", "--num-workers", "0",
-                                                    "--out", str(tmp_path), "--set", "rewards.track_lin_vel_xy.weight=2"])
+def test_eval_refuses_a_section_the_scenario_sets_itself(tmp_path, one_line_error):
+    line = one_line_error(eval_main.main, ["--policy", str(POLICY), "--episodes", "2", "--num-workers", "0",
+                                           "--out", str(tmp_path), "--set", "rewards.track_lin_vel_xy.weight=2"])
     assert "['rewards']: the evaluation env sets these sections itself" in line
     assert "['env', 'scene', 'actions', 'terminations', 'agent']" in line
 
@@ -149,7 +139,8 @@ def test_eval_refuses_a_section_the_scenario_sets_itself(tmp_path, capsys):
 def test_closed_loop_set_reaches_the_env():
     overrides = set_overrides([set_pair("terminations.bad_orientation.params.limit_deg=60")])
     assert load_task("base").data["terminations"]["bad_orientation"]["params"]["limit_deg"] == 45.0
-    env = closed_loop.make_env(closed_loop.commands(2, 0, None), 0.2, seed=0, num_workers=0, overrides=overrides)
+    env = closed_loop_episodes.make_env(closed_loop_episodes.commands(2, 0, None), 0.2, seed=0, num_workers=0,
+                                        overrides=overrides)
     try:
         assert env.cfg["terminations"]["bad_orientation"]["params"]["limit_deg"] == 60
         assert env.cfg["env"]["episode_length_s"] == 0.2  # --seconds still applies beside the override
@@ -157,10 +148,10 @@ def test_closed_loop_set_reaches_the_env():
         env.close()
 
 
-def test_closed_loop_bad_set_is_one_line(tmp_path, capsys):
-    line = _one_line_error(capsys, closed_loop.main, ["--controllers", "rl_baseline", "--episodes", "2",
-                                                      "--seconds", "0.2", "--out", str(tmp_path),
-                                                      "--set", "commands.base_velocity.params.max_speed=2"])
+def test_closed_loop_bad_set_is_one_line(tmp_path, one_line_error):
+    line = one_line_error(closed_loop.main, ["--controllers", "rl_baseline", "--episodes", "2",
+                                             "--seconds", "0.2", "--out", str(tmp_path),
+                                             "--set", "commands.base_velocity.params.max_speed=2"])
     assert "['commands']: the evaluation env sets these sections itself" in line
-    line = _one_line_error(capsys, closed_loop.main, ["--set", "terminations"])
+    line = one_line_error(closed_loop.main, ["--set", "terminations"])
     assert "argument --set: 'terminations' has no '='" in line

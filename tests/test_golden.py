@@ -29,9 +29,7 @@ def _differences(new: dict, names: tuple[str, ...], exact: bool) -> list[str]:
         a, b = GOLDEN[key], new[key]
         if a.shape != b.shape:
             bad.append(f"{key}: shape {b.shape}, golden {a.shape}")
-        elif exact and not np.array_equal(a, b, equal_nan=True):
-            bad.append(f"{key}: max |diff| {np.nanmax(np.abs(b.astype(float) - a.astype(float))):.3g}")
-        elif not exact and not np.allclose(a, b, rtol=1e-3, atol=1e-4, equal_nan=True):
+        elif exact and not np.array_equal(a, b, equal_nan=True) or not exact and not np.allclose(a, b, rtol=1e-3, atol=1e-4, equal_nan=True):
             bad.append(f"{key}: max |diff| {np.nanmax(np.abs(b.astype(float) - a.astype(float))):.3g}")
     return bad
 

@@ -22,7 +22,7 @@ def test_train_play_select_evaluate_compare(tmp_path):
     run = train.main(["--task", "base", "--num-envs", "4", "--iterations", "2", "--save-interval", "1",
                       "--log-root", str(runs), *TINY])
     assert sorted(p.name for p in run.glob("model_*.pt")) == ["model_0.pt", "model_1.pt"]
-    assert (run / "exported" / "policy.pt").is_file()
+    assert (run / "exported" / "policy.pt2").is_file()
     # 2. play the newest checkpoint of the latest run (make play TASK=base)
     played = play.main(["--task", "base", "--log-root", str(runs), "--seconds", "0.2", "--num-envs", "1", "--no-video",
                         *TINY])

@@ -31,13 +31,13 @@ from pathlib import Path
 import torch
 
 from dls_quadruped.cli import ArgumentParser, run_cli
-from dls_quadruped.closed_loop.__main__ import (
+from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
+from dls_quadruped.closed_loop.episodes import (
     DEFAULT_POLICY,
     DEFAULT_STUDENT,
     commands,
     make_env,
 )
-from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
 from dls_quadruped.closed_loop.runner import run_closed_loop
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.core.machine import cpu_model

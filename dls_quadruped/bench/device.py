@@ -128,8 +128,8 @@ def mpc_solve(samples: int, horizon: int, device: torch.device, kernel: str, sol
 
 def closed_loop(robots: int, seconds: float, samples: int, device: torch.device, backend: str, kernel: str) -> dict:
     """Naive-warm-start MPC on the simple task: simulated robot-seconds per wall second."""
-    from dls_quadruped.closed_loop.__main__ import commands, make_env
     from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
+    from dls_quadruped.closed_loop.episodes import commands, make_env
     from dls_quadruped.closed_loop.runner import run_closed_loop
     from dls_quadruped.mpc.config import SamplerConfig
 

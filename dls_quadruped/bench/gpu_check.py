@@ -18,6 +18,7 @@ cut short still leaves what it measured, and gives each section a share of ``--b
    curve are copied into ``<out>``.
 
 Without CUDA the same script runs on ``warp-cpu`` at small sizes (what the tests do).
+The probes behind ``syncs``, ``launches`` and ``gpu_busy`` are ``bench/gpu_probes.py``.
 """
 
 from __future__ import annotations
@@ -31,14 +32,13 @@ import subprocess
 import sys
 import time
 import traceback
-import warnings
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from dls_quadruped.bench.device import env_steps, machine, mpc_solve
+from dls_quadruped.bench.gpu_probes import gpu_busy, launches, sync_device, syncs
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
 
@@ -63,11 +63,6 @@ class Report:
         self.data["elapsed_s"] = round(self.elapsed(), 1)
         write_json(self.data, self.path)
         print(f"[gpu_check] {section} ({self.elapsed():.0f} s): {json.dumps(value, default=str)[:600]}", flush=True)
-
-
-def _sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
 
 
 def versions(device: torch.device) -> dict:
@@ -114,11 +109,11 @@ def compile_times(backend: str, device: torch.device) -> dict:
             built = time.perf_counter() - tic
             for _ in range(3):  # uncaptured first step, capture, replay
                 sim.step(2)
-            _sync(device)
+            sync_device(device)
             first = time.perf_counter() - tic - built
             tic2 = time.perf_counter()
             sim.step(2)
-            _sync(device)
+            sync_device(device)
             out[name] = {"build_s": built, "first_steps_s": first, "warm_step_s": time.perf_counter() - tic2}
     return out
 
@@ -138,139 +133,6 @@ def trajectories(backend: str) -> dict:
         except Exception as err:  # noqa: BLE001 - a scenario that fails is a finding; the others still run
             out[name] = {"ok": False, "error": f"{type(err).__name__}: {err}"}
     return out
-
-
-def _site(frames: list[traceback.FrameSummary]) -> str:
-    """The innermost frame of this package (else the innermost frame) as ``file:line``."""
-    for f in reversed(frames):
-        if "dls_quadruped" in f.filename and "gpu_check" not in f.filename:
-            return f"{f.filename.split('dls_quadruped/')[-1]}:{f.lineno}"
-    return f"{frames[-1].filename}:{frames[-1].lineno}" if frames else "?"
-
-
-def _base_with_pushes(backend: str) -> dict:
-    return {"scene": {"backend": backend, "num_workers": 0},
-            "events": {"push": {"func": "push_robot", "mode": "interval", "interval_s": [0.2, 0.4],
-                                "params": {"velocity_range": [-0.5, 0.5]}}}}
-
-
-def syncs(backend: str, device: torch.device, num_envs: int, steps: int) -> dict:
-    """Host synchronisations per ``env.step`` by site: torch's (CUDA sync debug mode) and Warp array reads."""
-    import warp as wp
-
-    from dls_quadruped.envs.config import load_task
-    from dls_quadruped.envs.env import LocomotionEnv
-
-    env = LocomotionEnv(load_task("base", overrides=_base_with_pushes(backend)), num_envs=num_envs,
-                        device=str(device), seed=0, verbose=False)
-    from dls_quadruped.core.sync_probe import sync_probe
-
-    sites: Counter = Counter()
-    probe_sites: Counter = Counter()
-    per_step, per_step_probe, done_steps = [], [], 0
-    warp_reads = {"n": 0}
-    orig_numpy = wp.array.numpy
-
-    def counted_numpy(self, *a, **k):
-        warp_reads["n"] += 1
-        sites["warp.array.numpy @ " + _site(traceback.extract_stack()[:-1])] += 1
-        return orig_numpy(self, *a, **k)
-
-    try:
-        g = torch.Generator(device=device).manual_seed(0)
-        for _ in range(3):  # compile and capture outside the count
-            env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
-        _sync(device)
-        wp.array.numpy = counted_numpy
-        if device.type == "cuda":
-            torch.cuda.set_sync_debug_mode("warn")
-        for _ in range(steps):
-            action = torch.randn(num_envs, env.num_actions, generator=g, device=device)
-            with warnings.catch_warnings(record=True) as caught, sync_probe() as probe:
-                warnings.simplefilter("always")
-                before = warp_reads["n"]
-                _, _, dones, _ = env.step(action)
-            torch_syncs = [w for w in caught if "synchroniz" in str(w.message).lower()]
-            for w in torch_syncs:
-                sites[f"cuda @ {w.filename.split('dls_quadruped/')[-1]}:{w.lineno}"] += 1
-            for site, k in probe.by_site().items():
-                probe_sites[site] += k
-            per_step.append(len(torch_syncs) + warp_reads["n"] - before)
-            per_step_probe.append(probe.total)
-            done_steps += int(bool(dones.any()))
-    finally:
-        if device.type == "cuda":
-            torch.cuda.set_sync_debug_mode(0)
-        wp.array.numpy = orig_numpy
-        env.close()
-    return {"num_envs": num_envs, "steps": steps, "steps_with_resets": done_steps,
-            "syncs_per_step_mean": float(np.mean(per_step)), "syncs_per_step_max": int(np.max(per_step)),
-            "by_site": dict(sites.most_common(40)),
-            "counted": "torch's CUDA sync debug mode + warp.array.numpy()" if device.type == "cuda"
-            else "warp.array.numpy() only (torch's sync debug mode needs CUDA)",
-            "probe_per_step_mean": float(np.mean(per_step_probe)), "probe_by_site": dict(probe_sites.most_common(40)),
-            "probe": "core/sync_probe.py: Python-level host reads and uploads (the cuda count also sees C++ ones)"}
-
-
-def launches(backend: str, device: torch.device, num_envs: int, steps: int) -> dict:
-    """Warp kernel launches (graph replays count one each) and torch operators per ``env.step``, by kind.
-
-    Counted: every ``wp.launch`` / ``wp.launch_tiled`` / ``wp.capture_launch`` call (MuJoCo Warp's kernels outside a
-    captured graph, and each graph) and every aten operator torch dispatches (``TorchDispatchMode``: on CUDA each
-    is roughly one kernel launch, views and metadata ops included, so an upper bound).
-    """
-    import warp as wp
-    from torch.utils._python_dispatch import TorchDispatchMode
-
-    from dls_quadruped.envs.config import load_task
-    from dls_quadruped.envs.env import LocomotionEnv
-
-    class Ops(TorchDispatchMode):
-        def __init__(self):
-            super().__init__()
-            self.n = 0
-
-        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
-            self.n += 1
-            return func(*args, **(kwargs or {}))
-
-    counts = {"warp": 0}
-    names = ("launch", "launch_tiled", "capture_launch")
-    originals = {k: getattr(wp, k) for k in names}
-
-    def counted(fn):
-        def wrapper(*a, **k):
-            counts["warp"] += 1
-            return fn(*a, **k)
-        return wrapper
-
-    env = LocomotionEnv(load_task("base", overrides=_base_with_pushes(backend)), num_envs=num_envs,
-                        device=str(device), seed=0, verbose=False)
-    rows = []
-    try:
-        g = torch.Generator(device=device).manual_seed(0)
-        for _ in range(3):
-            env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
-        import mujoco_warp._src.warp_util  # noqa: F401  (MuJoCo Warp calls wp.launch through the warp module)
-        for k in names:
-            setattr(wp, k, counted(originals[k]))
-        for _ in range(steps):
-            action = torch.randn(num_envs, env.num_actions, generator=g, device=device)
-            counts["warp"] = 0
-            with Ops() as ops:
-                _, _, dones, _ = env.step(action)
-            rows.append((counts["warp"], ops.n, bool(dones.any())))
-    finally:
-        for k in names:
-            setattr(wp, k, originals[k])
-        env.close()
-    plain = [r for r in rows if not r[2]] or rows
-    reset = [r for r in rows if r[2]]
-    return {"num_envs": num_envs, "steps": steps, "warp_launches_per_step": float(np.mean([r[0] for r in plain])),
-            "torch_ops_per_step": float(np.mean([r[1] for r in plain])),
-            "warp_launches_reset_step": float(np.mean([r[0] for r in reset])) if reset else None,
-            "torch_ops_reset_step": float(np.mean([r[1] for r in reset])) if reset else None,
-            "steps_with_resets": len(reset)}
 
 
 def env_throughput(backend: str, device: torch.device, rows: list[tuple[str, int]], steps: int, report: Report,
@@ -297,37 +159,6 @@ def env_throughput(backend: str, device: torch.device, rows: list[tuple[str, int
                 torch.cuda.empty_cache()
             report.put("env", {"rows": out})
     return out
-
-
-def gpu_busy(backend: str, device: torch.device, num_envs: int, steps: int) -> dict:
-    """Kernel time over wall time for ``steps`` env steps (torch profiler; Warp's kernels are seen by CUPTI too)."""
-    from torch.profiler import ProfilerActivity, profile
-
-    from dls_quadruped.envs.config import load_task
-    from dls_quadruped.envs.env import LocomotionEnv
-
-    if device.type != "cuda":
-        return {"skipped": "needs CUDA"}
-    env = LocomotionEnv(load_task("base", overrides={"scene": {"backend": backend, "num_workers": 0}}),
-                        num_envs=num_envs, device=str(device), seed=0, verbose=False)
-    try:
-        g = torch.Generator(device=device).manual_seed(0)
-        for _ in range(3):
-            env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
-        _sync(device)
-        with profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA]) as prof:
-            tic = time.perf_counter()
-            for _ in range(steps):
-                env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
-            _sync(device)
-            wall = time.perf_counter() - tic
-        kernels = [e for e in prof.events() if e.device_type == torch.autograd.DeviceType.CUDA]
-        busy_us = sum(e.device_time for e in kernels)
-    finally:
-        env.close()
-    return {"num_envs": num_envs, "steps": steps, "wall_s": wall, "kernel_s": busy_us * 1e-6,
-            "busy_fraction": busy_us * 1e-6 / wall, "kernels_per_step": len(kernels) / steps,
-            "note": "wall time under the profiler (slower than without)"}
 
 
 def train(device: torch.device, backend: str, num_envs: int, seconds: float, out: Path, iterations: int = 100000) -> dict:

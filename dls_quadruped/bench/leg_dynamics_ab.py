@@ -50,7 +50,7 @@ def measure(tasks: list[str], n: int, workers: int, rounds: int, steps: int) -> 
     split: dict = {k: defaultdict(float) for k in envs}
     if workers == 0:
         for k, env in envs.items():
-            shard = env.scene.sim._shard
+            shard = env.scene.sim.in_process_shard
             _timed(shard, "_dynamics_terms", split[k], "leg_terms")
             _timed(shard.batch, "step", split[k], "batch_step")
             _timed(shard.controller, "compute", split[k], "controller")

@@ -1,14 +1,30 @@
-"""What the MPC benchmarks share (``bench/mpc.py``, ``bench/mpc_path.py``): the solve they time and the
-docs sections they rewrite."""
+"""What the MPC benchmarks share (``bench/mpc.py``, ``bench/mpc_builds.py``, ``bench/mpc_path.py``): the solve
+they time, the machine they report and the docs sections they rewrite."""
 
 from __future__ import annotations
 
+import os
+import platform
+
 import torch
 
+from dls_quadruped.core.machine import cpu_model
 from dls_quadruped.mpc import Refs, SRBDState
 
+SECTION = "## MPC solve time"
+"""The docs section of the solve times per kernel (``bench/mpc.py``)."""
 BUILDS_SECTION = "## MPC C++ kernel builds"
-"""The docs section of the C++ kernel builds (``bench/mpc.py``); the solve path's section follows it."""
+"""The docs section of the C++ kernel builds (``bench/mpc_builds.py``); the solve path's section follows it."""
+
+
+def machine_info() -> dict:
+    """CPU model, threads, torch version, CUDA device, load average."""
+    info = {"cpu": cpu_model(), "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+            "torch": torch.__version__, "python": platform.python_version(),
+            "load_avg_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
+    if torch.cuda.is_available():
+        info["cuda_device"] = torch.cuda.get_device_name(0)
+    return info
 
 
 def solve_problem(device: str) -> tuple[SRBDState, Refs, torch.Tensor]:

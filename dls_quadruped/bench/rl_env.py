@@ -126,7 +126,7 @@ def backend_split(task: str, n: int, steps: int) -> dict[str, float]:
     cfg = load_task(task, overrides={"scene": {"num_workers": 0}})
     env = LocomotionEnv(cfg, num_envs=n, verbose=False)
     try:
-        shard = env.scene.sim._shard
+        shard = env.scene.sim.in_process_shard
         timer = StageTimer()
         timer.wrap(shard, "_dynamics_terms", "pinocchio")
         timer.wrap(shard.controller, "compute", "control")

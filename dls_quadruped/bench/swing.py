@@ -47,7 +47,7 @@ def measure(vx: float = 0.5, seconds: float = 6.0, samples: int = 10_000, bandwi
     track, touch, touch_xy, speed = [], [], [], []
     fallen = False
     with make_backend("cpu", model, 1, sim_cfg) as sim:
-        controller = sim._shard.controller  # in-process shard (num_workers=0): read its swing reference
+        controller = sim.in_process_shard.controller  # num_workers=0: read its swing reference
         state = sim.reset(torch.arange(1), **home_state(1, seed, 0.0))
         was_swing = np.zeros(4, dtype=bool)
         for k in progress(range(round(seconds / cfg.sampler.mpc_period)), desc=f"v_x {vx:g} m/s", unit="MPC step",

@@ -33,6 +33,7 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 
+from dls_quadruped.closed_loop.registry import CONTROLLER_REGISTRY
 from dls_quadruped.control import gait
 from dls_quadruped.control.latent_action import ACTION_DIM, LatentAction, normalise
 from dls_quadruped.mpc import warm_start
@@ -40,43 +41,18 @@ from dls_quadruped.mpc.baseline import (
     BaselineConfig,
     ModelBasedBaseline,
     check_optimise,
-    heuristic_footholds_h,
-    mpc_inputs,
     optimised,
-    stance_ground_z,
 )
 from dls_quadruped.mpc.config import SamplerConfig
+from dls_quadruped.mpc.inputs import (
+    GROUNDS,
+    ground_inputs,
+    heuristic_footholds_h,
+    mpc_inputs,
+)
 from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
 
-CONTROLLERS = ("rl_warm_start", "naive_warm_start", "rl_baseline", "student")
-"""Controller names (thesis 7.3.1 plus the student alone)."""
 NEEDS_STUDENT = ("rl_warm_start", "student")
-GROUNDS = ("flat", "stance_feet", "terrain")
-"""Ground the MPC plans on: ``flat`` = z = 0 (the simple task); ``stance_feet`` = flat at the height its stance
-feet stand on (``mpc.baseline.stance_ground_z``, terrain-blind: no map, as in the thesis); ``terrain`` = the
-env's terrain map (``env.scene.terrain.height_at``, past the thesis): the CoM reference above the terrain under
-the base, each leg's touch-down at the terrain height under its reference foothold (``mpc.baseline.mpc_inputs``)."""
-
-
-def ground_inputs(ground: str, state, height_fn=None) -> dict:
-    """The ``mpc_inputs`` / ``ModelBasedBaseline.step`` keywords of one ground (one of ``GROUNDS``): the one place
-    the MPC controllers and the initial-cost probe turn a ground name into what the solve sees.
-
-    Args:
-        state: robot state (B robots); height_fn: ``(x_w, y_w) -> z_w`` the terrain map, needed for ``terrain``.
-
-    Returns:
-        {} for ``flat``, {"ground_z": (B,)} for ``stance_feet``, {"height_fn": height_fn} for ``terrain``.
-    """
-    if ground == "flat":
-        return {}
-    if ground == "stance_feet":
-        return {"ground_z": stance_ground_z(state)}
-    if ground == "terrain":
-        if height_fn is None:
-            raise ValueError("ground 'terrain' needs the terrain map (env.scene.terrain.height_at)")
-        return {"height_fn": height_fn}
-    raise ValueError(f"ground must be one of {list(GROUNDS)}, got {ground!r}")
 NEEDS_POLICY = ("rl_baseline",)
 
 
@@ -85,8 +61,8 @@ class ControllerConfig:
     """What to run.
 
     Attributes:
-        name: one of ``CONTROLLERS``.
-        policy: the RL expert (exported TorchScript actor or rsl-rl checkpoint), for ``rl_baseline``.
+        name: one of ``CONTROLLERS`` (``closed_loop/registry.py``).
+        policy: the RL expert (an exported actor, ``learning.policy_file``, or an rsl-rl checkpoint), for ``rl_baseline``.
         student: a distilled student export (``make distill``), for ``rl_warm_start`` and ``student``;
             for ``rl_warm_start`` also a tuple of exports (several policies warm-start one MPC).
         shares: ``rl_warm_start`` with several students: each student group's share of the samples that
@@ -99,7 +75,7 @@ class ControllerConfig:
         seed: seed of the MPC's noise.
         horizon_cost_every: record the chosen sample's cost per horizon step (Fig. 28) at every k-th solve
             (an eager re-rollout, ~1.5 ms per solve).
-        ground: MPC controllers: the ground the MPC plans on, one of ``GROUNDS`` (``terrain``: the env's map).
+        ground: MPC controllers: the ground the MPC plans on, one of ``mpc.inputs.GROUNDS`` (``terrain``: the env's map).
     """
 
     name: str
@@ -114,8 +90,7 @@ class ControllerConfig:
     ground: str = "flat"
 
     def __post_init__(self) -> None:
-        if self.name not in CONTROLLERS:
-            raise ValueError(f"unknown controller {self.name!r}; allowed: {list(CONTROLLERS)}")
+        CONTROLLER_REGISTRY.check(self.name)
         if self.name in NEEDS_STUDENT and not self.students:
             raise ValueError(f"controller {self.name!r} needs a student (--student, a `make distill` export)")
         if self.name in NEEDS_POLICY and self.policy is None:
@@ -206,23 +181,35 @@ def _call(module_name: str, fn, obs: torch.Tensor) -> torch.Tensor:
     """Call a policy; a size mismatch becomes one ValueError naming the observation size."""
     try:
         return fn(obs)
-    except RuntimeError as err:  # TorchScript shape errors
+    except RuntimeError as err:  # an exported program's (or TorchScript's) shape errors
         raise ValueError(f"{module_name} does not accept the env's observation of {obs.shape[1]} values "
                          f"(trained for another observation?): {str(err).splitlines()[-1][:200]}") from None
 
 
 class Controller:
-    """Common interface: ``act(obs)`` at the policy rate; MPC controllers also run the physics."""
+    """Common interface: ``step(obs)``, one policy step of its env under the controller (``act(obs)`` at the
+    policy rate; MPC controllers also run the physics); ``records`` / ``step_records``: the MPC solves."""
 
     def __init__(self, cfg: ControllerConfig, env):
         self.cfg = cfg
         self.env = env
         self.records: list[SolveRecord] = []
+        self.step_records: list[SolveRecord] = []
+        """The solves of the last :meth:`step` (``records`` keeps those of ``physics`` run outside it)."""
         self.solve_seconds = 0.0
+        self.policy_seconds = 0.0
+        """[s] in network queries (``act``, ``prepare``) during :meth:`step`."""
 
     @property
     def name(self) -> str:
         return self.cfg.name
+
+    def step(self, obs: TensorDict) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        """One policy step of the env (``envs.recorder.StepFn``): ``env.step(act(obs))``."""
+        tic = time.perf_counter()
+        action = self.act(obs)
+        self.policy_seconds += time.perf_counter() - tic
+        return self.env.step(action)
 
     def act(self, obs: TensorDict) -> torch.Tensor:
         """(B, 28) raw action for ``env.step`` (policy controllers)."""
@@ -304,6 +291,17 @@ class MPCController(Controller):
     def kernel_seconds(self) -> float:
         return self.mpc.kernel_seconds
 
+    def step(self, obs: TensorDict) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        """One policy step: :meth:`prepare`, then ``env.step_controlled(physics)``; its solves in ``step_records``."""
+        tic = time.perf_counter()
+        self.prepare(obs)
+        self.policy_seconds += time.perf_counter() - tic
+        first = len(self.records)
+        out = self.env.step_controlled(self.physics)
+        self.step_records = self.records[first:]
+        del self.records[first:]
+        return out
+
     def reset(self, robots: torch.Tensor) -> None:
         self.mpc.reset(robots.to(self.device))
 
@@ -380,6 +378,15 @@ class MPCController(Controller):
         return None
 
 
+CONTROLLER_REGISTRY.register("rl_warm_start", MPCController, "the distilled student(s) warm-start the sampling MPC")
+CONTROLLER_REGISTRY.register("naive_warm_start", MPCController,
+                             "the model-based baseline: trot, heuristic footholds, MPC warm-started by its last plan")
+CONTROLLER_REGISTRY.register("rl_baseline", PolicyController, "the RL expert alone")
+CONTROLLER_REGISTRY.register("student", PolicyController, "the student alone, the first action of its horizon")
+CONTROLLERS = CONTROLLER_REGISTRY.names()
+"""Controller names (thesis 7.3.1 plus the student alone), in registration order."""
+
+
 def make_controller(cfg: ControllerConfig, env) -> Controller:
-    """The controller ``cfg.name`` acting in ``env``."""
-    return MPCController(cfg, env) if cfg.uses_mpc else PolicyController(cfg, env)
+    """The controller ``cfg.name`` acting in ``env`` (``closed_loop/registry.py``)."""
+    return CONTROLLER_REGISTRY.get(cfg.name)(cfg, env)

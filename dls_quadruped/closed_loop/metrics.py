@@ -165,7 +165,7 @@ def stairs_episodes(traces: ClosedLoopTraces) -> tuple[np.ndarray, np.ndarray]:
     robot's first episode, above its platform (``terrain["origin_z"]``), over the flight steps x h of its row.
 
     Needs ``traces.ground_z`` and ``traces.terrain`` with ``row``, ``origin_z`` and ``stairs`` = {"heights": one
-    step height per terrain row, "steps": steps per flight} (``closed_loop.__main__.run_controllers``)."""
+    step height per terrain row, "steps": steps per flight} (``closed_loop.episodes.run_controllers``)."""
     from dls_quadruped.eval.stairs import climbed_fraction, reached_top
 
     t = traces.terrain

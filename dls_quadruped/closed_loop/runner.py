@@ -2,7 +2,7 @@
 
 Every env runs one episode (15 s by default) from the same start; data after an env's first
 termination is masked out (its restart is simulated but not counted; the loop stops once every episode has
-ended). Per policy step (50 Hz) and
+ended; ``envs/recorder.py`` keeps the books). Per policy step (50 Hz) and
 robot: the per-step RL reward (the env's reward without the dt factor, on the thesis's ~2.3
 scale when the env uses the base task's Table-4 reward), the initial cost (the MPC's state cost of
 the current state, computed the same way for every controller, so the RL baseline gets one too),
@@ -20,17 +20,19 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from dls_quadruped.closed_loop.controllers import GROUNDS, Controller, ground_inputs
-from dls_quadruped.core.progress import progress
+from dls_quadruped.closed_loop.controllers import Controller
 from dls_quadruped.envs.mdp.kernels import motor_power
+from dls_quadruped.envs.recorder import EpisodeRecord, record
 from dls_quadruped.eval.rollout import base_velocity
-from dls_quadruped.mpc.baseline import (
-    BaselineConfig,
+from dls_quadruped.mpc.baseline import BaselineConfig
+from dls_quadruped.mpc.config import SamplerConfig
+from dls_quadruped.mpc.cost import initial_cost, state_cost_terms
+from dls_quadruped.mpc.inputs import (
+    GROUNDS,
+    ground_inputs,
     heuristic_footholds_h,
     mpc_inputs,
 )
-from dls_quadruped.mpc.config import SamplerConfig
-from dls_quadruped.mpc.cost import STATE_TERMS, initial_cost, state_cost_terms
 from dls_quadruped.mpc.srbd import robot_srbd_model
 
 
@@ -58,7 +60,7 @@ class ClosedLoopTraces:
         mpc_fallbacks, student_fallbacks: robot-solves that used a fallback.
         step_dt: [s] policy step; timing: wall-clock profile [s] (see :func:`run_closed_loop`).
         replicas: S sampler seeds per episode (env s E + e plays episode e; set by whoever built the env).
-        terrain: on a terrain scenario, each robot's terrain type and row (``closed_loop.__main__.terrain_of``).
+        terrain: on a terrain scenario, each robot's terrain type and row (``closed_loop.episodes.terrain_of``).
         ground_z: (T, E) [m] terrain height under the base after the step (``env.scene.terrain.height_at``),
             NaN after the end (the stairs scenario's climbed fraction, ``eval.stairs.climbed_fraction``).
     """
@@ -138,6 +140,57 @@ class InitialCostProbe:
         return state_cost_terms(srbd.as_vector(), refs.state_vector(), self.sampler.weights)
 
 
+def _solves(controller: Controller, name: str):
+    """A probe of the last step's solves: (E, S[, N]) values of ``SolveRecord.<name>``, solve s in column s."""
+    return lambda env: torch.stack([getattr(r, name) for r in controller.step_records], dim=1)
+
+
+def _cpu(t: torch.Tensor) -> torch.Tensor:
+    return t.detach().cpu()
+
+
+def _height_under_base(env) -> torch.Tensor:
+    """(E,) [m] terrain height under each base."""
+    return _cpu(env.scene.terrain.height_at(env.state.base_pos_w[:, 0], env.state.base_pos_w[:, 1]))
+
+
+def _vel_error(env) -> torch.Tensor:
+    """(E,) [m/s] |v_xy - cmd_xy|, base frame."""
+    return torch.linalg.vector_norm(_cpu(base_velocity(env))[:, :2] - _cpu(env.command_manager.command)[:, :2], dim=-1)
+
+
+def _qpos(robots: int):
+    """A probe of the first ``robots`` robots' (R, 19) generalized positions (the video)."""
+    return lambda env: _cpu(torch.cat([env.state.base_pos_w[:robots], env.state.base_quat_w[:robots],
+                                       env.state.joint_pos[:robots]], dim=1))
+
+
+PROBES = {
+    "base_vel": lambda env: _cpu(base_velocity(env)),
+    "ground_z": _height_under_base,
+    "vel_error": _vel_error,
+    "power": lambda env: _cpu(motor_power(env.state.joint_torque, env.state.joint_vel)),
+    "speed": lambda env: _cpu(torch.linalg.vector_norm(env.state.base_lin_vel_w[:, :2], dim=-1)),
+}
+"""What the runner reads after every step, (E, ...) per robot (kept where the state is the episode's)."""
+
+
+SOLVE_FIELDS = ("best_cost", "input_cost", "initial_cost", "step_costs", "step_input_costs", "warm_start_index",
+                "fallback", "student_fallback")
+"""The ``SolveRecord`` fields recorded per step and solve."""
+
+
+def _per_solve(rec: EpisodeRecord, name: str, solves: int, n: int, trailing: tuple[int, ...] = (),
+               fill: float = np.nan, dtype=np.float32) -> np.ndarray:
+    """(T, S, E, ...) values of solve field ``name`` kept where the step was active (``fill`` elsewhere, and
+    everywhere without an MPC)."""
+    steps = rec.active.shape[0]
+    if f"solve.{name}" not in rec.after:
+        return np.full((steps, max(solves, 1), n, *trailing), fill, dtype)
+    values = rec.masked(rec.after[f"solve.{name}"], rec.active, fill)  # (T, E, S, ...)
+    return np.ascontiguousarray(np.swapaxes(values, 1, 2)).astype(dtype, copy=False)
+
+
 def run_closed_loop(env, controller: Controller, num_steps: int | None = None, record_robots: int = 1,
                     stop_when_all_ended: bool = True) -> ClosedLoopTraces:
     """Run every env of ``env`` under ``controller`` for ``num_steps`` policy steps (default: one episode).
@@ -152,104 +205,51 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     ``robot_seconds_per_second`` = E x T x step_dt / wall, T the ``steps_simulated``.
     """
     n = env.num_envs
-    steps = int(num_steps or env.max_episode_length)
-    cpu = lambda t: t.detach().cpu()
     sampler = controller.cfg.sampler
     ground = controller.cfg.ground  # every controller's cost on the ground its MPC plans on
     probe = InitialCostProbe(sampler, ground=ground, height_fn=env.scene.terrain.height_at if ground == "terrain" else None)
     solves = getattr(controller, "solves_per_step", 0)
-    horizon = sampler.horizon
-    nan = np.nan
-    reward = np.full((steps, n), nan, np.float32)
-    init = np.full((steps, n), nan, np.float32)
-    init_terms = np.full((steps, n, len(STATE_TERMS)), nan, np.float32)
-    vel_err = np.full((steps, n), nan, np.float32)
-    power = np.full((steps, n), nan, np.float32)
-    speed = np.full((steps, n), nan, np.float32)
-    base_vel = np.full((steps, n, 3), nan, np.float32)
-    ground_z = np.full((steps, n), nan, np.float32)
-    roll_cost = np.full((steps, max(solves, 1), n), nan, np.float32)
-    roll_input = np.full_like(roll_cost, nan)
-    mpc_init = np.full_like(roll_cost, nan)
-    step_costs = np.full((steps, max(solves, 1), n, horizon), nan, np.float32)
-    step_input = np.full_like(step_costs, nan)
-    winner = np.full((steps, max(solves, 1), n), -1, np.int16)
-    r = min(record_robots, n)
-    qpos = np.zeros((steps, r, 19), np.float32)
-    alive = torch.ones(n, dtype=torch.bool)
-    fell = torch.zeros(n, dtype=torch.bool)
-    length = torch.full((n,), steps, dtype=torch.long)
-    command = cpu(env.command_manager.command).numpy().copy()
-    t_policy = t_probe = 0.0
-    mpc_fallbacks = student_fallbacks = 0
-    obs = env.get_observations()
-    simulated = 0
-    wall0 = time.perf_counter()
-    with torch.inference_mode(), progress(total=steps, desc=f"{controller.name}, {n} robots", unit="step",
-                                          leave=False) as bar:
-        for k in range(steps):
-            bar.update(1)
-            tic = time.perf_counter()
-            terms = cpu(probe.terms(env.state, cpu(env.command_manager.command))).numpy()
-            init_terms[k] = np.where(alive.numpy()[:, None], terms, nan)
-            init[k] = np.where(alive.numpy(), terms.sum(-1), nan)
-            t_probe += time.perf_counter() - tic
-            tic = time.perf_counter()
-            if controller.cfg.uses_mpc:
-                controller.prepare(obs)
-                t_policy += time.perf_counter() - tic
-                first = len(controller.records)
-                obs, rew, dones, extras = env.step_controlled(controller.physics)
-                for j, rec in enumerate(controller.records[first:]):
-                    live = alive.numpy()
-                    roll_cost[k, j] = np.where(live, rec.best_cost.numpy(), nan)
-                    roll_input[k, j] = np.where(live, rec.input_cost.numpy(), nan)
-                    mpc_init[k, j] = np.where(live, rec.initial_cost.numpy(), nan)
-                    step_costs[k, j] = np.where(live[:, None], rec.step_costs.numpy(), nan)
-                    step_input[k, j] = np.where(live[:, None], rec.step_input_costs.numpy(), nan)
-                    winner[k, j] = np.where(live, rec.warm_start_index.numpy(), -1)
-                    mpc_fallbacks += int((rec.fallback & alive).sum())
-                    student_fallbacks += int((rec.student_fallback & alive).sum())
-                del controller.records[first:]
-            else:
-                action = controller.act(obs)
-                t_policy += time.perf_counter() - tic
-                obs, rew, dones, extras = env.step(action)
-            done = cpu(dones).bool()
-            time_out = cpu(extras["time_outs"]).bool()
-            reward[k] = np.where(alive.numpy(), (cpu(rew) / env.step_dt).numpy(), nan)
-            ok = (alive & ~done).numpy()
-            s = env.state
-            vel = cpu(base_velocity(env))
-            cmd = cpu(env.command_manager.command)
-            base_vel[k] = np.where(ok[:, None], vel.numpy(), nan)
-            ground_z[k] = np.where(ok, cpu(env.scene.terrain.height_at(s.base_pos_w[:, 0], s.base_pos_w[:, 1])).numpy(), nan)
-            vel_err[k] = np.where(ok, torch.linalg.vector_norm(vel[:, :2] - cmd[:, :2], dim=-1).numpy(), nan)
-            power[k] = np.where(ok, cpu(motor_power(s.joint_torque, s.joint_vel)).numpy(), nan)
-            speed[k] = np.where(ok, cpu(torch.linalg.vector_norm(s.base_lin_vel_w[:, :2], dim=-1)).numpy(), nan)
-            qpos[k] = cpu(torch.cat([s.base_pos_w[:r], s.base_quat_w[:r], s.joint_pos[:r]], dim=1)).numpy()
-            ended = alive & done
-            fell |= ended & ~time_out
-            length[ended] = k + 1
-            alive &= ~done
-            simulated = k + 1
-            if stop_when_all_ended and not bool(alive.any()):
-                qpos[k + 1:] = qpos[k]  # the video holds its last frame
-                break
-            if bool(done.any()):
-                controller.reset(torch.nonzero(done).flatten())
-    wall = time.perf_counter() - wall0
+    t_probe = [0.0]
+
+    def initial_cost_terms(env) -> torch.Tensor:
+        tic = time.perf_counter()
+        terms = probe.terms(env.state, env.command_manager.command.detach().cpu()).detach().cpu()
+        t_probe[0] += time.perf_counter() - tic
+        return terms
+
+    after = {**PROBES, "qpos": _qpos(min(record_robots, n))}
+    if controller.cfg.uses_mpc:
+        after.update({f"solve.{name}": _solves(controller, name) for name in SOLVE_FIELDS})
+    policy0 = controller.policy_seconds
+    rec = record(env, controller.step, after, num_steps, before={"initial_cost_terms": initial_cost_terms},
+                 stop_when_all_ended=stop_when_all_ended, on_reset=controller.reset,
+                 desc=f"{controller.name}, {n} robots")
+    terms = rec.before["initial_cost_terms"]
+    qpos = rec.after["qpos"].astype(np.float32, copy=False)
+    qpos[rec.steps:] = qpos[rec.steps - 1]  # the video holds its last frame
+    ok = lambda name: rec.masked(rec.after[name], rec.valid).astype(np.float32, copy=False)
+    horizon = (sampler.horizon,)
+    fallbacks = {}
+    for name in ("fallback", "student_fallback"):
+        flags = rec.after.get(f"solve.{name}")
+        fallbacks[name] = 0 if flags is None else int((flags & rec.active[..., None]).sum())
+    wall, policy = rec.wall_s, controller.policy_seconds - policy0
     kernel = controller.kernel_seconds()
-    timing = {"wall": wall, "kernel": kernel, "solve": controller.solve_seconds, "policy": t_policy,
-              "probe": t_probe, "env_and_sim": wall - controller.solve_seconds - t_policy - t_probe,
+    timing = {"wall": wall, "kernel": kernel, "solve": controller.solve_seconds, "policy": policy,
+              "probe": t_probe[0], "env_and_sim": wall - controller.solve_seconds - policy - t_probe[0],
               "kernel_share": kernel / wall if wall > 0 else float("nan"),
-              "robot_seconds_per_second": n * simulated * env.step_dt / wall if wall > 0 else float("nan"),
-              "steps_simulated": simulated,
+              "robot_seconds_per_second": n * rec.steps * env.step_dt / wall if wall > 0 else float("nan"),
+              "steps_simulated": rec.steps,
               "num_threads": torch.get_num_threads()}
     return ClosedLoopTraces(
-        controller=controller.name, command=command, reward=reward, initial_cost=init, initial_cost_terms=init_terms,
-        vel_error=vel_err,
-        power=power, speed=speed, base_vel=base_vel, rollout_cost=roll_cost, rollout_input_cost=roll_input,
-        mpc_initial_cost=mpc_init, step_costs=step_costs, step_input_costs=step_input, winner=winner, fell=fell.numpy(), length=length.numpy(), qpos=qpos,
-        mpc_fallbacks=mpc_fallbacks, student_fallbacks=student_fallbacks, step_dt=float(env.step_dt), timing=timing,
-        ground_z=ground_z)
+        controller=controller.name, command=rec.command, reward=rec.masked(rec.reward, rec.active),
+        initial_cost=rec.masked(terms.sum(-1), rec.active), initial_cost_terms=rec.masked(terms, rec.active),
+        vel_error=ok("vel_error"), power=ok("power"), speed=ok("speed"), base_vel=ok("base_vel"),
+        rollout_cost=_per_solve(rec, "best_cost", solves, n), rollout_input_cost=_per_solve(rec, "input_cost", solves, n),
+        mpc_initial_cost=_per_solve(rec, "initial_cost", solves, n),
+        step_costs=_per_solve(rec, "step_costs", solves, n, horizon),
+        step_input_costs=_per_solve(rec, "step_input_costs", solves, n, horizon),
+        winner=_per_solve(rec, "warm_start_index", solves, n, fill=-1, dtype=np.int16),
+        fell=rec.fell, length=rec.length, qpos=qpos, mpc_fallbacks=fallbacks["fallback"],
+        student_fallbacks=fallbacks["student_fallback"], step_dt=float(env.step_dt), timing=timing,
+        ground_z=ok("ground_z"))

@@ -155,7 +155,7 @@ def sync_probe(package: str | Path | None = None, exclude: Iterable[str] = ()) -
     Args:
         package: the source folder whose innermost frame names a site (default ``dls_quadruped``'s); calls
             with no frame inside it are not counted.
-        exclude: files (relative to the package's parent, e.g. ``"dls_quadruped/sim/backend.py"``) whose calls
+        exclude: files (relative to the package's parent, e.g. ``"dls_quadruped/sim/cpu_backend.py"``) whose calls
             are not counted: code that moves data to the host by design.
 
     Probes nest (each counts what happens while it is active); the wrappers are removed when the last one ends.

@@ -30,7 +30,6 @@ What terms see (``env.<attr>``): ``state`` (RobotState on ``device``), ``num_env
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -64,8 +63,7 @@ from dls_quadruped.envs.schedule import EpisodeSchedule
 
 @dataclass(frozen=True)
 class EnvConfig:
-    """``env`` section: num_envs, episode_length_s [s] (15), decimation (4 physics steps per policy
-    step), seed."""
+    """``env`` section: num_envs, episode_length_s [s] (15), decimation (4 physics steps per policy step), seed."""
 
     num_envs: int = field(default=64, metadata={"min": 1})
     episode_length_s: float = field(default=15.0, metadata={"gt": 0.0})
@@ -117,8 +115,9 @@ class LocomotionEnv(VecEnv):
         self.termination_manager = TerminationManager(self.task, self)
         self.event_manager = EventManager(self.task, self)
         self.curriculum_manager = CurriculumManager(self.task, self)
-        if not any(t.func is event_mdp.reset_robot and t.extra["mode"] == "reset" for t in self.event_manager.terms):
-            raise self.task.error("events", "a 'reset' mode event with func reset_robot is required (it places robots)")
+        if not any(t.func in event_mdp.PLACEMENT_EVENTS and t.extra["mode"] == "reset" for t in self.event_manager.terms):
+            raise self.task.error("events", "a 'reset' mode event with func reset_robot or reset_home is required "
+                                            "(it places robots)")
         self.extras: dict = {"log": {}}
         self.event_manager.apply("startup")
         self.curriculum_manager.start()
@@ -134,9 +133,7 @@ class LocomotionEnv(VecEnv):
     def _to_device(self, state: RobotState) -> RobotState:
         """The backend's state on ``self.device``: the backend's live buffers themselves when both are on one
         device (no copy), else a copy."""
-        if state.base_pos_w.device == self.device:
-            return state
-        return state.to(self.device)
+        return state if state.base_pos_w.device == self.device else state.to(self.device)
 
     @property
     def state(self) -> RobotState:
@@ -198,23 +195,32 @@ class LocomotionEnv(VecEnv):
 
     def apply_action(self, raw: torch.Tensor, num_physics_steps: int, replan: bool = False) -> RobotState:
         """Inside :meth:`step_controlled`: send a (B, 28) raw action through the action manager, run
-        ``num_physics_steps`` physics steps and refresh :attr:`state`; returns it.
+        ``num_physics_steps`` physics steps and refresh :attr:`state`; returns it. A controller that re-plans
+        several times per policy step (the closed-loop MPC at 100 Hz) calls this once per plan, ``replan=True``
+        after the first, so that the action manager's previous action stays the one before the policy step (the
+        action-rate terms see the step's change, as for a policy). Raises ``RuntimeError`` outside
+        ``step_controlled`` or past the policy step's physics steps."""
+        return self._advance("apply_action", num_physics_steps, lambda: self.action_manager.process(
+            raw.to(self.device), replan=replan, num_physics_steps=num_physics_steps))
 
-        A controller that re-plans several times per policy step (the closed-loop MPC at 100 Hz) calls this
-        once per plan, ``replan=True`` after the first, so that the action manager's previous action stays
-        the one before the policy step (the action-rate terms see the step's change, as for a policy).
+    def apply_references(self, freq: torch.Tensor, duty: torch.Tensor, p_td_w: torch.Tensor, F_w: torch.Tensor,
+                         num_physics_steps: int) -> RobotState:
+        """Inside :meth:`step_controlled`: world-frame references (freq, duty (B, 4), p_td_w (B, 4, 3) [m], F_w
+        (B, 4, 3) [N]) straight to the backend's ``set_references`` for ``num_physics_steps`` physics steps, for a
+        controller that makes its own references (the balance controller, the model-based baseline); the action
+        manager, and so the action terms of observations and rewards, do not see them. Raises as :meth:`apply_action`."""
+        return self._advance("apply_references", num_physics_steps, lambda: self.scene.sim.set_references(freq, duty, p_td_w, F_w))
 
-        Raises:
-            RuntimeError: outside ``step_controlled``, or more physics steps than one policy step has.
-        """
+    def _advance(self, caller: str, num_physics_steps: int, send: Callable[[], None]) -> RobotState:
+        """Check that ``num_physics_steps`` more fit the policy step, ``send()`` the references, step, refresh."""
         if self._controlled_steps is None:
-            raise RuntimeError("apply_action runs inside step_controlled(physics); use step(actions) otherwise")
+            raise RuntimeError(f"{caller} runs inside step_controlled(physics); use step(actions) otherwise")
         if not isinstance(num_physics_steps, int) or num_physics_steps < 1:
             raise ValueError(f"num_physics_steps must be an int >= 1, got {num_physics_steps!r}")
         if self._controlled_steps + num_physics_steps > self.decimation:
-            raise RuntimeError(f"apply_action: {self._controlled_steps} + {num_physics_steps} physics steps exceed "
+            raise RuntimeError(f"{caller}: {self._controlled_steps} + {num_physics_steps} physics steps exceed "
                                f"the policy step's {self.decimation} (env.decimation)")
-        self.action_manager.process(raw.to(self.device), replan=replan, num_physics_steps=num_physics_steps)
+        send()
         self.scene.sim.step(num_physics_steps)
         self._controlled_steps += num_physics_steps
         self.refresh_state()
@@ -227,9 +233,9 @@ class LocomotionEnv(VecEnv):
         ``physics()`` must advance the simulator by exactly ``decimation`` physics steps through
         :meth:`apply_action` (so the observation's last action, the action rewards and the touch-down heights
         see what was applied) -- e.g. a sampling MPC that re-plans at 100 Hz, twice per 50 Hz policy step
-        (``dls_quadruped.closed_loop``). It may return a (B,) bool mask of robots that had no finite action
-        (terminated as ``nonfinite_action``, as in :meth:`step`). Steps 3-7 of the module docstring follow
-        unchanged.
+        (``dls_quadruped.closed_loop``) -- or :meth:`apply_references`. It may return a (B,) bool mask of robots
+        that had no finite action (terminated as ``nonfinite_action``, as in :meth:`step`). Steps 3-7 of the
+        module docstring follow unchanged.
 
         Raises:
             RuntimeError: ``physics()`` ran another number of physics steps than ``decimation``.
@@ -308,6 +314,12 @@ class LocomotionEnv(VecEnv):
         self.episode_length_buf.index_fill_(0, env_ids, 0)
 
     # ------------------------------------------------------------------ checkpoint state
+    _MANAGER_STATE = (("curriculum_state", "curriculum_manager", "state"),
+                      ("curriculum_values", "curriculum_manager", "values"),
+                      ("reward_weights", "reward_manager", "weights"), ("command_params", "command_manager", "params"),
+                      ("terrain_levels", "scene", "terrain_levels"))
+    """The managers' parts of :meth:`state_dict`: (its key, the manager, the key in the manager's ``state_dict()``)."""
+
     def state_dict(self) -> dict:
         """What training needs to continue where it stopped (saved in every checkpoint).
 
@@ -317,17 +329,10 @@ class LocomotionEnv(VecEnv):
         and every per-robot buffer), so that an env of the same task and number of robots continues
         bit-identically.
         """
-        state = {
-            "curriculum_state": copy.deepcopy(self.curriculum_manager.state),
-            "curriculum_values": dict(self.curriculum_manager.values),
-            "reward_weights": dict(self.reward_manager.weights),
-            "command_params": copy.deepcopy(self.command_manager.params),
-            "terrain_levels": self.scene.terrain_levels.cpu().clone(),
-            "common_step_counter": self.common_step_counter,
-            "schedule": self.schedule.state_dict(),
-            "rng_cpu": torch.get_rng_state(),
-            "episodes": episode_state.capture(self),
-        }
+        parts = {m: getattr(self, m).state_dict() for m in dict.fromkeys(m for _, m, _ in self._MANAGER_STATE)}
+        state = {key: parts[m][k] for key, m, k in self._MANAGER_STATE}
+        state.update(common_step_counter=self.common_step_counter, schedule=self.schedule.state_dict(),
+                     rng_cpu=torch.get_rng_state(), episodes=episode_state.capture(self))
         if self.device.type == "cuda":
             state["rng_cuda"] = torch.cuda.get_rng_state(self.device)
         return state
@@ -341,27 +346,18 @@ class LocomotionEnv(VecEnv):
         Raises:
             ValueError: the state does not fit this env (other terms, other number of envs).
         """
-        rm, cm, cur = self.reward_manager, self.command_manager, self.curriculum_manager
-        if set(state["reward_weights"]) != set(rm.weights):
-            raise ValueError(f"checkpoint reward terms {sorted(state['reward_weights'])} != task's {sorted(rm.weights)}")
-        if set(state["command_params"]) != set(cm.params):
-            raise ValueError(f"checkpoint command parameters {sorted(state['command_params'])} "
-                             f"!= task's {sorted(cm.params)}")
+        parts: dict[str, dict] = {}
+        for key, m, k in self._MANAGER_STATE:
+            parts.setdefault(m, {})[k] = state[key]
+        managers = [(getattr(self, m), parts[m]) for m in ("reward_manager", "command_manager", "curriculum_manager",
+                                                           "scene")]
+        for manager, part in managers:  # every part checked before anything is written
+            manager.check_state_dict(part)
         episodes = state.get("episodes")
         if episodes is not None and int(episodes["num_envs"]) != self.num_envs:
             episodes = None  # another --num-envs: fresh episodes below
-        levels = torch.as_tensor(state["terrain_levels"], dtype=torch.long)
-        if levels.shape != (self.num_envs,):
-            # another --num-envs: keep the level distribution by cycling over the saved levels
-            levels = levels[torch.arange(self.num_envs) % len(levels)]
-        rm.weights.update(state["reward_weights"])
-        cm.params.clear()
-        cm.params.update(copy.deepcopy(state["command_params"]))  # in place: the term holds this dict
-        cur.state.clear()
-        cur.state.update(copy.deepcopy(state["curriculum_state"]))
-        cur.values.update(state["curriculum_values"])
-        self.scene.update_levels(torch.arange(self.num_envs, device=self.device),
-                                 levels.to(self.device) - self.scene.terrain_levels)
+        for manager, part in managers:  # scene: another --num-envs cycles over the saved terrain levels
+            manager.load_state_dict(part)
         self.common_step_counter = int(state["common_step_counter"])
         if "schedule" in state:  # checkpoints before the episode schedule have none
             if tuple(state["schedule"]["episode"].shape) == (self.num_envs,):

@@ -14,6 +14,7 @@ from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
 
 def validate_task(task: TaskConfig) -> None:
     """Raise ``ConfigError`` (file, dotted key, allowed values) for the first bad value of ``task``."""
+    from dls_quadruped.envs.agent_config import check_agent_section
     from dls_quadruped.envs.env import EnvConfig
     from dls_quadruped.envs.managers.action import resolve_action_config
     from dls_quadruped.envs.managers.command import resolve_command
@@ -23,7 +24,6 @@ def validate_task(task: TaskConfig) -> None:
     from dls_quadruped.envs.managers.reward import resolve_rewards
     from dls_quadruped.envs.managers.scene import SceneConfig
     from dls_quadruped.envs.managers.termination import resolve_terminations
-    from dls_quadruped.envs.agent_config import check_agent_section
     from dls_quadruped.sim.terrain import TerrainConfig
 
     data = task.data

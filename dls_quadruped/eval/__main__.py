@@ -4,7 +4,8 @@
     python -m dls_quadruped.eval --policy docs/policies/base_actor.pt --scenario speed --set env.episode_length_s=10
     make eval POLICY=docs/policies/base_actor.pt SCENARIO=simple
 
-``--policy``: an exported actor (TorchScript, e.g. ``runs/base/<run>/exported/policy.pt``) or an
+``--policy``: an exported actor (e.g. ``runs/base/<run>/exported/policy.pt2``, or a TorchScript one such as the
+committed ``docs/policies/base_actor.pt``) or an
 rsl-rl checkpoint (``runs/base/<run>/model_<it>.pt``). Writes ``<out>/<scenario>.json`` and
 ``<out>/<scenario>.png`` (default ``results/eval/<policy stem>``) and prints the headline figures
 and the targets. ``--split validation`` plays disjoint episodes of the same scenario, for choosing checkpoints; reports use
@@ -43,7 +44,8 @@ from dls_quadruped.eval.velocity_tracking import (
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--policy", type=Path, required=True, help="exported actor .pt or model_<it>.pt checkpoint")
+    p.add_argument("--policy", type=Path, required=True,
+                   help="exported actor (.pt2 or TorchScript .pt) or model_<it>.pt checkpoint")
     p.add_argument("--scenario", default="simple", choices=sorted(SCENARIOS),
                    # argparse %-formats help strings: a literal "50 %" must be "50 %%"
                    help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()).replace("%", "%%"))

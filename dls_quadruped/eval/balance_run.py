@@ -1,29 +1,33 @@
 """Closed-loop episodes of the balance-controller baseline: stand, then trot in place.
 
 Used by ``make demo`` and by the foundation's integration test. The balance controller
-(``control/balance.py``) produces latent actions at ``high_level_hz``; the backend runs
-physics and the low-level controller at 200 Hz.
+(``control/balance.py``) runs inside a ``LocomotionEnv`` of the home task (``envs/home_task.py``: robots
+in the home pose, no termination) as a controller of ``env.step_controlled``: at ``high_level_hz`` its
+latent action, clipped (Table 1) and turned into world references, goes to the backend, which runs
+physics and the low-level controller at 200 Hz; ``envs/recorder.py`` records every step.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import mujoco
 import numpy as np
 import torch
 
 from dls_quadruped.control.balance import BalanceConfig, BalanceController
 from dls_quadruped.control.latent_action import (
     LatentActionConfig,
+    TerrainHeightFn,
     clip,
     flat_ground,
     to_world,
 )
 from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
+from dls_quadruped.envs.env import LocomotionEnv
+from dls_quadruped.envs.home_task import home_task, physics_dt
+from dls_quadruped.envs.recorder import record
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.interface import SimConfig, home_state
-from dls_quadruped.sim.registry import make_backend
+from dls_quadruped.sim.terrain import TerrainConfig
 
 
 @dataclass
@@ -56,6 +60,59 @@ class BalanceRun:
     summary: dict = field(default_factory=dict)
 
 
+class BalanceEnvController:
+    """The balance controller acting in a ``LocomotionEnv`` (``physics`` for ``env.step_controlled``): at every
+    env step it stands (``stand_steps`` steps: f = 0, d = 1, the phases keep their trot offsets) or trots,
+    clips its latent action (Table 1), turns it into world references with touch-downs at ``height_fn``, and
+    hands them to ``env.apply_references`` for the step's ``env.decimation`` physics steps.
+
+    Args:
+        cmd_vel_h: (B, 3) float64 command (v_x, v_y [m/s] in frame H, yaw rate [rad/s]).
+    """
+
+    def __init__(self, env, cfg: BalanceConfig, cmd_vel_h: torch.Tensor, stand_steps: int,
+                 height_fn: TerrainHeightFn = flat_ground):
+        self.env, self.cmd, self.stand_steps, self.height_fn = env, cmd_vel_h, stand_steps, height_fn
+        self.controller = BalanceController(cfg)
+        self.action_cfg = LatentActionConfig()
+        self.steps = 0
+
+    @property
+    def trotting(self) -> bool:
+        """The next step trots."""
+        return self.steps >= self.stand_steps
+
+    def physics(self) -> None:
+        state = self.env.state
+        action, _ = clip(self.controller(state, self.cmd, stand=not self.trotting), self.action_cfg)
+        p_td_w, F_w = to_world(action, state.base_pos_w.double(), _yaw(state), self.height_fn, self.action_cfg)
+        self.env.apply_references(action.f, action.d, p_td_w, F_w, self.env.decimation)
+        self.steps += 1
+
+    def step(self, obs):
+        """One env step (a ``recorder.StepFn``)."""
+        return self.env.step_controlled(self.physics)
+
+
+def _rpy(env) -> torch.Tensor:
+    return rpy_from_rotmat(quat_to_rotmat(env.state.base_quat_w.double()))
+
+
+PROBES = {
+    "base_height": lambda env: env.state.base_pos_w[:, 2],
+    "roll": lambda env: _rpy(env)[:, 0],
+    "pitch": lambda env: _rpy(env)[:, 1],
+    "base_vel_w": lambda env: env.state.base_lin_vel_w,
+    "foot_pos_w": lambda env: env.state.foot_pos_w,
+    "contact_cmd": lambda env: env.state.contact_cmd,
+    "foot_force_z": lambda env: env.state.foot_force_w[..., 2],
+    "diverged": lambda env: env.state.diverged,
+    "base_contact": lambda env: env.state.base_contact,
+    "qpos": lambda env: torch.cat([env.state.base_pos_w, env.state.base_quat_w, env.state.joint_pos], dim=1),
+}
+"""What ``run_balance`` records after every step, by ``BalanceRun`` field."""
+
+
 def run_balance(
     num_envs: int = 64,
     stand_seconds: float = 10.0,
@@ -65,55 +122,44 @@ def run_balance(
     joint_noise: float = 0.05,
     yaw: float | torch.Tensor = 0.0,
     high_level_hz: float = 100.0,
-    sim_cfg: SimConfig = SimConfig(num_workers=0),
+    num_workers: int = 0,
     balance_cfg: BalanceConfig = BalanceConfig(),
-    model: mujoco.MjModel | None = None,
-    height_fn=flat_ground,
+    terrain: TerrainConfig | None = None,
+    height_fn: TerrainHeightFn | None = None,
     origin_w: tuple[float, float] = (0.0, 0.0),
     backend: str = "cpu",
 ) -> BalanceRun:
     """Stand for ``stand_seconds`` then trot for ``trot_seconds`` with the balance controller.
 
-    On a terrain scene (``model`` from ``sim.terrain.build_scene``) pass ``height_fn =
-    terrain.height_at`` so touch-down targets get the true terrain height, and spawn the robots
-    at ``origin_w`` (x, y) [m] on a flat patch at z = 0. ``backend``: the simulator (``sim/registry.py``); the
-    controller and the records read its state on the CPU.
+    ``terrain``: the ground (None: MuJoCo's plane), the robots spawned at ``origin_w`` (x, y) [m] on a flat patch
+    at z = 0; the touch-down targets get ``height_fn`` (default: z = 0 on the plane, else the terrain's exact
+    height). ``yaw``: [rad] heading, one for all robots or (num_envs,); ``joint_noise``: [rad] uniform on the
+    nominal joints (seeded with ``seed``). ``num_workers``: simulator worker processes (0: in-process);
+    ``backend``: the simulator (``sim/registry.py``); the controller and the records read its state on the CPU.
     """
-    model = model if model is not None else mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))
-    decimation = int(round(1.0 / (high_level_hz * model.opt.timestep)))
-    ctrl = BalanceController(balance_cfg)
-    iface_cfg = LatentActionConfig()
-    cmd = torch.tensor(cmd_vel_h, dtype=torch.float64).expand(num_envs, 3)
-    rec: dict[str, list] = {k: [] for k in BalanceRun.__dataclass_fields__ if k != "summary"}
-    n_stand = int(round(stand_seconds * high_level_hz))
-    n_total = n_stand + int(round(trot_seconds * high_level_hz))
-    with make_backend(backend, model, num_envs, sim_cfg) as sim:
-        home = home_state(num_envs, seed, joint_noise, yaw)
-        home["base_pos_w"] = home["base_pos_w"] + torch.tensor([*origin_w, 0.0], dtype=torch.float64)
-        state = sim.reset(torch.arange(num_envs), **home).to("cpu")
-        for k in range(n_total):
-            trotting = k >= n_stand
-            # standing has f = 0, so the phases keep their trot offsets until the trot starts
-            action, _ = clip(ctrl(state, cmd, stand=not trotting), iface_cfg)
-            p_td_w, F_w = to_world(action, state.base_pos_w.double(), _yaw(state), height_fn, iface_cfg)
-            sim.set_references(action.f, action.d, p_td_w, F_w)
-            state = sim.step(decimation).to("cpu")
-            rpy = rpy_from_rotmat(quat_to_rotmat(state.base_quat_w.double()))
-            rec["time"].append((k + 1) * decimation * model.opt.timestep)
-            rec["trotting"].append(trotting)
-            rec["base_height"].append(state.base_pos_w[:, 2].numpy().copy())
-            rec["roll"].append(rpy[:, 0].numpy())
-            rec["pitch"].append(rpy[:, 1].numpy())
-            rec["base_vel_w"].append(state.base_lin_vel_w.numpy().copy())
-            rec["foot_pos_w"].append(state.foot_pos_w.numpy().copy())
-            rec["contact_cmd"].append(state.contact_cmd.numpy().copy())
-            rec["foot_force_z"].append(state.foot_force_w[..., 2].numpy().copy())
-            rec["diverged"].append(state.diverged.numpy().copy())
-            rec["base_contact"].append(state.base_contact.numpy().copy())
-            rec["qpos"].append(torch.cat([state.base_pos_w, state.base_quat_w, state.joint_pos], dim=1).numpy())
-    run = BalanceRun(**{k: np.asarray(v) for k, v in rec.items()})
+    decimation = round(1.0 / (high_level_hz * physics_dt()))
+    n_stand = round(stand_seconds * high_level_hz)
+    n_total = n_stand + round(trot_seconds * high_level_hz)
+    task = home_task(num_envs, n_total * decimation * physics_dt(), decimation, cmd_vel_h, terrain, seed,
+                     joint_noise, yaw, origin_w, num_workers, backend)
+    env = LocomotionEnv(task, num_envs=num_envs, seed=seed, verbose=False)
+    try:
+        if height_fn is None:
+            height_fn = flat_ground if env.scene.terrain.is_plane else _terrain_height(env.scene.terrain)
+        cmd = torch.tensor(cmd_vel_h, dtype=torch.float64).expand(num_envs, 3)
+        ctrl = BalanceEnvController(env, balance_cfg, cmd, n_stand, height_fn)
+        rec = record(env, ctrl.step, PROBES, n_total, desc=f"balance, {num_envs} robots")
+    finally:
+        env.close()
+    time = np.array([(k + 1) * decimation * physics_dt() for k in range(n_total)])
+    run = BalanceRun(time=time, trotting=np.arange(n_total) >= n_stand, **rec.after)
     run.summary = summarise(run, balance_cfg.height, balance_cfg.freq)
     return run
+
+
+def _terrain_height(terrain) -> TerrainHeightFn:
+    """The terrain's exact height lookup (float32) for touch-down targets in the caller's dtype."""
+    return lambda x, y: terrain.height_at(x.float(), y.float()).to(x.dtype)
 
 
 def _yaw(state) -> torch.Tensor:

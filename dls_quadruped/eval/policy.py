@@ -1,8 +1,8 @@
-"""Load a policy to evaluate: an exported actor (TorchScript) or an rsl-rl checkpoint.
+"""Load a policy to evaluate: an exported actor or an rsl-rl checkpoint.
 
-* exported actor (``exported/policy.pt``, ``docs/policies/base_actor.pt``): TorchScript module with
-  its observation normaliser, input the actor's observation group(s) concatenated, output the raw
-  action mean;
+* exported actor (``exported/policy.pt2``, a ``torch.export`` program, or a TorchScript one such as
+  ``docs/policies/base_actor.pt``; ``learning/policy_file.py``): the actor with its observation
+  normaliser, input the actor's observation group(s) concatenated, output the raw action mean;
 * checkpoint (``runs/<task>/<run>/model_<it>.pt``): rebuilt through rsl-rl's runner with the run's
   ``agent.yaml`` (next to the checkpoint) or else the task's ``agent`` section, deterministic
   inference policy; the checkpoint's env state (terrain levels, curriculum) is not loaded.
@@ -22,28 +22,24 @@ from tensordict import TensorDict
 
 from dls_quadruped.cli import UserError
 from dls_quadruped.eval.rollout import Policy
-
-
-def _is_torchscript(path: Path) -> bool:
-    try:
-        torch.jit.load(str(path), map_location="cpu")
-    except RuntimeError:  # not a TorchScript archive (a pickled checkpoint dict)
-        return False
-    return True
+from dls_quadruped.learning.policy_file import file_kind, load_module
 
 
 def check_policy_file(path: str | Path) -> Path:
     """``path`` as a Path if it is a file; else a ``UserError`` that says what is expected."""
     path = Path(path)
     if not path.is_file():
-        raise UserError(f"policy {path} not found (--policy: an exported actor .pt, e.g. "
+        raise UserError(f"policy {path} not found (--policy: an exported actor .pt2 or .pt, e.g. "
                         "docs/policies/base_actor.pt, or a runs/<task>/<run>/model_<it>.pt checkpoint)")
     return path
 
 
-def input_size(module: torch.jit.ScriptModule) -> int | None:
-    """Input width of an exported actor: the last dimension of its first 2-D parameter or buffer
-    (the normaliser's mean (1, D) or the first layer's weight (H, D)); None if it has none."""
+def input_size(module: torch.nn.Module) -> int | None:
+    """Input width of an exported actor: a program's own (``ExportedModule.input_size``), else the last
+    dimension of its first 2-D parameter or buffer (the normaliser's mean (1, D) or the first layer's
+    weight (H, D)); None if it has none."""
+    if isinstance(getattr(module, "input_size", None), int):
+        return module.input_size
     for _, tensor in (*module.named_buffers(), *module.named_parameters()):
         if tensor.dim() == 2:
             return int(tensor.shape[-1])
@@ -56,7 +52,7 @@ def load_policy(path: str | Path, env, agent: dict | None = None, flag: str = "-
     env's current observation.
 
     Args:
-        path: exported TorchScript actor or rsl-rl checkpoint.
+        path: exported actor (program or TorchScript) or rsl-rl checkpoint.
         env: the env it will act in (a checkpoint needs it to build the runner).
         agent: rsl-rl runner config for a checkpoint (default: ``agent.yaml`` next to it, else the
             env's task ``agent`` section).
@@ -69,10 +65,11 @@ def load_policy(path: str | Path, env, agent: dict | None = None, flag: str = "-
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"policy {path} not found (an exported actor .pt or a model_<it>.pt checkpoint)")
+        raise FileNotFoundError(f"policy {path} not found (an exported actor .pt2 or .pt, or a model_<it>.pt "
+                                "checkpoint)")
     groups = list(_actor_groups(env, agent))
-    if _is_torchscript(path):
-        actor = torch.jit.load(str(path), map_location=env.device).eval()
+    if file_kind(path) in ("program", "torchscript"):
+        actor = load_module(path, device=env.device)
         width = sum(int(env.get_observations()[g].shape[-1]) for g in groups)
         expected = input_size(actor)
         if expected is not None and expected != width:
@@ -94,7 +91,7 @@ def load_policy(path: str | Path, env, agent: dict | None = None, flag: str = "-
     try:
         ckpt = read_checkpoint(path)
     except ValueError as err:
-        raise UserError(f"{flag} {path}: unreadable, neither a TorchScript actor nor an rsl-rl checkpoint "
+        raise UserError(f"{flag} {path}: unreadable, neither an exported actor nor an rsl-rl checkpoint "
                         f"({err})") from None
     if agent is None:
         run_agent = path.parent / "agent.yaml"

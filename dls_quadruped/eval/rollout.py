@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
-from dls_quadruped.core.progress import progress
+from dls_quadruped.envs.recorder import Probe, record
 
 Policy = Callable[[TensorDict], torch.Tensor]
 """Observation groups (B, D) -> raw actions (B, A)."""
@@ -63,39 +63,11 @@ def run_episodes(env, policy: Policy, num_steps: int | None = None, velocity: Ve
     ``step(actions) -> (obs, reward, dones, extras)`` with ``extras["time_outs"]``, and
     ``command_manager.command``. The reward of a step is computed by the env before a terminated
     env resets, so it is kept on the step that ends the episode; the velocity read after that step
-    already belongs to the next episode, so it is not.
+    already belongs to the next episode, so it is not (``envs/recorder.py``).
     """
-    n = env.num_envs
-    steps = int(num_steps or env.max_episode_length)
-    command = env.command_manager.command.detach().cpu().numpy().copy()
-    vel = np.zeros((steps, n, 3), dtype=np.float32)
-    valid = np.zeros((steps, n), dtype=bool)
-    reward = np.full((steps, n), np.nan, dtype=np.float32)
-    alive = torch.ones(n, dtype=torch.bool)
-    fell = torch.zeros(n, dtype=torch.bool)
-    length = torch.full((n,), steps, dtype=torch.long)
-    obs = env.get_observations()
-    with torch.inference_mode(), progress(total=steps, desc=f"{n} episodes", unit="step", leave=False) as bar:
-        for k in range(steps):
-            obs, rew, dones, extras = env.step(policy(obs))
-            done = dones.bool().cpu()
-            time_out = extras["time_outs"].bool().cpu()
-            reward[k] = np.where(alive.numpy(), (rew.cpu() / env.step_dt).numpy(), np.nan)
-            ok = alive & ~done
-            valid[k] = ok.numpy()
-            vel[k] = velocity(env).cpu().numpy()
-            ended = alive & done
-            fell |= ended & ~time_out
-            length[ended] = k + 1
-            alive &= ~done
-            bar.set_postfix_str(f"{100.0 * float(alive.float().mean()):.0f} % still up", refresh=False)
-            bar.update(1)
-    return Traces(command=command, velocity=vel, valid=valid, reward=reward, fell=fell.numpy(),
-                  length=length.numpy(), step_dt=float(env.step_dt))
-
-
-Probe = Callable[[object], torch.Tensor]
-"""env -> (B, ...) a quantity read after every policy step."""
+    rec = record(env, lambda obs: env.step(policy(obs)), {"velocity": velocity}, num_steps)
+    return Traces(command=rec.command, velocity=rec.after["velocity"].astype(np.float32, copy=False), valid=rec.valid,
+                  reward=rec.masked(rec.reward, rec.active), fell=rec.fell, length=rec.length, step_dt=rec.step_dt)
 
 
 @dataclass
@@ -123,31 +95,7 @@ def record_episodes(env, policy: Policy, probes: dict[str, Probe], num_steps: in
     """Like ``run_episodes``, but reads any set of ``probes`` after every step instead of the
     velocity alone. A probe read after the step that ends an env's episode already sees its next
     episode (the env resets inside ``step``), so that step is not ``valid``."""
-    n = env.num_envs
-    steps = int(num_steps or env.max_episode_length)
-    command = env.command_manager.command.detach().cpu().numpy().copy()
-    rec: dict[str, np.ndarray] = {}
-    valid = np.zeros((steps, n), dtype=bool)
-    alive = torch.ones(n, dtype=torch.bool)
-    fell = torch.zeros(n, dtype=torch.bool)
-    length = torch.full((n,), steps, dtype=torch.long)
-    obs = env.get_observations()
-    with torch.inference_mode(), progress(total=steps, desc=f"{n} episodes", unit="step", leave=False) as bar:
-        for k in range(steps):
-            obs, _, dones, extras = env.step(policy(obs))
-            done = dones.bool().cpu()
-            time_out = extras["time_outs"].bool().cpu()
-            valid[k] = (alive & ~done).numpy()
-            for name, probe in probes.items():
-                value = probe(env).detach().cpu().float().numpy()
-                if name not in rec:
-                    rec[name] = np.zeros((steps, *value.shape), dtype=np.float32)
-                rec[name][k] = value
-            ended = alive & done
-            fell |= ended & ~time_out
-            length[ended] = k + 1
-            alive &= ~done
-            bar.set_postfix_str(f"{100.0 * float(alive.float().mean()):.0f} % still up", refresh=False)
-            bar.update(1)
-    return Recording(command=command, probes=rec, valid=valid, fell=fell.numpy(), length=length.numpy(),
-                     step_dt=float(env.step_dt))
+    as_float = {name: (lambda env, p=probe: p(env).float()) for name, probe in probes.items()}
+    rec = record(env, lambda obs: env.step(policy(obs)), as_float, num_steps)
+    return Recording(command=rec.command, probes=rec.after, valid=rec.valid, fell=rec.fell, length=rec.length,
+                     step_dt=rec.step_dt)

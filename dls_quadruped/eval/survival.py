@@ -24,8 +24,8 @@ range, ``SWEEP_ROWS`` rows from 0 (nearly flat: rugged +-1 cm, 5 cm steps) to 1 
 hardest row), with the rough task's own disturbances (``SWEEP_STRENGTH`` = 1: friction 0.4-0.8,
 +-10 N, pushes of +-0.5 m/s every 8-12 s), reported as survival per row and the difficulty where
 it first drops below 50 % (with a 95 % interval). Where every expert is near 0 % on ``survival``
-(a few per cent at most, docs/experiments.md Fig. 18), this says how far below that each one still stands. With ``survival``'s
-doubled disturbances the sweep is at the floor too (docs/experiments.md, Fig. 18b).
+(a few per cent at most, docs/experiments/experts.md Fig. 18), this says how far below that each one still stands. With ``survival``'s
+doubled disturbances the sweep is at the floor too (docs/experiments/experts.md, Fig. 18b).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@
 
 A run directory holds ``distill.yaml`` (the resolved settings), ``dataset/`` and ``test/``
 (disk-backed datasets), ``checkpoint.pt`` (after every epoch, atomic), TensorBoard events,
-``metrics.json``, ``mse_sp.png`` and ``exported/student.pt`` (TorchScript) with
+``metrics.json``, ``mse_sp.png`` and ``exported/student.pt2`` (a ``torch.export`` program) with
 ``exported/student.json`` (encoding metadata, also inside the archive). ``--resume`` continues
 the newest run (or ``--run-dir``) after its last finished epoch; rows collected since are kept.
 See docs/distill.md.
@@ -42,6 +42,7 @@ from dls_quadruped.learning.distill_config import (
     load_distill_config,
 )
 from dls_quadruped.learning.distill_trainer import CHECKPOINT, DistillTrainer
+from dls_quadruped.learning.policy_file import load_module
 from dls_quadruped.learning.runner import new_run_dir, sha256_file
 from dls_quadruped.mpc.config import ENCODING_KINDS
 
@@ -53,7 +54,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--config", type=Path, default=None, help=f"distillation YAML (default {DEFAULT_CONFIG.name}; "
                    f"on --resume the run's own {RESOLVED})")
     p.add_argument("--task", default=None, help="env task name or YAML path (default: the config's, base)")
-    p.add_argument("--expert", default=None, help="TorchScript expert actor (default: the config's)")
+    p.add_argument("--expert", default=None,
+                   help="exported expert actor, .pt2 or TorchScript .pt (default: the config's)")
     p.add_argument("--encoding", default=None, help="<p>-<F>, each discrete|spline|first, e.g. first-spline")
     p.add_argument("--horizon", type=int, default=None, help="H, actions in the horizon (>= 1; >= 4 with a spline)")
     p.add_argument("--dt", type=positive_float, default=None, help="[s] spacing of the H actions (multiple of 0.02)")
@@ -77,7 +79,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--run-dir", type=Path, default=None, help="default: a new runs/distill/<time>")
     p.add_argument("--log-root", type=Path, default=Path("runs") / "distill")
     p.add_argument("--resume", action="store_true", help="continue after the last finished epoch")
-    p.add_argument("--out", type=Path, default=None, help="also copy student.pt/.json, metrics.json and mse_sp.png here")
+    p.add_argument("--out", type=Path, default=None,
+                   help="also copy student.pt2/.json, metrics.json and mse_sp.png here")
     return p.parse_args(argv)
 
 
@@ -112,16 +115,19 @@ def overrides_from_args(args: argparse.Namespace) -> dict:
     return over
 
 
-def load_expert(path: str | Path) -> torch.jit.ScriptModule:
-    """The TorchScript expert actor (checked for size against the env by :func:`check_expert`)."""
+def load_expert(path: str | Path) -> torch.nn.Module:
+    """The exported expert actor, a program or TorchScript (checked for size against the env by
+    :func:`check_expert`)."""
     path = Path(path)
     if not path.is_file():
-        raise UserError(f"expert {path} not found (a TorchScript actor such as docs/policies/base_actor.pt)")
+        raise UserError(f"expert {path} not found (an exported actor such as docs/policies/base_actor.pt or "
+                        "runs/<task>/<run>/exported/policy.pt2)")
     try:
-        return torch.jit.load(str(path), map_location="cpu").eval()
+        return load_module(path)
     except (RuntimeError, ValueError) as err:
-        raise UserError(f"expert {path} is not a TorchScript actor ({str(err).splitlines()[0][:120]}); "
-                        "export one with `make train` (exported/policy.pt)") from None
+        raise UserError(f"expert {path}: not a .pt2 program, not a TorchScript actor "
+                        f"({str(err).splitlines()[0][:120]}); export one with `make train` "
+                        "(exported/policy.pt2)") from None
 
 
 def check_expert(expert, path: str | Path, obs_dim: int, num_actions: int) -> None:

@@ -317,4 +317,4 @@ class DistillTrainer:
     def export(self, out_dir: Path) -> Path:
         meta = {**self.meta, "expert": self.expert_info, "algorithm": self.cfg.algorithm,
                 "epochs_trained": self.epoch}
-        return export_student(self.student, meta, Path(out_dir) / "student.pt")
+        return export_student(self.student, meta, Path(out_dir) / "student.pt2")

@@ -5,8 +5,8 @@
     python -m dls_quadruped.learning.play --task base --checkpoint docs/policies/base_actor.pt
     python -m dls_quadruped.learning.play --task base --set commands.base_velocity.params.max_speed=0.5 --seconds 20
 
-``--checkpoint`` takes an rsl-rl checkpoint (``model_<it>.pt``), an exported TorchScript actor
-(``runs/<task>/<run>/exported/policy.pt``) or a committed one (``docs/policies/<name>_actor.pt``); without
+``--checkpoint`` takes an rsl-rl checkpoint (``model_<it>.pt``), an exported actor
+(``runs/<task>/<run>/exported/policy.pt2``) or a committed one (``docs/policies/<name>_actor.pt``); without
 it, play takes the newest readable ``model_<it>.pt`` of the task's latest run under ``--log-root``
 (``runs/<task>/``) and stops with one line when there is none. ``--zero-action`` plays the zero latent
 action instead (the feed-forward trot of the low-level controller). ``--set KEY=VALUE`` overrides the
@@ -54,7 +54,7 @@ from dls_quadruped.eval.policy import load_policy
 from dls_quadruped.learning.runner import latest_run, newest_readable_checkpoint
 from dls_quadruped.robots.aliengo import constants as C
 
-CHECKPOINT_KINDS = "a model_<it>.pt, an exported policy.pt or a committed docs/policies/<name>_actor.pt"
+CHECKPOINT_KINDS = "a model_<it>.pt, an exported policy.pt2 or a committed docs/policies/<name>_actor.pt"
 
 
 class Recorder:

@@ -2,8 +2,8 @@
 
 Runs live in ``<log_root>/<task>/<run_name>/``: ``task.yaml`` (resolved config), ``agent.yaml``,
 TensorBoard events, ``model_<it>.pt`` checkpoints (written to a temporary file then renamed, so
-a kill never leaves a truncated checkpoint) and ``exported/policy.pt`` (TorchScript) and
-``exported/policy.onnx`` (any batch size, weights embedded).
+a kill never leaves a truncated checkpoint) and ``exported/policy.pt2`` (a ``torch.export`` program,
+``learning/policy_file.py``) and ``exported/policy.onnx`` (both any batch size, weights embedded).
 
 A checkpoint holds rsl-rl's own state plus ``env_state`` (``LocomotionEnv.state_dict()``: curricula,
 terrain levels, command ranges, reward weights, RNG, the episodes in progress), ``obs_dims``/
@@ -45,6 +45,7 @@ from dls_quadruped.learning.checkpoint_file import UnsafeCheckpoint
 from dls_quadruped.learning.diagnostics import TrainingDiagnostics
 from dls_quadruped.learning.distributed import any_rank, init_distributed
 from dls_quadruped.learning.fast_update import speed_up_update
+from dls_quadruped.learning.policy_file import save_program
 from dls_quadruped.learning.symmetry import check_symmetry_cfg
 
 _CKPT = re.compile(r"model_(\d+)\.pt$")
@@ -330,23 +331,28 @@ def latest_run(task_dir: Path) -> Path | None:
 
 
 def export_policy(runner: OnPolicyRunner, out_dir: Path) -> dict[str, Path | str]:
-    """Export the actor (with its observation normaliser) to TorchScript and, if possible, ONNX.
+    """Export the deterministic actor (with its observation normaliser) as a ``torch.export`` program
+    ``out_dir/policy.pt2`` and, if possible, as ONNX ``out_dir/policy.onnx``.
 
     Returns:
-        {"jit": path, "onnx": path or the reason it was skipped}.
+        {"program": path, "onnx": path or the reason it was skipped}.
     """
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    runner.export_policy_to_jit(str(out_dir), "policy.pt")
-    result: dict[str, Path | str] = {"jit": out_dir / "policy.pt"}
+    program = export_actor_program(runner.alg.get_policy(), out_dir / "policy.pt2")
+    result: dict[str, Path | str] = {"program": program}
     try:
-        with warnings.catch_warnings():  # torch's exporter's own deprecation notices (e.g. pytree's LeafSpec when it
-            warnings.simplefilter("ignore", FutureWarning)  # copies the graph): nothing a user can act on
-            runner.export_policy_to_onnx(str(out_dir), "policy.onnx")
+        runner.export_policy_to_onnx(str(out_dir), "policy.onnx")
         result["onnx"] = out_dir / "policy.onnx"
     except (ImportError, RuntimeError) as err:  # onnx/onnxscript missing or an exporter failure: report it
         result["onnx"] = f"skipped: {type(err).__name__}: {err}"
     return result
+
+
+def export_actor_program(actor, path: Path) -> Path:
+    """Export an rsl-rl ``MLPModel`` actor (normaliser + MLP + mean action) as a ``torch.export`` program
+    ``obs (B, obs_dim) -> actions (B, num_actions)`` with a free batch size (``learning/policy_file.py``)."""
+    # rsl-rl's inference module of the actor (what its own TorchScript export scripts): plain torch, exportable
+    return save_program(actor.as_jit(), actor.obs_dim, path)
 
 
 def export_actor_onnx(actor, path: Path, verbose: bool = False) -> Path:
@@ -359,9 +365,13 @@ def export_actor_onnx(actor, path: Path, verbose: bool = False) -> Path:
     example = torch.zeros(2, model.input_size)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    torch.onnx.export(model, (example,), str(path), dynamo=True, external_data=False, opset_version=18,
-                      input_names=model.input_names, output_names=model.output_names, verbose=verbose,
-                      dynamic_shapes=({0: torch.export.Dim("batch")},))
+    with warnings.catch_warnings():
+        # torch's exporter copies the graph through a pytree check that torch itself deprecates: nothing to act on here
+        warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)` is deprecated",
+                                category=FutureWarning)
+        torch.onnx.export(model, (example,), str(path), dynamo=True, external_data=False, opset_version=18,
+                          input_names=model.input_names, output_names=model.output_names, verbose=verbose,
+                          dynamic_shapes=({0: torch.export.Dim("batch")},))
     return path
 
 

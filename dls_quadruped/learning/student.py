@@ -8,9 +8,11 @@ the variance of the on-curve points, 7.2.4) is divided by 10; ``Student.forward`
 back. Reused from rsl-rl-lib: ``MLP`` and ``EmpiricalNormalization`` (the same modules the expert
 actor is made of).
 
-Export (TorchScript) keeps ``forward(obs) -> encoded`` and ``first_action(obs) -> (B, 28)``; the
-encoding (p, F, H, dt, dims, label scale) is stored inside the archive (``distill_meta.json``) and
-next to it (``<name>.json``), read back by :func:`load_student`.
+Export: a ``torch.export`` program (``student.pt2``, ``learning/policy_file.py``) of
+``obs (B, 259) -> (encoded (B, D), first action (B, 28))``; the encoding (p, F, H, dt, dims, label
+scale) is stored inside the archive (``distill_meta.json``) and next to it (``<name>.json``).
+:func:`load_student` reads it, or a TorchScript student (the committed ones), as a module with
+``forward(obs) -> encoded`` and ``first_action(obs) -> (B, 28)``.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import torch
 from rsl_rl.modules import MLP, EmpiricalNormalization
 from torch import nn
 
+from dls_quadruped.learning.policy_file import ExportedModule, load_module, save_program
 from dls_quadruped.mpc.config import EncodingConfig
 from dls_quadruped.mpc.encodings import (
     ACTION_DIM,
@@ -102,7 +105,6 @@ class Student(nn.Module):
         """(B, obs_dim) -> (B, D) encoded horizon in raw action units (decode with ``mpc.encodings.decode``)."""
         return self.net(obs) * self.output_scale
 
-    @torch.jit.export
     def first_action(self, obs: torch.Tensor) -> torch.Tensor:
         """(B, obs_dim) -> (B, 28) decoded first raw action of the horizon (what the env is given)."""
         return self.forward(obs).index_select(-1, self.first_index)
@@ -122,19 +124,39 @@ def metadata(cfg: EncodingConfig, dt: float, obs_dim: int, extra: dict | None = 
     }
 
 
-def export_student(student: Student, meta: dict, path: Path) -> Path:
-    """TorchScript archive at ``path`` with ``meta`` inside and as ``path.with_suffix('.json')``,
-    both written atomically (tmp + rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    import copy
+class _BothOutputs(nn.Module):
+    """The exported graph: one pass, both outputs (a program has one entry point)."""
 
-    module = copy.deepcopy(student).cpu().eval()
-    scripted = torch.jit.script(module)
+    def __init__(self, student: Student):
+        super().__init__()
+        self.student = student
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        encoded = self.student(obs)
+        return encoded, encoded.index_select(-1, self.student.first_index)
+
+
+class ExportedStudent(nn.Module):
+    """A loaded student program with the interface of :class:`Student`: ``forward(obs) -> (B, D)``
+    encoded horizon, ``first_action(obs) -> (B, 28)``."""
+
+    def __init__(self, program: ExportedModule):
+        super().__init__()
+        self.program = program
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.program(obs)[0]
+
+    def first_action(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.program(obs)[1]
+
+
+def export_student(student: Student, meta: dict, path: Path) -> Path:
+    """``torch.export`` program at ``path`` (``.pt2``) with ``meta`` inside and as
+    ``path.with_suffix('.json')``, both written atomically (tmp + rename)."""
+    path = Path(path)
     text = json.dumps(meta, indent=2, sort_keys=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.jit.save(scripted, str(tmp), _extra_files={META_NAME: text})
-    os.replace(tmp, path)
+    save_program(_BothOutputs(student), student.obs_dim, path, extra_files={META_NAME: text})
     side = path.with_suffix(".json")
     tmp_side = side.with_name(side.name + ".tmp")
     tmp_side.write_text(text + "\n")
@@ -142,8 +164,8 @@ def export_student(student: Student, meta: dict, path: Path) -> Path:
     return path
 
 
-def load_student(path: str | Path, device: str = "cpu") -> tuple[torch.jit.ScriptModule, dict]:
-    """An exported student and its metadata.
+def load_student(path: str | Path, device: str = "cpu") -> tuple[nn.Module, dict]:
+    """An exported student (a program, or TorchScript) and its metadata.
 
     Raises:
         FileNotFoundError: no file. ValueError: not a student export (no metadata inside).
@@ -153,9 +175,11 @@ def load_student(path: str | Path, device: str = "cpu") -> tuple[torch.jit.Scrip
         raise FileNotFoundError(f"student {path} not found")
     extra = {META_NAME: ""}
     try:
-        module = torch.jit.load(str(path), map_location=device, _extra_files=extra)
-    except RuntimeError as err:
-        raise ValueError(f"{path} is not a TorchScript archive: {str(err).splitlines()[0]}") from None
+        module = load_module(path, device=device, extra_files=extra)
+    except (RuntimeError, ValueError) as err:
+        raise ValueError(f"{path} is not an exported student: {str(err).splitlines()[0]}") from None
     if not extra[META_NAME]:
         raise ValueError(f"{path} has no {META_NAME}: not a distilled student export")
+    if isinstance(module, ExportedModule):
+        module = ExportedStudent(module)
     return module.eval(), json.loads(extra[META_NAME])

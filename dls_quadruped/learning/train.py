@@ -21,8 +21,8 @@ every RNG, so its first iteration is the one the uninterrupted run would have ta
 ``--init-from`` starts a new
 run from another run's actor and critic (a checkpoint file or a run directory's newest one; fresh
 optimiser, iteration 0, the task's own curricula; see ``AtomicOnPolicyRunner.init_networks``); it is
-recorded in the run directory's ``init_from.yaml``. At the end the actor is exported to TorchScript
-and ONNX.
+recorded in the run directory's ``init_from.yaml``. At the end the actor is exported as a
+``torch.export`` program (``exported/policy.pt2``) and as ONNX (``exported/policy.onnx``).
 Distributed: ``torchrun --standalone --nproc_per_node=N -m dls_quadruped.learning.train ...`` runs N
 processes, each with its own ``--num-envs`` robots and seed ``--seed + rank``, all-reducing the
 gradients (gloo with ``--device cpu``; NCCL with ``--device cuda``, which becomes ``cuda:$LOCAL_RANK``).

@@ -14,9 +14,11 @@ import math
 from dataclasses import dataclass, field, fields
 
 from dls_quadruped.control.latent_action import LatentActionConfig
+from dls_quadruped.mpc.kernel_registry import KERNEL_REGISTRY
 
 ENCODING_KINDS = ("discrete", "spline", "first")
-KERNELS = ("fast", "reference", "cpp")
+KERNELS = KERNEL_REGISTRY.as_mapping()
+"""The cost kernels by name (a live view of ``KERNEL_REGISTRY``): ``fast``, ``reference``, ``cpp``."""
 
 
 def _check_from_dict(cls: type, values: dict) -> None:
@@ -172,8 +174,8 @@ class SamplerConfig:
         if not _is_real(self.group_cost_smoothing) or not 0 <= self.group_cost_smoothing < 1:
             raise ValueError(f"SamplerConfig.group_cost_smoothing must be in [0, 1) (weight of the previous running "
                              f"group cost; 0 switches it off), got {self.group_cost_smoothing!r}")
-        if self.kernel not in KERNELS:
-            raise ValueError(f"SamplerConfig.kernel must be one of {KERNELS}, got {self.kernel!r}")
+        if self.kernel not in KERNEL_REGISTRY:
+            raise ValueError(f"SamplerConfig.kernel must be one of {KERNEL_REGISTRY.names()}, got {self.kernel!r}")
         _ = self.encoding  # validates the encoding kinds and horizon
 
     @property

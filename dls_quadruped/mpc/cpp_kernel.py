@@ -43,6 +43,15 @@ from dls_quadruped.mpc.samples import encoded_bounds, sigma_vector
 from dls_quadruped.mpc.srbd import SRBDModel
 
 SOURCE = Path(__file__).with_name("rollout_kernel.cpp")
+HEADERS = (Path(__file__).with_name("counter_hash.h"),)
+"""The headers the C++ sources include (``-I`` the package's ``mpc/``; their bytes are part of the build's key)."""
+
+
+def source_bytes(source: Path) -> bytes:
+    """``source`` and :data:`HEADERS`, the bytes a cached build must match."""
+    return source.read_bytes() + b"".join(h.read_bytes() for h in HEADERS)
+
+
 FLAG_SETS = (
     ["-O3", "-march=native", "-fopenmp", "-fno-math-errno"],
     ["-O3", "-fopenmp", "-fno-math-errno"],
@@ -110,7 +119,7 @@ def _compile(src: Path, lib: Path, variant: str) -> tuple[str, list[str]]:
     for flags in flag_sets(variant):
         with tempfile.NamedTemporaryFile(dir=lib.parent, suffix=".so", delete=False) as tmp:
             tmp_path = Path(tmp.name)
-        cmd = [cxx, *flags, *COMMON_FLAGS, *extra_flags(cxx), str(src), "-o", str(tmp_path)]
+        cmd = [cxx, *flags, *COMMON_FLAGS, *extra_flags(cxx), f"-I{SOURCE.parent}", str(src), "-o", str(tmp_path)]
         proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if proc.returncode == 0:
             lib.with_suffix(".flags").write_text(" ".join(flags))  # before the library: a reader sees both
@@ -149,7 +158,7 @@ def load(variant: str = "native") -> ctypes.CDLL | None:
         text = SOURCE.read_bytes()
         cxx = compiler() or ""
         key = repr((flag_sets(variant), COMMON_FLAGS, extra_flags(cxx) if cxx else (), _host_signature()))
-        digest = hashlib.sha256(text + key.encode()).hexdigest()[:16]
+        digest = hashlib.sha256(source_bytes(SOURCE) + key.encode()).hexdigest()[:16]
         out = build_dir()
         out.mkdir(parents=True, exist_ok=True)
         lib_path = out / f"rollout_kernel_{digest}.so"

@@ -23,19 +23,11 @@
 #include <cstdint>
 #include <cstring>
 
+#include "counter_hash.h"  // hash32 (rng.hash32)
+
 namespace {
 
 constexpr int L = 16;  // lanes per block
-
-inline uint32_t hash32(uint32_t x) {  // rng.hash32
-  x ^= x >> 16;
-  x *= 0x7FEB352Du;
-  x ^= x >> 15;
-  x *= 0x1B873593u;
-  x ^= x >> 16;
-  x *= 0x5BD1E995u;
-  return x ^ (x >> 13);
-}
 
 inline uint32_t bits_of(float x) {
   uint32_t u;

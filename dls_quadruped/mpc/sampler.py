@@ -19,7 +19,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import torch
 
@@ -33,91 +32,22 @@ from dls_quadruped.mpc.cost import (
     rollout_step_costs,
 )
 from dls_quadruped.mpc.encodings import encoded_dim
-from dls_quadruped.mpc.kernel import (
-    KernelInputs,
-    cpp_costs,
-    fast_costs,
-    reference_costs,
-)
+from dls_quadruped.mpc.kernel import KernelInputs
+from dls_quadruped.mpc.kernel_registry import KERNEL_REGISTRY
 from dls_quadruped.mpc.samples import decode_samples, group_layout, sample_encoded
+from dls_quadruped.mpc.solution import (
+    MPCResult,
+    action_finite,
+    check_phase,
+    check_tensor,
+    describe_bad,
+)
 from dls_quadruped.mpc.srbd import (
     SRBDModel,
     SRBDState,
     robot_srbd_model,
     rotation_from_euler,
 )
-
-
-@dataclass
-class MPCResult:
-    """Solution of one solve for B robots (world frame unless noted).
-
-    Attributes:
-        f: (B, 4) [Hz] step frequency; d: (B, 4) duty cycle.
-        contact: (B, 4) bool, stance flags at step 0.
-        foot_target_w: (B, 4, 3) [m] touch-down targets p_0; force_w: (B, 4, 3) [N] forces F_0.
-        p_h: (B, 4, 2) [m], F_h: (B, 4, 3) [N]: the same first action in the horizontal frame
-            (p relative to the nominal foothold), i.e. the latent-action units.
-        best_cost: (B,) rollout cost J of the chosen sample (+inf if every sample diverged).
-        best_input_cost: (B,) its input part, sum_k (u_k - u_ref)^T R (u_k - u_ref) (the foothold deviation
-            from the reference; +inf for a fallback robot). The state-only rollout cost, what evaluations
-            compare, is ``best_cost - best_input_cost`` (:attr:`best_state_cost`).
-        initial_cost: (B,) state cost of the current state (thesis 7.3.1).
-        best_index: (B,) long, winning sample (-1 for a fallback robot).
-        warm_start_index: (B,) long, warm start whose group the winner came from (-1 for a fallback).
-        best_encoded: (B, D) winning encoded action (box-clipped; F block = force offsets from gravity
-            compensation, ``samples.forces_from_offsets``), for the naive warm start.
-        contact_horizon: (B, N, 4) bool, the winner's contact sequence over the horizon (step 0 = ``contact``).
-        step_costs: (B, N) the winner's cost per horizon step (state cost after step k + input cost of step k,
-            re-computed with the reference rollout in float32: sums to ``best_cost`` up to the kernel's
-            round-off, NaN where it diverged; thesis Fig. 28) when ``SamplingMPC.record_step_costs`` is on,
-            else NaN; +inf for a fallback robot.
-        step_input_costs: (B, N) the input part of ``step_costs`` (always filled; +inf for a fallback robot).
-        fallback: (B,) bool, True where an input (state, phase, base_xy_w, base_yaw, terrain_z_w, a
-            reference) or the solution was not finite and the previous solution (or the first warm
-            start if there was none) was returned unchanged. False always means a finite action.
-        reason: "" or a sentence naming the fallback robots and why.
-    """
-
-    f: torch.Tensor
-    d: torch.Tensor
-    contact: torch.Tensor
-    foot_target_w: torch.Tensor
-    force_w: torch.Tensor
-    p_h: torch.Tensor
-    F_h: torch.Tensor
-    best_cost: torch.Tensor
-    best_input_cost: torch.Tensor
-    initial_cost: torch.Tensor
-    best_index: torch.Tensor
-    warm_start_index: torch.Tensor
-    best_encoded: torch.Tensor
-    contact_horizon: torch.Tensor
-    step_costs: torch.Tensor
-    step_input_costs: torch.Tensor
-    fallback: torch.Tensor
-    reason: str = ""
-
-    @property
-    def best_state_cost(self) -> torch.Tensor:
-        """(B,) state-only rollout cost of the chosen sample: sum_k (x_{k+1} - x_ref)^T Q (x_{k+1} - x_ref)."""
-        finite = torch.isfinite(self.best_input_cost)  # a fallback robot: +inf, not inf - inf
-        return torch.where(finite, self.best_cost - torch.where(finite, self.best_input_cost, 0.0), self.best_cost)
-
-
-def _check_tensor(name: str, value: object, shape: tuple[int, ...]) -> None:
-    if not isinstance(value, torch.Tensor) or tuple(value.shape) != shape:
-        raise ValueError(f"{name} must be a tensor of shape {shape}, got {tuple(getattr(value, 'shape', ())) or type(value).__name__}")
-
-
-def _check_phase(phase: torch.Tensor) -> None:
-    """Refuse a finite phase outside the gait cycle (a non-finite one sends its robot to the fallback). 1.0 passes:
-    the simulator's float64 phase just below 1 rounds to it in a float32 state."""
-    outside = torch.isfinite(phase) & ((phase < 0.0) | (phase > 1.0))
-    if bool(outside.any()):
-        robots = torch.nonzero(outside.any(dim=1)).flatten().tolist()
-        raise ValueError(f"phase must be in [0, 1) (the fraction of the gait cycle), got {phase[outside][:4].tolist()} "
-                         f"for robots {robots[:10]}")
 
 
 class SamplingMPC:
@@ -196,7 +126,9 @@ class SamplingMPC:
 
     # ------------------------------------------------------------------ solve
 
-    def _layout(self, proportions: tuple[float, ...]) -> tuple[torch.Tensor, torch.Tensor]:
+    def sample_layout(self, proportions: tuple[float, ...]) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M,) long warm-start group and (M,) float 0/1 perturbation flag of every sample for ``proportions``
+        (:func:`samples.group_layout`; sample 0 of each group is its warm start unperturbed), cached on the device."""
         if proportions not in self._layouts:
             group, perturb, counts = group_layout(self.cfg.num_samples, proportions)
             self._layouts[proportions] = (group.to(self.device), perturb.to(self.device))
@@ -217,9 +149,9 @@ class SamplingMPC:
             costs, self._counts[props], self.cfg.switching_cost, self.cfg.group_cost_smoothing, memory)
         return best_cost, best_index
 
-    def _remember(self, result: MPCResult) -> None:
-        """Keep ``result`` as the previous solution and, when arbitrating, each robot's winning group and running
-        group costs (a fallback robot keeps neither)."""
+    def remember(self, result: MPCResult) -> None:
+        """Keep ``result`` as the previous solution (the next naive warm start) and, when arbitrating, each robot's
+        winning group and running group costs (a fallback robot keeps neither): every solve path ends here."""
         self.last_result, self._forgotten = result, None
         if self._average is None:
             self._arbitration = None
@@ -235,8 +167,8 @@ class SamplingMPC:
         state.validate()
         b = state.batch_size
         refs.validate(b)
-        _check_tensor("phase", phase, (b, 4))
-        _check_phase(phase)
+        check_tensor("phase", phase, (b, 4))
+        check_phase(phase)
         if isinstance(warm_starts, torch.Tensor) or len(warm_starts) == 0:
             raise ValueError("warm_starts must be a non-empty list of (B, D) or (D,) encoded actions "
                              f"(D = {self.dim} for encoding p={self.cfg.encoding_p!r}, F={self.cfg.encoding_F!r})")
@@ -323,7 +255,7 @@ class SamplingMPC:
             terrain_z_w = torch.zeros(b, 4, device=dev)
         for name, value, shape in (("base_xy_w", base_xy_w, (b, 2)), ("base_yaw", base_yaw, (b,)),
                                    ("terrain_z_w", terrain_z_w, (b, 4))):
-            _check_tensor(name, value, shape)
+            check_tensor(name, value, shape)
         # every other per-robot input: a non-finite row sends that robot to the fallback, zeros go to the kernel
         inputs = {"phase": phase, "base_xy_w": base_xy_w, "base_yaw": base_yaw, "terrain_z_w": terrain_z_w,
                   "refs.com_height_w": refs.com_height_w, "refs.lin_vel_w": refs.lin_vel_w,
@@ -336,33 +268,29 @@ class SamplingMPC:
             clean[name] = torch.where(torch.isfinite(value), value, torch.zeros((), device=dev))
         refs = Refs(clean["refs.com_height_w"], clean["refs.lin_vel_w"], clean["refs.yaw_rate"], clean["refs.foothold_w"])
         finite = ~torch.stack(list(bad_inputs.values())).any(dim=0)
-        group, perturb = self._layout(props)
+        group, perturb = self.sample_layout(props)
         seed = torch.randint(0, 2**31 - 1, (), generator=self.generator).to(dev)
         inp = KernelInputs(seed, ws, group, perturb, x0, clean["phase"], clean["base_xy_w"], clean["base_yaw"],
                            clean["terrain_z_w"], refs)
         tic = time.perf_counter()
-        if self.cfg.kernel == "cpp":
-            costs = cpp_costs(inp, self.cfg, self.model)
-        elif self.cfg.kernel == "fast":
-            costs = fast_costs(inp, self.cfg, self.model)
-        else:
-            costs = reference_costs(inp, self.cfg, self.model)
+        costs = KERNEL_REGISTRY.get(self.cfg.kernel)(inp, self.cfg, self.model)
         if costs.is_cuda:
             torch.cuda.synchronize(costs.device)
         self.kernel_seconds += time.perf_counter() - tic
         best_cost, best_index = self._arbitrate(costs, props, *costs.min(dim=1))
-        result = self._extract(inp, best_index, best_cost, initial_cost(x0, refs, self.cfg.weights))
+        result = self.decode_winners(inp, best_index, best_cost, initial_cost(x0, refs, self.cfg.weights))
         # last guard: whatever the cause, a non-finite action never leaves with fallback = False
-        bad_inputs["solution"] = finite & ~_action_finite(result)
+        bad_inputs["solution"] = finite & ~action_finite(result)
         bad = torch.stack(list(bad_inputs.values())).any(dim=0)
         if bool(bad.any()):
-            result = self._fallback(result, bad, inp, _describe_bad(bad_inputs))
-        self._remember(result)
+            result = self.fall_back(result, bad, inp, describe_bad(bad_inputs))
+        self.remember(result)
         return result
 
-    def _extract(self, inp: KernelInputs, best_index: torch.Tensor, best_cost: torch.Tensor,
-                 init_cost: torch.Tensor) -> MPCResult:
-        """Re-draw the winning samples and decode their first action."""
+    def decode_winners(self, inp: KernelInputs, best_index: torch.Tensor, best_cost: torch.Tensor,
+                       init_cost: torch.Tensor) -> MPCResult:
+        """Re-draw the winning samples (B,) ``best_index`` of ``inp`` and decode their first action: the
+        :class:`MPCResult` of a solve without fallback (step costs NaN unless ``record_step_costs``)."""
         best = sample_encoded(inp.seed, inp.warm_starts, inp.group, inp.perturb, best_index[:, None], self.cfg)
         dec = decode_samples(best, inp.phase, inp.base_xy_w, inp.base_yaw, inp.terrain_z_w, self.cfg)
         first = {k: v[:, 0] for k, v in dec.items()}  # drop the K = 1 sample dim
@@ -382,14 +310,15 @@ class SamplingMPC:
             fallback=torch.zeros(b, dtype=torch.bool, device=best_index.device),
         )
 
-    def _fallback(self, result: MPCResult, bad: torch.Tensor, inp: KernelInputs, why: str) -> MPCResult:
-        """Robots with a non-finite input keep the previous solution (or the first warm start, decoded)."""
+    def fall_back(self, result: MPCResult, bad: torch.Tensor, inp: KernelInputs, why: str) -> MPCResult:
+        """``result`` with the (B,) ``bad`` robots (a non-finite input or action) given the previous solution (or
+        the first warm start, decoded from ``inp``), +inf costs, index -1 and ``reason`` = ``why`` + the source."""
         prev = self.last_result
         if prev is not None and prev.f.shape[0] == bad.shape[0] and prev.f.device == bad.device:
             source = "the previous solution"
         else:  # sample 0 is warm start 0 itself (its group's unperturbed sample)
             source = "the first warm start (no previous solution)"
-            prev = self._extract(inp, torch.zeros_like(result.best_index), result.best_cost, result.initial_cost)
+            prev = self.decode_winners(inp, torch.zeros_like(result.best_index), result.best_cost, result.initial_cost)
         out = {}
         for name in ("f", "d", "contact", "foot_target_w", "force_w", "p_h", "F_h", "best_encoded", "contact_horizon"):
             new, old = getattr(result, name), getattr(prev, name)
@@ -407,23 +336,3 @@ class SamplingMPC:
             fallback=bad.clone(),
             reason=f"{why}: returned {source} for them",
         )
-
-
-_ACTION_FIELDS = ("f", "d", "foot_target_w", "force_w", "p_h", "F_h", "best_encoded")
-
-
-def _action_finite(result: MPCResult) -> torch.Tensor:
-    """(B,) bool: every action field of the robot is finite."""
-    b = result.f.shape[0]
-    return torch.stack([torch.isfinite(getattr(result, n)).reshape(b, -1).all(dim=1) for n in _ACTION_FIELDS]).all(0)
-
-
-def _describe_bad(bad_inputs: dict[str, torch.Tensor]) -> str:
-    """'state of robots [1] is not finite (NaN/inf); refs.lin_vel_w of robots [0, 2] is not finite ...'."""
-    parts = []
-    for name, mask in bad_inputs.items():
-        if bool(mask.any()):
-            robots = torch.nonzero(mask).flatten().tolist()
-            what = "the solution" if name == "solution" else name
-            parts.append(f"{what} of robots {robots} is not finite (NaN/inf)")
-    return "; ".join(parts)

@@ -10,17 +10,9 @@
 #include <cmath>
 #include <cstdint>
 
-namespace {
+#include "counter_hash.h"  // hash32 (core.hashing.hash32 on the low 32 bits)
 
-inline uint32_t hash32(uint32_t x) {  // core.hashing.hash32 on the low 32 bits
-  x ^= x >> 16;
-  x *= 0x7FEB352Du;
-  x ^= x >> 15;
-  x *= 0x1B873593u;
-  x ^= x >> 16;
-  x *= 0x5BD1E995u;
-  return x ^ (x >> 13);
-}
+namespace {
 
 // torch.clamp / torch.minimum(torch.maximum(v, lo), hi): NaN propagates.
 inline float clamp_nan(float v, float lo, float hi) {

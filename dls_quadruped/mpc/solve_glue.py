@@ -28,7 +28,6 @@ import hashlib
 import os
 import platform
 import subprocess
-import sys
 import tempfile
 import time
 import warnings
@@ -49,10 +48,14 @@ from dls_quadruped.mpc.encodings import (
     spline_basis,
 )
 from dls_quadruped.mpc.kernel import KernelInputs
+from dls_quadruped.mpc.solution import (
+    MPCResult,
+    action_finite,
+    check_tensor,
+    describe_bad,
+)
 
 SOURCE = Path(__file__).with_name("solve_glue.cpp")
-_SAMPLER = "dls_quadruped.mpc.sampler"
-"""Imports this module; its MPCResult and checks are looked up in sys.modules (no import machinery per solve)."""
 FLAGS = ["-O2", "-ffp-contract=off", "-fno-math-errno", "-std=gnu++17", "-shared", "-fPIC"]
 """No -march=native and no FMA contraction: the results must round like torch's separate ops."""
 
@@ -78,7 +81,7 @@ def load() -> ctypes.CDLL | None:
         if cxx is None:
             raise RuntimeError("no C++ compiler (g++/c++) on PATH")
         key = repr((FLAGS, cxx, platform.machine()))
-        digest = hashlib.sha256(text + key.encode()).hexdigest()[:16]
+        digest = hashlib.sha256(cpp_kernel.source_bytes(SOURCE) + key.encode()).hexdigest()[:16]
         out = cpp_kernel.build_dir()
         out.mkdir(parents=True, exist_ok=True)
         lib_path = out / f"solve_glue_{digest}.so"
@@ -87,8 +90,8 @@ def load() -> ctypes.CDLL | None:
             src.write_bytes(text)
             with tempfile.NamedTemporaryFile(dir=out, suffix=".so", delete=False) as tmp:
                 tmp_path = Path(tmp.name)
-            proc = subprocess.run([cxx, *FLAGS, str(src), "-o", str(tmp_path)], capture_output=True, text=True,
-                                  check=False)
+            proc = subprocess.run([cxx, *FLAGS, f"-I{SOURCE.parent}", str(src), "-o", str(tmp_path)],
+                                  capture_output=True, text=True, check=False)
             if proc.returncode != 0:
                 tmp_path.unlink(missing_ok=True)
                 raise RuntimeError(proc.stderr.strip()[-2000:])
@@ -190,7 +193,6 @@ def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, prop
           terrain_z_w: torch.Tensor | None):
     """:meth:`SamplingMPC.solve` after its argument validation, fused (CPU, ``cpp`` kernel); the same result
     bit for bit. ``ws``: (B, G, D) validated warm starts; ``props``: their proportions."""
-    sampler = sys.modules[_SAMPLER]
     b, g = state.batch_size, ws.shape[1]
     w = mpc._workspaces.get((b, g))
     if w is None or w.cfg is not mpc.cfg or w.model is not mpc.model:
@@ -212,13 +214,13 @@ def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, prop
         terrain_z_w = torch.zeros(b, 4)
     for name, value, shape in (("base_xy_w", base_xy_w, (b, 2)), ("base_yaw", base_yaw, (b,)),
                                ("terrain_z_w", terrain_z_w, (b, 4))):
-        sampler._check_tensor(name, value, shape)
+        check_tensor(name, value, shape)
     inputs = [_f32(t) for t in (phase, base_xy_w, base_yaw, terrain_z_w, refs.com_height_w, refs.lin_vel_w,
                                 refs.yaw_rate, refs.foothold_w)]
     lib.clean_inputs(b, x.data_ptr(), *(t.data_ptr() for t in inputs), w.clean_ptr, w.bad.data_ptr())
     yaw, h_ref, wz_ref = c["base_yaw"].view(b), c["refs.com_height_w"].view(b), c["refs.yaw_rate"].view(b)
     foothold = c["refs.foothold_w"].view(b, 4, 3)
-    group, perturb = mpc._layout(props)
+    group, perturb = mpc.sample_layout(props)
     seed_t = torch.randint(0, 2**31 - 1, (), generator=mpc.generator)
     seed = int(seed_t)
     # ---- the kernel and the argmin, one call
@@ -245,7 +247,7 @@ def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, prop
     init_cost = w.init_terms.sum(-1)  # cost.initial_cost: torch's summation order, then NaN -> +inf
     if mpc.record_step_costs:  # the winner's reference rollout needs the torch decoding: the torch path
         init_cost = torch.where(torch.isnan(init_cost), torch.full_like(init_cost, float("inf")), init_cost)
-        result = mpc._extract(inp, best_index, best_cost, init_cost)
+        result = mpc.decode_winners(inp, best_index, best_cost, init_cost)
         num_bad = -1
     else:
         torch.log(u1, out=log_u1)
@@ -260,25 +262,24 @@ def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, prop
     if num_bad:  # num_bad < 0: not counted yet
         _guard(mpc, result, inp, w.bad)
     else:
-        mpc._remember(result)
+        mpc.remember(result)
     return mpc.last_result
 
 
 def _guard(mpc, result, inp, bad_in: torch.Tensor) -> None:
     """SamplingMPC.solve's last guard (torch): robots with a flagged input or a non-finite action fall back."""
-    sampler = sys.modules[_SAMPLER]
     finite = ~bad_in.any(dim=0)
     bad_inputs = {name: bad_in[i].clone() for i, name in enumerate(INPUT_WIDTHS)}
-    bad_inputs["solution"] = finite & ~sampler._action_finite(result)
+    bad_inputs["solution"] = finite & ~action_finite(result)
     bad = torch.stack(list(bad_inputs.values())).any(dim=0)
     if bool(bad.any()):
-        result = mpc._fallback(result, bad, inp, sampler._describe_bad(bad_inputs))
-    mpc._remember(result)
+        result = mpc.fall_back(result, bad, inp, describe_bad(bad_inputs))
+    mpc.remember(result)
 
 
 def _decode_winner(lib: ctypes.CDLL, w: Workspace, best: torch.Tensor, inp, best_index: torch.Tensor,
                    best_cost: torch.Tensor, init_cost: torch.Tensor, ws_index: torch.Tensor):
-    """(MPCResult of the winners ``best`` (B, D) as ``SamplingMPC._extract`` computes it (step costs NaN),
+    """(MPCResult of the winners ``best`` (B, D) as ``SamplingMPC.decode_winners`` computes it (step costs NaN),
     number of robots the last guard flags)."""
     b, n = w.b, w.n
     p_h = _decoded_block(best, w, "p", P_SCALARS)
@@ -296,7 +297,7 @@ def _decode_winner(lib: ctypes.CDLL, w: Workspace, best: torch.Tensor, inp, best
         w.forces, w.norm_xy, inp.base_xy_w, cos_yaw, sin_yaw, inp.terrain_z_w, inp.refs.foothold_w, nominal,
         r_diag, const, p_h0, F_h0, target0, force0, w.input_terms, step_costs, best, w.bad, init_cost)))
     step_input = w.input_terms.sum(-1)[:, 0]  # (B, N), torch's summation order
-    result = sys.modules[_SAMPLER].MPCResult(
+    result = MPCResult(
         f=best[:, 0:4], d=best[:, 4:8], contact=contact[:, 0], foot_target_w=target0, force_w=force0,
         p_h=p_h0, F_h=F_h0, best_cost=best_cost, best_input_cost=step_input.sum(-1), initial_cost=init_cost,
         best_index=best_index, warm_start_index=ws_index, best_encoded=best, contact_horizon=contact,

@@ -24,6 +24,7 @@ Backends are built by name (``scene.backend`` in a task file) with ``make_backen
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol, Self, runtime_checkable
 
@@ -114,6 +115,25 @@ def standing_references(command: dict[str, torch.Tensor], rows: slice | torch.Te
             t.index_fill_(0, rows.to(t.device), value)  # t[rows] = value would copy value from the host on CUDA
         else:
             t[rows] = value
+
+
+def reset_coordinates(rows: Callable[[str, Any, int, tuple[int, ...]], torch.Tensor], n: int, base_pos_w: Any,
+                      base_quat_w: Any, joint_pos: Any, joint_vel: Any = None, base_lin_vel_w: Any = None,
+                      base_ang_vel_b: Any = None, device: torch.device | None = None
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+    """``qpos`` (n, 19) and ``qvel`` (n, 18), float64, of ``SimBackend.reset``'s targets: the quaternion normalised,
+    velocities not given zero. ``rows(name, value, n, shape)`` is the backend's check of one input (shape,
+    finiteness) returning it as float64 (n, *shape) on ``device``."""
+    zeros3 = torch.zeros(n, 3, dtype=torch.float64, device=device)
+    quat = rows("base_quat_w", base_quat_w, n, (4,))
+    qpos = torch.cat([rows("base_pos_w", base_pos_w, n, (3,)), quat / quat.norm(dim=1, keepdim=True),
+                      rows("joint_pos", joint_pos, n, (12,))], dim=1)
+    qvel = torch.cat(
+        [zeros3 if base_lin_vel_w is None else rows("base_lin_vel_w", base_lin_vel_w, n, (3,)),
+         zeros3 if base_ang_vel_b is None else rows("base_ang_vel_b", base_ang_vel_b, n, (3,)),
+         torch.zeros(n, 12, dtype=torch.float64, device=device) if joint_vel is None
+         else rows("joint_vel", joint_vel, n, (12,))], dim=1)
+    return qpos, qvel
 
 
 def home_state(num: int, seed: int, noise: float = 0.0, yaw: float | torch.Tensor = 0.0) -> dict[str, torch.Tensor]:

@@ -28,7 +28,8 @@ import mujoco
 import numpy as np
 
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.terrain import TerrainConfig, generate_tiles, terrain_spec
+from dls_quadruped.sim.terrain_geometry import terrain_spec
+from dls_quadruped.sim.terrain_tiles import TerrainConfig, generate_tiles
 
 ROBOT_REACH = 0.8
 """[m] bound on the horizontal distance from the base to any point of the robot's collision geoms

@@ -6,7 +6,7 @@ MuJoCo Warp is loaded only for a Warp backend::
 
     sim = make_backend("cpu", model, num_envs=64, cfg=SimConfig(num_workers=0))
 
-``cpu`` is :class:`dls_quadruped.sim.backend.VecSim` (MuJoCo's C batch + Pinocchio, worker processes);
+``cpu`` is :class:`dls_quadruped.sim.cpu_backend.VecSim` (MuJoCo's C batch + Pinocchio, worker processes);
 ``warp-cpu`` and ``cuda`` are :class:`dls_quadruped.sim.warp_backend.WarpSim` (MuJoCo Warp on Warp's CPU device or
 on a CUDA GPU, the optional ``[gpu]`` extra, docs/gpu.md). A new backend registers a factory with
 :func:`register_backend`.
@@ -15,11 +15,11 @@ on a CUDA GPU, the optional ``[gpu]`` extra, docs/gpu.md). A new backend registe
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import mujoco
 
+from dls_quadruped.core.registry import Registry
 from dls_quadruped.sim.interface import SimBackend, SimConfig
 
 
@@ -29,17 +29,8 @@ class BackendUnavailableError(RuntimeError):
 
 BackendFactory = Callable[[mujoco.MjModel, int, SimConfig], SimBackend]
 
-
-@dataclass(frozen=True)
-class BackendSpec:
-    """A registered backend: its factory and a line for ``--help`` and error messages."""
-
-    name: str
-    factory: BackendFactory
-    description: str
-
-
-_BACKENDS: dict[str, BackendSpec] = {}
+BACKENDS: Registry[BackendFactory] = Registry("simulator backend")
+"""The backend factories by name, each with a line for ``--help`` and error messages."""
 DEFAULT_CONFIG = SimConfig()
 """What :func:`make_backend` builds with when given no ``SimConfig`` (frozen, shared safely)."""
 
@@ -50,29 +41,22 @@ def register_backend(name: str, factory: BackendFactory, description: str) -> No
     Raises:
         ValueError: ``name`` is empty or already registered.
     """
-    if not isinstance(name, str) or not name:
-        raise ValueError(f"backend name must be a non-empty string, got {name!r}")
-    if name in _BACKENDS:
-        raise ValueError(f"backend {name!r} is already registered")
-    _BACKENDS[name] = BackendSpec(name, factory, description)
+    BACKENDS.register(name, factory, description)
 
 
 def unregister_backend(name: str) -> None:
     """Remove backend ``name`` (tests that register a temporary one); unknown names are ignored."""
-    _BACKENDS.pop(name, None)
+    BACKENDS.unregister(name)
 
 
 def backend_names() -> tuple[str, ...]:
     """The registered backends, in registration order."""
-    return tuple(_BACKENDS)
+    return BACKENDS.names()
 
 
 def check_backend(name: Any) -> str:
     """``name`` if it is a registered backend, else a one-line ``ValueError`` naming the allowed ones."""
-    if name not in _BACKENDS:
-        allowed = ", ".join(f"{s.name} ({s.description})" for s in _BACKENDS.values())
-        raise ValueError(f"unknown simulator backend {name!r}; allowed: {allowed}")
-    return name
+    return BACKENDS.check(name)
 
 
 def make_backend(name: str, model: mujoco.MjModel, num_envs: int, cfg: SimConfig = DEFAULT_CONFIG) -> SimBackend:
@@ -83,7 +67,7 @@ def make_backend(name: str, model: mujoco.MjModel, num_envs: int, cfg: SimConfig
         BackendUnavailableError: the backend's packages or device are missing (one line: what, and how to
             install it).
     """
-    return _BACKENDS[check_backend(name)].factory(model, num_envs, cfg)
+    return BACKENDS.get(name)(model, num_envs, cfg)
 
 
 def _cpu_backend(model: mujoco.MjModel, num_envs: int, cfg: SimConfig) -> SimBackend:
@@ -94,7 +78,7 @@ def _cpu_backend(model: mujoco.MjModel, num_envs: int, cfg: SimConfig) -> SimBac
             raise BackendUnavailableError(
                 "simulator backend 'cpu' with leg_dynamics 'pinocchio' needs Pinocchio (pinocchio is not "
                 "installed): pip install pin, or SimConfig(leg_dynamics='mujoco'), or a Warp backend") from None
-    from dls_quadruped.sim.backend import VecSim
+    from dls_quadruped.sim.cpu_backend import VecSim
 
     return VecSim(model, num_envs, cfg)
 

@@ -1,7 +1,7 @@
 """One shard of robots: a ``mujoco.batch.Batch`` + the leg dynamics + the low-level controller.
 
 A shard runs the whole physics/control loop for a contiguous block of robots. The
-backend (``sim/backend.py``) runs one shard in-process or one per worker process;
+backend (``sim/cpu_backend.py``) runs one shard in-process or one per worker process;
 shards talk to the backend only through the shared buffers in :class:`SharedBuffers`,
 so the same code serves both modes.
 

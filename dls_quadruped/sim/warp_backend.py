@@ -6,39 +6,35 @@ Registered in ``sim/registry.py`` as ``warp-cpu`` (Warp's CPU device: correctnes
 
 Design:
 
-* **One model.** The ``mujoco.MjModel`` the CPU backend gets (``sim/terrain.py build_scene``) is put on the
-  device once (``mujoco_warp.put_model``) with ``nworld = N`` worlds in one ``Data``; per-robot model values
-  (``geom_friction``, ``body_mass``, any field MuJoCo Warp can batch) become ``(N, ...)`` arrays the first time
-  one is written, shared ``(1, ...)`` arrays until then.
-* **Zero-copy views.** ``qpos``, ``qvel``, ``ctrl``, ``time``, ``xfrc_applied``, ``sensordata``, ``M`` and
-  ``qfrc_bias`` are read and written through ``warp.to_torch`` views of MuJoCo Warp's arrays; the controller's
-  buffers, the references and the published state are torch tensors on the same device. On CUDA the MuJoCo
-  Warp kernels run on torch's current stream, so torch and Warp work is ordered without synchronisation.
-* **One physics step** is MuJoCo's two-phase step: the position/velocity stages (``step1``: kinematics,
-  collision, ``M``, ``qfrc_bias``, position/velocity sensors) already ran on the current state, so
-  :class:`~dls_quadruped.control.torch_dynamics.TorchLegDynamics` builds the controller's leg terms from
-  MuJoCo Warp's own ``M`` (CSR, its row/column pairs read from the model) and ``qfrc_bias``; the controller's
-  torques go to ``ctrl``; ``step2`` (actuation, constraint solver, acceleration sensors such as the foot
-  contact forces, integration) advances the state; divergence is checked in torch; ``step1`` runs on the new
-  state. The foot-contact sensors are copied after the last ``step2`` of a :meth:`WarpSim.step` (``step1``
-  zeroes them).
-* **Divergence** without a host sync: after every step, a robot with a non-finite ``qpos``/``qvel`` or
-  ``|qvel| > shard.MAX_ABS_QVEL`` is flagged ``diverged`` and frozen at the model's home keyframe with zero
-  velocity, its clock stopped and its torques zero, until it is reset (the CPU backend's semantics); its
-  published contact forces are zero, so no NaN reaches the state.
+* **One model, zero-copy views** (:class:`~dls_quadruped.sim.warp_worlds.WarpWorlds`): the ``mujoco.MjModel``
+  the CPU backend gets (``sim/terrain.py build_scene``) as ``nworld = N`` worlds of one MuJoCo Warp model,
+  per-robot model values made ``(N, ...)`` when first written; ``qpos``, ``qvel``, ``ctrl``, ``time``,
+  ``xfrc_applied``, ``sensordata``, ``M`` and ``qfrc_bias`` read and written through ``warp.to_torch`` views. The
+  controller's buffers, the references and the published state are torch tensors on the same device. On CUDA
+  the MuJoCo Warp kernels run on torch's current stream, so torch and Warp work is ordered without
+  synchronisation. Inputs on the device are checked there (``sim/warp_inputs.py``), read every ``check_every``.
+* **One physics step** is MuJoCo's two-phase step: the position/velocity stages (``step1``: kinematics, collision,
+  ``M``, ``qfrc_bias``, position/velocity sensors) already ran on the current state, so
+  :class:`~dls_quadruped.control.torch_dynamics.TorchLegDynamics` builds the controller's leg terms from MuJoCo Warp's
+  own ``M`` (CSR, its row/column pairs read from the model) and ``qfrc_bias``; the controller's torques go to
+  ``ctrl``; ``step2`` (actuation, constraint solver, acceleration sensors such as the foot contact forces,
+  integration) advances the state; divergence is checked in torch; ``step1`` runs on the new state. The foot-contact
+  sensors are copied after the last ``step2`` of a :meth:`WarpSim.step` (``step1`` zeroes them).
+* **Divergence** without a host sync: after every step, a robot with a non-finite ``qpos``/``qvel`` or ``|qvel| >
+  shard.MAX_ABS_QVEL`` is flagged ``diverged`` and frozen at the model's home keyframe with zero velocity, its clock
+  stopped and its torques zero, until it is reset (the CPU backend's semantics); its published contact forces are
+  zero, so no NaN reaches the state.
 
-Differences from the CPU backend (``sim/backend.py``): MuJoCo Warp computes in float32 (the controller runs in
-float64 on the float32 state); its constraint solver is MuJoCo's algorithm, not its bits, and allocates
-``nconmax`` contacts and ``njmax`` constraint rows per world (``SimConfig``; a world that runs out is flagged
-``diverged``); with terrain regions (``SimConfig.regions``) each world's robot is tested only against the terrain
-geoms near its base (``sim/warp_collision.py``), not a model per region; the controller's leg dynamics come from
-MuJoCo's mass matrix and bias forces (the CPU backend uses Pinocchio: the same quantities,
-``tests/control/test_torch_dynamics.py``).
+Differences from the CPU backend (``sim/cpu_backend.py``): MuJoCo Warp computes in float32 (the controller runs in
+float64 on the float32 state); its constraint solver is MuJoCo's algorithm, not its bits, and allocates ``nconmax``
+contacts and ``njmax`` constraint rows per world (``SimConfig``; a world that runs out is flagged ``diverged``); with
+terrain regions (``SimConfig.regions``) each world's robot is tested only against the terrain geoms near its base
+(``sim/warp_collision.py``), not a model per region; the controller's leg dynamics come from MuJoCo's mass matrix and
+bias forces (the CPU backend uses Pinocchio: the same quantities, ``tests/control/test_torch_dynamics.py``).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 from contextlib import ExitStack
 from typing import Any, Self
@@ -56,47 +52,26 @@ from dls_quadruped.control.lowlevel import LegTerms, LowLevelController
 from dls_quadruped.control.torch_dynamics import TorchLegDynamics
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.interface import SimConfig, robot_weight, standing_references
-from dls_quadruped.sim.shard import MAX_ABS_QVEL, STATE_SPECS, contact_sensor_layout
-from dls_quadruped.sim.warp_collision import (
-    ALLOCATION_OVERFLOWS,
-    CELL,
-    TerrainCulling,
-    collision_stats,
+from dls_quadruped.sim.interface import (
+    SimConfig,
+    reset_coordinates,
+    robot_weight,
+    standing_references,
 )
-from dls_quadruped.sim.warp_graph import StepGraph
+from dls_quadruped.sim.shard import MAX_ABS_QVEL, STATE_SPECS, contact_sensor_layout
+from dls_quadruped.sim.warp_collision import ALLOCATION_OVERFLOWS, collision_stats
+from dls_quadruped.sim.warp_inputs import DeviceInputs
+from dls_quadruped.sim.warp_worlds import (
+    WarpWorlds,
+    csr_pairs,
+    publish_contacts,
+    warp_device_for,
+)
 
 _BOOL_FIELDS = ("base_contact", "diverged")
 
 CHECK_EVERY = 24
-"""``step`` calls between the backend's host reads (contact overflow, non-finite references): one PPO
-iteration of Table 6 (24 env steps), so a GPU step never waits on the host in between."""
-
-WARP_STATE_FIELDS = ("time", "qpos", "qvel", "act", "history", "qacc_warmstart", "ctrl", "qfrc_applied",
-                     "xfrc_applied", "eq_active", "mocap_pos", "mocap_quat", "userdata", "plastic")
-"""MuJoCo Warp ``Data`` fields that ``step1``/``step2`` read without computing them (MuJoCo's integration
-state, ``shard.MJ_STATE_FIELDS``): a snapshot's part of the simulation."""
-
-
-def warp_device_for(name: str) -> str:
-    """The Warp device of a backend device name (``cpu`` or ``cuda``/``cuda:k``), checked.
-
-    Raises:
-        RuntimeError: ``cuda`` without a CUDA device for Warp, or without a CUDA build of torch (one line).
-    """
-    if name == "cpu":
-        return "cpu"
-    if not name.startswith("cuda"):
-        raise ValueError(f"Warp backend device must be 'cpu' or 'cuda[:k]', got {name!r}")
-    wp.init()
-    if wp.get_cuda_device_count() == 0:
-        raise RuntimeError("simulator backend 'cuda' needs a CUDA GPU and driver, and Warp found none; "
-                           "use scene.backend: warp-cpu (or cpu) on this machine")
-    if not torch.cuda.is_available():
-        raise RuntimeError("simulator backend 'cuda' needs a CUDA build of torch (torch.cuda.is_available() is "
-                           "False); install one (https://pytorch.org/get-started/locally/), then pip install -e .[gpu]")
-    # plain "cuda": torch's current device (torchrun's ranks set theirs, learning/distributed.py)
-    return f"cuda:{torch.cuda.current_device()}" if name == "cuda" else name
+"""``step`` calls between host reads (overflow, non-finite references): one PPO iteration (24 env steps)."""
 
 
 class WarpSim:
@@ -125,27 +100,14 @@ class WarpSim:
         self.base_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)
         if model.nkey < 1:
             raise ValueError("the scene needs a home keyframe (key 0): the reset pose of the CPU backend")
-        with self._scope():
-            self.m = mjw.put_model(model)
-            self.d = mjw.make_data(model, nworld=n, nconmax=cfg.nconmax, njmax=cfg.njmax)
-            # overflows are flagged per robot and reported once (_freeze_diverged, _check_overflow), not printed
-            # by MuJoCo Warp's kernels at every step
-            self.m.opt.warn_overflow = 0
-            self.culling = None if cfg.regions is None else TerrainCulling(
-                model, self.m, self.d.naconmax, self.base_body, cfg.regions.cell or CELL, cfg.regions.margin)
-        # the physics step's two phases, replayed from captured Warp graphs (sim/warp_graph.py)
-        self._step1 = StepGraph(mjw.step1, self.m, self.d, self.wp_device, enabled=capture)
-        self._step2 = StepGraph(mjw.step2, self.m, self.d, self.wp_device, enabled=capture)
-        self._batched: set[str] = set()
-        v = wp.to_torch
-        self._qpos, self._qvel, self._time = v(self.d.qpos), v(self.d.qvel), v(self.d.time)
-        self._ctrl, self._xfrc = v(self.d.ctrl), v(self.d.xfrc_applied)
-        self._sensordata, self._M, self._qfrc_bias = v(self.d.sensordata), v(self.d.M), v(self.d.qfrc_bias)
-        self._qacc_warmstart = v(self.d.qacc_warmstart)
-        self._overflow = v(self.d.overflow)
+        # overflows are flagged per robot and reported once (_freeze_diverged, _check_overflow)
+        self.worlds = w = WarpWorlds(model, n, cfg, self.wp_device, self.base_body, capture)
+        self.m, self.d, self.culling, self._step1, self._step2 = w.m, w.d, w.culling, w.step1, w.step2
+        self._qpos, self._qvel, self._time, self._ctrl, self._xfrc = w.qpos, w.qvel, w.time, w.ctrl, w.xfrc
+        self._sensordata, self._M, self._qfrc_bias = w.sensordata, w.M, w.qfrc_bias
+        self._qacc_warmstart, self._overflow = w.qacc_warmstart, w.overflow
         self._warned_overflow = False
-        rows, cols = self._csr_pairs(model)
-        self.dynamics = TorchLegDynamics(model, qM_pairs=(rows, cols))
+        self.dynamics = TorchLegDynamics(model, qM_pairs=csr_pairs(model))
         self.controller = LowLevelController(n, cfg.control, dt=self.physics_dt, device=self.device)
         self._sensor_slices = contact_sensor_layout(model)
         self._contact_sensors = torch.zeros_like(self._sensordata)
@@ -155,8 +117,7 @@ class WarpSim:
                         for k, s in (("freq", (4,)), ("duty", (4,)), ("p_td_w", (4, 3)), ("F_w", (4, 3)))}
         self.wrench_w = torch.zeros(n, 6, dtype=self._xfrc.dtype, device=dev)
         self.diverged = torch.zeros(n, dtype=torch.bool, device=dev)
-        self._bad_refs = torch.zeros(4, dtype=torch.bool, device=dev)  # non-finite freq, duty, p_td_w, F_w seen
-        self._bad_inputs: dict[str, torch.Tensor] = {}  # other inputs checked on the device (_ids, _check_rows)
+        self.inputs = DeviceInputs(n, dev)
         self.check_every = CHECK_EVERY
         self._step_calls = 0
         self.tau = torch.zeros(n, 12, dtype=f64, device=dev)
@@ -180,77 +141,20 @@ class WarpSim:
     @property
     def capture(self) -> bool:
         """Whether ``step`` replays captured graphs of MuJoCo Warp's phases (``sim/warp_graph.py``)."""
-        return self._step2.enabled
+        return self.worlds.capture
 
     @capture.setter
     def capture(self, enabled: bool) -> None:
-        for graph in (self._step1, self._step2):
-            graph.enabled = bool(enabled)
-            graph.invalidate()
+        self.worlds.capture = enabled
 
     def _scope(self) -> ExitStack:
         """Warp's device, and on CUDA torch's current stream, for MuJoCo Warp calls."""
-        stack = ExitStack()
-        stack.enter_context(wp.ScopedDevice(self.wp_device))
-        if self.device.type == "cuda":
-            stack.enter_context(wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(self.device))))
-        return stack
-
-    @staticmethod
-    def _csr_pairs(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
-        """(row, column) of each element of the CSR inertia ``M`` (MuJoCo Warp's ``d.M``, the model's CSR layout)."""
-        rows = np.repeat(np.arange(model.nv), model.M_rownnz)
-        return rows, np.asarray(model.M_colind)
+        return self.worlds.scope()
 
     def _dynamics_terms(self) -> LegTerms:
         """The controller's leg terms at the current state (``step1`` or ``forward`` ran on it), in float64."""
         f64 = torch.float64
         return self.dynamics.terms(self._qpos.to(f64), self._qvel.to(f64), self._M, self._qfrc_bias)
-
-    def _ids(self, env_ids: Any) -> torch.Tensor:
-        """Row ids as a long tensor on the device. Ids given on the host (lists, arrays, CPU tensors for a CUDA
-        backend) are range-checked there; ids already on the device (the env's own) are checked on the device
-        without a host read: out-of-range ones are clamped (so no write lands outside the batch) and raised by
-        the next :meth:`check_inputs`."""
-        if isinstance(env_ids, torch.Tensor) and env_ids.device == self.device and not env_ids.is_floating_point():
-            ids = env_ids.reshape(-1).long()
-            bad = (ids < 0) | (ids >= self.num_envs)
-            self._bad_flag("env_ids").logical_or_(bad.any())
-            return ids.clamp(0, self.num_envs - 1)
-        host = torch.as_tensor(env_ids).reshape(-1).cpu().long()
-        if len(host) and (int(host.min()) < 0 or int(host.max()) >= self.num_envs):
-            raise ValueError(f"env_ids must be in [0, {self.num_envs}), got min {int(host.min())} max {int(host.max())}")
-        return host.to(self.device)
-
-    def _bad_flag(self, name: str) -> torch.Tensor:
-        """The device-side flag of input ``name`` (set when a value arrived invalid; read by check_inputs)."""
-        if name not in self._bad_inputs:
-            self._bad_inputs[name] = torch.zeros((), dtype=torch.bool, device=self.device)
-        return self._bad_inputs[name]
-
-    def _shaped(self, name: str, value: Any, n: int, shape: tuple[int, ...]) -> torch.Tensor:
-        """``value`` as a float64 tensor on the device of shape (n, *shape) (no host read of its values)."""
-        value = torch.as_tensor(value).to(self.device, torch.float64)
-        if value.shape != (n, *shape):
-            raise ValueError(f"{name} must have shape {(n, *shape)}, got {tuple(value.shape)}")
-        return value
-
-    def _check_rows(self, name: str, value: Any, n: int, shape: tuple[int, ...]) -> torch.Tensor:
-        """``value`` as a float64 tensor on the device of shape (n, *shape) with finite entries: checked on the host
-        when it comes from there, on the device (flagged for :meth:`check_inputs`, no host read) when it is
-        already on the device."""
-        if isinstance(value, torch.Tensor) and value.device == self.device:
-            value = self._shaped(name, value, n, shape)
-            self._bad_flag(name).logical_or_(~torch.isfinite(value).all())
-            return value
-        host = torch.as_tensor(value).cpu().to(torch.float64)  # host data: checked before it is uploaded
-        if host.shape != (n, *shape):
-            raise ValueError(f"{name} must have shape {(n, *shape)}, got {tuple(host.shape)}")
-        finite = torch.isfinite(host).reshape(n, -1).all(dim=1)
-        if not bool(finite.all()):
-            rows = torch.nonzero(~finite).flatten().tolist()
-            raise ValueError(f"{name} has non-finite values in rows {rows[:10]}")
-        return host.to(self.device)
 
     def _check_open(self) -> None:
         if self._closed:
@@ -275,8 +179,8 @@ class WarpSim:
         n, c = self.num_envs, self.command
         for i, (name, value, shape) in enumerate((("freq", freq, (4,)), ("duty", duty, (4,)),
                                                   ("p_td_w", p_td_w, (4, 3)), ("F_w", F_w, (4, 3)))):
-            value = self._shaped(name, value, n, shape)
-            self._bad_refs[i] |= ~torch.isfinite(value).all()
+            value = self.inputs.shaped(name, value, n, shape)
+            self.inputs.bad_refs[i] |= ~torch.isfinite(value).all()
             c[name].copy_(value)
 
     def check_inputs(self) -> None:
@@ -286,14 +190,10 @@ class WarpSim:
         Raises:
             ValueError: naming each invalid input.
         """
-        flags = torch.cat([self._bad_refs, torch.stack(list(self._bad_inputs.values()))]) if self._bad_inputs \
-            else self._bad_refs
+        keys, flags = self.inputs.flags()
         if bool(flags.any()):
-            keys = ("freq", "duty", "p_td_w", "F_w", *self._bad_inputs)
             names = [k for k, bad in zip(keys, flags.tolist()) if bad]
-            self._bad_refs.zero_()
-            for flag in self._bad_inputs.values():
-                flag.zero_()
+            self.inputs.clear()
             what = [f"{k} out of [0, {self.num_envs})" if k == "env_ids" else f"non-finite {k}" for k in names]
             raise ValueError(f"invalid inputs within the last {self.check_every} step calls: {', '.join(what)} "
                              "(robots with non-finite references diverged and were frozen; out-of-range ids were "
@@ -305,7 +205,7 @@ class WarpSim:
         if num_physics_steps < 1:
             raise ValueError(f"num_physics_steps must be >= 1, got {num_physics_steps}")
         c = self.command
-        torch_stream = wp.stream_from_torch(torch.cuda.current_stream(self.device)) if self.device.type == "cuda" else None
+        torch_stream = self.worlds.torch_stream()
         with self._scope():
             self._xfrc[:, self.base_body] = self.wrench_w
             for _ in range(num_physics_steps):
@@ -361,21 +261,14 @@ class WarpSim:
         """Reset robots ``env_ids`` (velocities default to zero, phases to trot); their wrench is cleared and
         they stand until their next references (``SimBackend.reset``)."""
         self._check_open()
-        ids = self._ids(env_ids)
+        ids = self.inputs.ids(env_ids)
         n = len(ids)
         if n == 0:
             return self.state
-        dev, f64 = self.device, torch.float64
-        zeros3 = torch.zeros(n, 3, dtype=f64, device=dev)
-        quat = self._check_rows("base_quat_w", base_quat_w, n, (4,))
-        qpos = torch.cat([self._check_rows("base_pos_w", base_pos_w, n, (3,)), quat / quat.norm(dim=1, keepdim=True),
-                          self._check_rows("joint_pos", joint_pos, n, (12,))], dim=1)
-        qvel = torch.cat(
-            [zeros3 if base_lin_vel_w is None else self._check_rows("base_lin_vel_w", base_lin_vel_w, n, (3,)),
-             zeros3 if base_ang_vel_b is None else self._check_rows("base_ang_vel_b", base_ang_vel_b, n, (3,)),
-             torch.zeros(n, 12, dtype=f64, device=dev) if joint_vel is None
-             else self._check_rows("joint_vel", joint_vel, n, (12,))], dim=1)
-        phase = None if phase is None else self._check_rows("phase", phase, n, (4,))
+        dev = self.device
+        qpos, qvel = reset_coordinates(self.inputs.rows, n, base_pos_w, base_quat_w, joint_pos, joint_vel,
+                                       base_lin_vel_w, base_ang_vel_b, device=dev)
+        phase = None if phase is None else self.inputs.rows("phase", phase, n, (4,))
         mask = torch.zeros(self.num_envs, dtype=torch.bool, device=dev)
         mask.index_fill_(0, ids, True)  # scalar fills: x[ids] = v copies v from the host on CUDA
         with self._scope():
@@ -395,16 +288,16 @@ class WarpSim:
 
     def set_external_wrench(self, env_ids: Any, force_w: Any, torque_w: Any) -> None:
         """Constant external force [N] and torque [N m] on the base (world frame) until changed."""
-        ids = self._ids(env_ids)
+        ids = self.inputs.ids(env_ids)
         n = len(ids)
-        self.wrench_w[ids] = torch.cat([self._check_rows("force_w", force_w, n, (3,)),
-                                        self._check_rows("torque_w", torque_w, n, (3,))], dim=1).to(self.wrench_w)
+        self.wrench_w[ids] = torch.cat([self.inputs.rows("force_w", force_w, n, (3,)),
+                                        self.inputs.rows("torque_w", torque_w, n, (3,))], dim=1).to(self.wrench_w)
 
     def set_base_velocity(self, env_ids: Any, lin_vel_w: Any) -> RobotState:
         """Set the base linear velocity (world frame) of robots ``env_ids``: a push."""
         self._check_open()
-        ids = self._ids(env_ids)
-        self._qvel[ids, 0:3] = self._check_rows("lin_vel_w", lin_vel_w, len(ids), (3,)).to(self._qvel.dtype)
+        ids = self.inputs.ids(env_ids)
+        self._qvel[ids, 0:3] = self.inputs.rows("lin_vel_w", lin_vel_w, len(ids), (3,)).to(self._qvel.dtype)
         with self._scope():
             # the whole step1: its velocity stage alone (fwd_velocity + sensor_vel) is not equivalent -- on warp-cpu
             # it moved the pushed robot's foot forces by up to 18 N on the following steps (likely the position
@@ -413,35 +306,13 @@ class WarpSim:
         self._terms = self._dynamics_terms()
         return self._publish()
 
-    def _batched_field(self, name: str) -> torch.Tensor:
-        """A torch view (N, ...) of model field ``name``, made per-world on first use."""
-        spec = {f.name: f.type for f in dataclasses.fields(mjw.Model)}.get(name)
-        shape = getattr(spec, "shape", ())
-        if not shape or shape[0] != "*":
-            batchable = sorted(f.name for f in dataclasses.fields(mjw.Model)
-                               if getattr(f.type, "shape", ()) and f.type.shape[0] == "*")
-            raise ValueError(f"model field {name!r} cannot be set per robot on MuJoCo Warp; allowed: "
-                             f"{', '.join(batchable[:12])}, ...")
-        arr = getattr(self.m, name)
-        if name not in self._batched:
-            if arr.shape[0] != self.num_envs:
-                host = arr.numpy()
-                tiled = np.repeat(host[:1], self.num_envs, axis=0)
-                with self._scope():
-                    arr = wp.array(tiled, dtype=arr.dtype, device=self.wp_device)
-                setattr(self.m, name, arr)
-                for graph in (self._step1, self._step2):  # they hold the replaced array's address
-                    graph.invalidate()
-            self._batched.add(name)
-        return wp.to_torch(arr)
-
     def set_model_field(self, name: str, env_ids: Any, values: Any, index: Any = None) -> None:
         """Per-robot model values, e.g. ``geom_friction`` (n, ngeom, 3) or, with ``index``, (n, len(index), 3);
         ``body_mass`` (n, nbody). The controller's dynamics read MuJoCo's own mass matrix, so a changed mass is
         modelled (the CPU backend's Pinocchio model stays nominal)."""
         self._check_open()
-        field = self._batched_field(name)
-        ids = self._ids(env_ids)
+        field = self.worlds.batched_field(name)
+        ids = self.inputs.ids(env_ids)
         values = torch.as_tensor(values).to(self.device, field.dtype)
         if len(values) != len(ids):
             raise ValueError(f"values must have one row per env id ({len(ids)}), got {len(values)}")
@@ -461,12 +332,7 @@ class WarpSim:
     def snapshot(self) -> dict:
         """The whole simulation state (MuJoCo Warp's integration state, per-robot model fields, the controller,
         divergence flags, last torques, contact sensors, published state and commands), as torch clones."""
-        mj = {}
-        for f in WARP_STATE_FIELDS:
-            arr = getattr(self.d, f, None)
-            if arr is not None and arr.size > 0:
-                mj[f] = wp.to_torch(arr).clone()
-        return {"mj": mj, "model": {k: wp.to_torch(getattr(self.m, k)).clone() for k in sorted(self._batched)},
+        return {"mj": self.worlds.integration_state(), "model": self.worlds.fields_state(),
                 "controller": self.controller.state_dict(), "diverged": self.diverged.clone(),
                 "tau": self.tau.clone(), "contact_sensors": self._contact_sensors.clone(),
                 "state": {k: v.clone() for k, v in self.buf.items()},
@@ -482,10 +348,7 @@ class WarpSim:
         n = int(snap["diverged"].shape[0])
         if n != self.num_envs:
             raise ValueError(f"simulator snapshot of {n} robots, this simulator has {self.num_envs}")
-        for f, v in snap["mj"].items():
-            wp.to_torch(getattr(self.d, f)).copy_(v)
-        for k, v in snap["model"].items():
-            self._batched_field(k).copy_(v)
+        self.worlds.load_state(snap["mj"], snap["model"])
         self.controller.load_state_dict(snap["controller"])
         self.diverged.copy_(snap["diverged"])
         self.tau = snap["tau"].to(self.tau).clone()
@@ -505,7 +368,7 @@ class WarpSim:
         if self._closed:
             return
         self._closed = True
-        self.m = self.d = None
+        self.worlds = self.m = self.d = self._step1 = self._step2 = None
         self._qpos = self._qvel = self._time = self._ctrl = self._xfrc = None
         self._sensordata = self._M = self._qfrc_bias = self._qacc_warmstart = self._overflow = None
 
@@ -529,14 +392,7 @@ class WarpSim:
         s["foot_pos_w"].copy_(self._terms.foot_pos_w)
         s["foot_vel_w"].copy_(self._terms.foot_vel_w)
         sd = torch.where(self.diverged[:, None], 0.0, self._contact_sensors)
-        for i, leg in enumerate(C.LEG_NAMES):
-            # the netforce sensor reports the foot's force on the ground: negate for the reaction
-            sl = self._sensor_slices[f"{leg}_foot_contact"]
-            s["foot_force_w"][:, i] = -sd[:, sl.start + 1: sl.stop]
-        body = sd[:, self._sensor_slices["trunk_contact"].start] > 0
-        for leg in C.LEG_NAMES:
-            body |= sd[:, self._sensor_slices[f"{leg}_thigh_contact"].start] > 0
-        s["base_contact"].copy_(body)
+        publish_contacts(sd, self._sensor_slices, s["foot_force_w"], s["base_contact"])
         s["phase"].copy_(self.controller.phase)
         s["contact_cmd"].copy_(self.controller.phase < self.command["duty"])
         s["time"].copy_(self._time)

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import torch
 
-from dls_quadruped.closed_loop.__main__ import commands, make_env
 from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
+from dls_quadruped.closed_loop.episodes import commands, make_env
 from dls_quadruped.closed_loop.metrics import winner_switches_per_s
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.samples import group_layout
@@ -157,7 +157,7 @@ def test_switching_cost_steadies_the_winner_of_two_identical_students() -> None:
     """Two identical students: which group wins is a coin flip of the noise every solve (measured ~50 switches/s
     at M = 500); a switching cost of 1000 (above the noise's spread of the group bests, ~100 to 5000) keeps the
     first winner (measured 0 /s)."""
-    from dls_quadruped.closed_loop.__main__ import run_controllers
+    from dls_quadruped.closed_loop.episodes import run_controllers
 
     cmds = commands(2, 0, None)
     rates = {}

@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dls_quadruped.closed_loop.__main__ import (
+from dls_quadruped.closed_loop.__main__ import main
+from dls_quadruped.closed_loop.controllers import ControllerConfig
+from dls_quadruped.closed_loop.episodes import (
     STAIRS_HEIGHTS,
     commands,
-    main,
     run_controllers,
     stairs_rows,
 )
-from dls_quadruped.closed_loop.controllers import ControllerConfig
 from dls_quadruped.closed_loop.metrics import compare, stairs_episodes, summarize
 from dls_quadruped.closed_loop.runner import ClosedLoopTraces
 from dls_quadruped.envs.env import LocomotionEnv

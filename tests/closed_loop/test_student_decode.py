@@ -73,9 +73,8 @@ def test_check_student_encoding_names_every_mismatch() -> None:
         W.from_student(torch.zeros(2, 63), SamplerConfig())
 
 
-def test_committed_student_gives_a_warm_start_the_mpc_solves() -> None:
+def test_committed_student_gives_a_warm_start_the_mpc_solves(standing) -> None:
     from dls_quadruped.mpc.sampler import SamplingMPC
-    from tests.mpc.conftest import standing
 
     module, meta = load_student(STUDENT)
     cfg = SamplerConfig(num_samples=64, kernel="reference", sigma_f=0.0, sigma_d=0.0, sigma_p=0.0)

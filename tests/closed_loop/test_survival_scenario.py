@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 import torch
 
-from dls_quadruped.closed_loop.__main__ import commands, make_env, run_controllers
 from dls_quadruped.closed_loop.controllers import ControllerConfig
+from dls_quadruped.closed_loop.episodes import commands, make_env, run_controllers
 from dls_quadruped.closed_loop.metrics import summarize
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.eval import survival as SV
 from dls_quadruped.eval.scenario import EvalOptions
 from dls_quadruped.eval.sweep import place_on_rows
 from dls_quadruped.eval.velocity_tracking import simple_commands
-from dls_quadruped.mpc.baseline import stance_ground_z
 from dls_quadruped.mpc.config import SamplerConfig
+from dls_quadruped.mpc.inputs import stance_ground_z
 
 REPO = Path(__file__).resolve().parents[2]
 E = 8  # > 6 columns: the episodes reach a second row

@@ -25,19 +25,6 @@ TOL = 1e-8
 NUM_STATES = 24
 
 
-def random_states(num: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Random MuJoCo states: any base pose, joints within limits, velocities of a few units."""
-    rng = np.random.default_rng(seed)
-    qpos = np.zeros((num, 19))
-    qpos[:, 0:3] = rng.uniform(-2.0, 2.0, (num, 3))
-    quat = rng.standard_normal((num, 4))
-    qpos[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
-    lo, hi = C.JOINT_RANGES[:, 0], C.JOINT_RANGES[:, 1]
-    qpos[:, 7:] = rng.uniform(lo, hi, (num, 12))
-    qvel = rng.uniform(-3.0, 3.0, (num, 18))
-    return qpos, qvel
-
-
 @pytest.fixture(scope="module")
 def mj_model() -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_path(str(C.MJCF_PATH))
@@ -83,7 +70,7 @@ def test_model_has_no_armature_damping_and_same_gravity(mj_model, dyn):
 
 
 @pytest.mark.parametrize("name", ["M_leg", "h_leg", "J_leg", "Jdot_qdot", "foot_pos_w", "foot_vel_w"])
-def test_matches_mujoco(mj_model, dyn, name):
+def test_matches_mujoco(mj_model, dyn, name, random_states):
     qpos, qvel = random_states(NUM_STATES, seed=1)
     ref = mujoco_reference(mj_model, qpos, qvel)
     got = getattr(dyn.compute(qpos, qvel), name)
@@ -91,7 +78,7 @@ def test_matches_mujoco(mj_model, dyn, name):
     assert np.max(np.abs(got - ref[name])) < TOL, f"{name}: max error {np.max(np.abs(got - ref[name])):.3e}"
 
 
-def test_base_motion_matters_for_h_and_jdot(mj_model, dyn):
+def test_base_motion_matters_for_h_and_jdot(mj_model, dyn, random_states):
     """The conventions are exercised: with the base velocity zeroed the answers change."""
     qpos, qvel = random_states(4, seed=2)
     full = {k: v.copy() for k, v in vars(dyn.compute(qpos, qvel)).items()}
@@ -102,7 +89,7 @@ def test_base_motion_matters_for_h_and_jdot(mj_model, dyn):
     assert np.max(np.abs(full["Jdot_qdot"] - legs_only.Jdot_qdot)) > 1e-1
 
 
-def test_unnormalised_quaternion_is_normalised(mj_model, dyn):
+def test_unnormalised_quaternion_is_normalised(mj_model, dyn, random_states):
     qpos, qvel = random_states(3, seed=3)
     ref = {k: v.copy() for k, v in vars(dyn.compute(qpos, qvel)).items()}
     scaled = qpos.copy()
@@ -112,7 +99,7 @@ def test_unnormalised_quaternion_is_normalised(mj_model, dyn):
         np.testing.assert_allclose(getattr(got, name), value, atol=1e-12, err_msg=name)
 
 
-def test_batched_equals_per_robot(dyn):
+def test_batched_equals_per_robot(dyn, random_states):
     qpos, qvel = random_states(7, seed=4)
     batched = {k: v.copy() for k, v in vars(dyn.compute(qpos, qvel)).items()}
     single = LegDynamics()  # another instance: buffers of batch size 1
@@ -122,7 +109,7 @@ def test_batched_equals_per_robot(dyn):
             np.testing.assert_allclose(getattr(one, name)[0], value[b], rtol=0.0, atol=1e-13, err_msg=name)
 
 
-def test_conversions_round_trip_and_frames():
+def test_conversions_round_trip_and_frames(random_states):
     qpos, qvel = random_states(5, seed=5)
     q, v = mujoco_to_pinocchio(qpos, qvel)
     np.testing.assert_allclose(q[:, 3:7], qpos[:, [4, 5, 6, 3]], atol=1e-15)  # xyzw <- wxyz (unit input)
@@ -157,7 +144,7 @@ def test_bad_shapes_are_rejected(dyn):
         dyn.compute(np.zeros((2, 19)), np.zeros((3, 18)))
 
 
-def test_generic_joint_axis_and_placement_paths_agree(dyn):
+def test_generic_joint_axis_and_placement_paths_agree(dyn, random_states):
     """The Rodrigues / rotated-placement branches of the foot kinematics give the same feet.
 
     The AlienGo only exercises the principal-axis branch; forcing the generic ones (private
@@ -171,7 +158,7 @@ def test_generic_joint_axis_and_placement_paths_agree(dyn):
     np.testing.assert_allclose(generic.compute(qpos, qvel).foot_pos_w, ref, atol=1e-14)
 
 
-def test_non_finite_robot_does_not_spoil_the_others(dyn):
+def test_non_finite_robot_does_not_spoil_the_others(dyn, random_states):
     qpos, qvel = random_states(4, seed=8)
     clean = {k: v.copy() for k, v in vars(dyn.compute(qpos, qvel)).items()}
     qpos[1, 3:7] = np.nan

@@ -30,7 +30,6 @@ from dls_quadruped.control.torch_dynamics import (
     qM_addresses_from_pairs,
 )
 from dls_quadruped.robots.aliengo import constants as C
-from tests.control.test_dynamics import random_states
 
 NAMES = ("M_leg", "h_leg", "J_leg", "Jdot_qdot", "foot_pos_w", "foot_vel_w")
 B = 16
@@ -62,7 +61,7 @@ def tdyn(mj_model) -> TorchLegDynamics:
 
 
 @pytest.fixture(scope="module")
-def case(mj_model):
+def case(mj_model, random_states):
     """B random states with LegDynamics' terms (copied) and MuJoCo's qM, qfrc_bias."""
     qpos, qvel = random_states(B, seed=11)
     ref = {k: v.copy() for k, v in vars(LegDynamics().compute(qpos, qvel)).items()}
@@ -176,7 +175,7 @@ def test_full_foot_jacobian_matches_mujoco(tdyn, case, mj_model):
     torch.testing.assert_close(v, kin.foot_vel_w, rtol=0, atol=1e-13)
 
 
-def test_generic_chain_parameters_match_mujoco():
+def test_generic_chain_parameters_match_mujoco(random_states):
     """Rotated bodies, off-origin joint anchors, tilted axes and nonzero joint references (none of which the
     AlienGo has) against MuJoCo's own site position, mj_jacSite and mj_jacDot on the modified model."""
     spec = mujoco.MjSpec.from_file(str(C.MJCF_PATH))
@@ -210,7 +209,7 @@ def test_generic_chain_parameters_match_mujoco():
             np.testing.assert_allclose(kin.Jdot_qdot[b, leg].numpy(), jacdot @ d.qvel, rtol=0, atol=1e-11)
 
 
-def test_rows_are_independent_and_quaternion_is_normalised(tdyn):
+def test_rows_are_independent_and_quaternion_is_normalised(tdyn, random_states):
     qpos, qvel = random_states(4, seed=8)
     clean = tdyn.kinematics(torch.tensor(qpos), torch.tensor(qvel))
     bad_pos, bad_vel = qpos.copy(), qvel.copy()

@@ -47,7 +47,8 @@ WARP_BACKEND = {
 }
 """The Warp backend's own reads: once per check_every step calls."""
 
-CPU_BACKEND_FILES = ("dls_quadruped/sim/backend.py", "dls_quadruped/sim/shard.py")
+CPU_BACKEND_FILES = ("dls_quadruped/sim/cpu_backend.py", "dls_quadruped/sim/cpu_workers.py",
+                     "dls_quadruped/sim/shard.py")
 """The CPU backend moves state between torch and its MuJoCo/Pinocchio shards by design: not counted."""
 
 

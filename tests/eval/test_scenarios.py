@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import torch
 
-from dls_quadruped.cli import run_cli
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.eval import cot, gait, omni, speed, stairs, survival
 from dls_quadruped.eval import sweep as S
@@ -117,10 +116,8 @@ class _Zero(torch.nn.Module):
 
 
 @pytest.fixture
-def zero_policy(tmp_path):
-    path = tmp_path / "zero.pt"
-    torch.jit.script(_Zero()).save(str(path))
-    return path
+def zero_policy(tmp_path, save_policy):
+    return save_policy(_Zero(), 259, tmp_path / "zero.pt2")
 
 
 @pytest.fixture
@@ -159,16 +156,6 @@ def test_command_line_end_to_end(name, zero_policy, tiny_grids, tmp_path):
         assert all(c["survival"]["n"] == 2 and len(c["survival"]["ci95"]) == 2 for c in cells)
 
 
-def _one_line_error(capsys, argv) -> str:
-    with pytest.raises(SystemExit) as exit_:
-        run_cli(main, argv)
-    assert exit_.value.code == 2
-    captured = capsys.readouterr()
-    lines = captured.err.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in captured.err + captured.out, captured.err
-    return lines[0]
-
-
 class _Other(torch.nn.Module):
     """An actor of another observation layout (100 inputs) or action size."""
 
@@ -180,25 +167,25 @@ class _Other(torch.nn.Module):
         return self.layer(x)
 
 
-def test_command_line_user_errors(tmp_path, capsys):
-    line = _one_line_error(capsys, ["--policy", "p.pt", "--scenario", "nope"])
+def test_command_line_user_errors(tmp_path, one_line_error, save_policy):
+    line = one_line_error(main, ["--policy", "p.pt", "--scenario", "nope"])
     assert "invalid choice: 'nope'" in line and all(n in line for n in ("simple", *NEW))
-    line = _one_line_error(capsys, ["--policy", str(tmp_path / "none.pt"), "--scenario", "speed"])
+    line = one_line_error(main, ["--policy", str(tmp_path / "none.pt"), "--scenario", "speed"])
     assert "none.pt not found" in line
-    assert "must be >= 1" in _one_line_error(capsys, ["--policy", "p.pt", "--episodes", "0"])
-    line = _one_line_error(capsys, ["--policy", "p.pt", "--scenario", "survival", "--episodes", "3"])
+    assert "must be >= 1" in one_line_error(main, ["--policy", "p.pt", "--episodes", "0"])
+    line = one_line_error(main, ["--policy", "p.pt", "--scenario", "survival", "--episodes", "3"])
     assert "survival needs a multiple of 2" in line
     common = ["--scenario", "simple", "--episodes", "2", "--episode-length-s", "0.1", "--num-workers", "0",
               "--out", str(tmp_path / "out")]
-    torch.jit.script(_Other(100, 28)).save(str(tmp_path / "obs100.pt"))
-    line = _one_line_error(capsys, ["--policy", str(tmp_path / "obs100.pt"), *common])
+    save_policy(_Other(100, 28), 100, tmp_path / "obs100.pt2")
+    line = one_line_error(main, ["--policy", str(tmp_path / "obs100.pt2"), *common])
     assert "takes 100 observation inputs" in line and "gives 259" in line
-    torch.jit.script(_Other(259, 12)).save(str(tmp_path / "act12.pt"))
-    line = _one_line_error(capsys, ["--policy", str(tmp_path / "act12.pt"), *common])
+    save_policy(_Other(259, 12), 259, tmp_path / "act12.pt2")
+    line = one_line_error(main, ["--policy", str(tmp_path / "act12.pt2"), *common])
     assert "outputs (12,) actions" in line and "takes 28" in line
     (tmp_path / "junk.pt").write_bytes(b"junk")
-    assert "unreadable" in _one_line_error(capsys, ["--policy", str(tmp_path / "junk.pt"), *common])
-    line = _one_line_error(capsys, ["--policy", str(_checkpoint_without_height_scan(tmp_path)), *common])
+    assert "unreadable" in one_line_error(main, ["--policy", str(tmp_path / "junk.pt"), *common])
+    line = one_line_error(main, ["--policy", str(_checkpoint_without_height_scan(tmp_path)), *common])
     assert "'policy': 72" in line and "'policy': 259" in line  # 259 - 187 height-scan values
     assert not (tmp_path / "out").exists()  # nothing written for a refused policy
 

@@ -140,12 +140,11 @@ class _Zero(torch.nn.Module):
         return torch.zeros(x.shape[0], 28)
 
 
-def test_command_line_end_to_end(tmp_path):
+def test_command_line_end_to_end(tmp_path, save_policy):
     """Real env, a scripted (zero-action) exported policy, 4 episodes of 0.6 s."""
     from dls_quadruped.eval.__main__ import main
 
-    policy = tmp_path / "zero.pt"
-    torch.jit.script(_Zero()).save(str(policy))
+    policy = save_policy(_Zero(), 259, tmp_path / "zero.pt2")
     res = main(["--policy", str(policy), "--scenario", "simple", "--episodes", "4", "--episode-length-s", "0.6",
                 "--num-workers", "0", "--out", str(tmp_path / "out")])
     saved = json.loads((tmp_path / "out" / "simple.json").read_text())

@@ -33,11 +33,11 @@ class _Zero(torch.nn.Module):
 
 
 @pytest.fixture
-def tiny(tmp_path, monkeypatch):
+def tiny(tmp_path, monkeypatch, save_policy):
     """Only a (zero-action) base policy; 2 episodes of 0.4 s per condition, two conditions per sweep."""
     policies = tmp_path / "policies"
     policies.mkdir()
-    torch.jit.script(_Zero()).save(str(policies / "base_actor.pt"))
+    save_policy(_Zero(), 259, policies / "base_actor.pt")
     monkeypatch.setitem(rl_common.SCALES, "small", {"episodes": {s: 2 for s in SCRIPTS.values()},
                                                      "episode_length_s": 0.4})
     for module in (speed, cot, gait):
@@ -83,13 +83,13 @@ def test_script_writes_base_and_skips_missing_policies(module, tiny, capsys):
     assert "per_episode" not in results["results"]["base"]
 
 
-def test_finished_results_are_reused_until_the_policy_changes(tiny, capsys):
+def test_finished_results_are_reused_until_the_policy_changes(tiny, capsys, save_policy):
     out = run(fig20_speed, tiny, "speed")
     first = (out / "base" / "speed.json").read_text()
     run(fig20_speed, tiny, "speed")
     assert "up to date, not evaluated again" in capsys.readouterr().out
     assert (out / "base" / "speed.json").read_text() == first
-    torch.jit.script(torch.nn.Sequential(torch.nn.Linear(259, 28))).save(str(tiny / "policies" / "base_actor.pt"))
+    save_policy(torch.nn.Sequential(torch.nn.Linear(259, 28)), 259, tiny / "policies" / "base_actor.pt")
     run(fig20_speed, tiny, "speed")
     assert "not evaluated again" not in capsys.readouterr().out
     assert json.loads((out / "base" / "speed.json").read_text())["experiment_key"]["sha256"] != \

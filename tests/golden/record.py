@@ -15,11 +15,11 @@ The runs (CPU, in-process, seed 0):
 * ``rough``: the same on the rough task (terrain, noise, pushes, curriculum), 15 steps.
 * ``eval``: ``eval.rollout.run_episodes`` of the committed base expert on the evaluation's flat task,
   2 episodes of 0.4 s.
-* ``closed_loop``: ``closed_loop.__main__.run_controllers`` of the four controllers, 2 episodes of
+* ``closed_loop``: ``closed_loop.episodes.run_controllers`` of the four controllers, 2 episodes of
   0.3 s, 256 MPC samples, 2 sampler seeds.
-* ``balance``: the balance controller (``eval.balance_run.run_balance``), 2 robots, 0.2 s stand +
-  0.7 s trot (one gait cycle, which its summary needs).
-* ``baseline``: the model-based baseline (``mpc.baseline.run_baseline``), 2 robots, 0.3 s.
+* ``balance``: the balance controller in the env (``eval.balance_run.run_balance``), 2 robots, 0.2 s
+  stand + 0.7 s trot (one gait cycle, which its summary needs).
+* ``baseline``: the model-based baseline in the env (``mpc.baseline_run.run_baseline``), 2 robots, 0.3 s.
 """
 
 from __future__ import annotations
@@ -89,7 +89,11 @@ def _eval() -> dict:
     from dls_quadruped.envs.env import LocomotionEnv
     from dls_quadruped.eval.policy import load_policy
     from dls_quadruped.eval.rollout import run_episodes
-    from dls_quadruped.eval.velocity_tracking import TaskEvalOptions, flat_task, simple_commands
+    from dls_quadruped.eval.velocity_tracking import (
+        TaskEvalOptions,
+        flat_task,
+        simple_commands,
+    )
 
     opts = TaskEvalOptions(episodes=2, seed=0, num_workers=0, episode_length_s=0.4)
     cmd = simple_commands(2, 0)
@@ -104,8 +108,8 @@ def _eval() -> dict:
 
 
 def _closed_loop() -> dict:
-    from dls_quadruped.closed_loop.__main__ import commands, run_controllers
     from dls_quadruped.closed_loop.controllers import ControllerConfig
+    from dls_quadruped.closed_loop.episodes import commands, run_controllers
     from dls_quadruped.mpc.config import SamplerConfig
 
     sampler = SamplerConfig(num_samples=256)
@@ -131,7 +135,8 @@ def _balance() -> dict:
 
 
 def _baseline() -> dict:
-    from dls_quadruped.mpc.baseline import BaselineConfig, run_baseline
+    from dls_quadruped.mpc.baseline import BaselineConfig
+    from dls_quadruped.mpc.baseline_run import run_baseline
     from dls_quadruped.mpc.config import SamplerConfig
 
     run = run_baseline(seconds=0.3, num_robots=2, cfg=BaselineConfig(sampler=SamplerConfig(num_samples=256)), seed=0)

@@ -17,7 +17,6 @@ from dls_quadruped.learning.distill_batched import (
 from dls_quadruped.learning.distill_config import load_distill_config
 from dls_quadruped.learning.distill_trainer import DistillTrainer
 from dls_quadruped.mpc.encodings import encoded_dim
-from tests.learning.distill_fakes import LinearEnv, ScriptedEnv, tag_expert
 
 HIDDEN = [16, 16]
 
@@ -38,10 +37,10 @@ def one_thread():
 
 
 @pytest.mark.parametrize("schedule", ["full", "dagger_steps"])
-def test_lockstep_seeds_train_like_single_runs(tmp_path, one_thread, schedule):
+def test_lockstep_seeds_train_like_single_runs(tmp_path, one_thread, schedule, linear_env):
     """Same datasets, seeds 0 and 1: the stacked trainer's students equal two DistillTrainer runs
     (initialisation, mini-batch order, Adadelta, step decay, DAgger-step subsets) to float rounding."""
-    env = LinearEnv(4, torch.eye(4), torch.zeros(4, 28))
+    env = linear_env(4, torch.eye(4), torch.zeros(4, 28))
     dim = encoded_dim(_cfg().encoding.to_encoding())
     gen = torch.Generator().manual_seed(7)
     datasets = []
@@ -83,10 +82,10 @@ def test_stack_forward_is_each_students_own():
     assert len(list(stack.parameters())) == 2 * 3  # weights and biases of 3 layers, students not registered
 
 
-def test_slots_get_their_own_robots_windows():
+def test_slots_get_their_own_robots_windows(scripted_env, tag_expert):
     """4 robots in 2 slots: slot 0's windows come from robots 0-1, slot 1's from 2-3, each slot gets
     exactly ``count``; the student acts on every robot (beta 0.5 mixes it in)."""
-    env = ScriptedEnv([20, 20, 20, 20])
+    env = scripted_env([20, 20, 20, 20])
     got: dict[int, list[torch.Tensor]] = {0: [], 1: []}
     seen = []
 
@@ -107,11 +106,11 @@ def test_slots_get_their_own_robots_windows():
         [torch.arange(4.0), torch.zeros(4), torch.zeros(4)], 1)))
 
 
-def test_a_continued_collection_is_one_long_one():
+def test_a_continued_collection_is_one_long_one(scripted_env, tag_expert):
     """Two calls of 8 datapoints on one ring (4 robots: two steps of windows each) give the windows of
     one call of 16: the second call does not push the step the first one ended on again."""
     def run(counts):
-        env = ScriptedEnv([9, 9, 30, 30])
+        env = scripted_env([9, 9, 30, 30])
         ring = SlidingWindows(4, 3, 28, horizon=3, stride=2)
         got = []
         for c in counts:
@@ -123,10 +122,10 @@ def test_a_continued_collection_is_one_long_one():
     assert len(run([8, 8])) == 16
 
 
-def test_settings_of_different_output_sizes_train_together_as_alone(tmp_path, one_thread):
+def test_settings_of_different_output_sizes_train_together_as_alone(tmp_path, one_thread, linear_env):
     """first-spline (D = 64) and discrete-discrete (D = 108) in one stack (the smaller padded): each
     student equals the one trained alone; the padding columns stay zero."""
-    env = LinearEnv(4, torch.eye(4), torch.zeros(4, 28))
+    env = linear_env(4, torch.eye(4), torch.zeros(4, 28))
     cfgs = [_cfg(), load_distill_config(overrides={**_cfg().to_dict(), "encoding": {
         "p": "discrete", "F": "discrete", "horizon": 5, "dt": 0.02}})]
     gen = torch.Generator().manual_seed(3)
@@ -137,7 +136,7 @@ def test_settings_of_different_output_sizes_train_together_as_alone(tmp_path, on
                                                                   generator=gen))
         data.append(ds)
     both = SeedGroupTrainer(cfgs, [1], env, None, [tmp_path / "a", tmp_path / "b"], HIDDEN, "elu", datasets=data)
-    alone = [SeedGroupTrainer(c, [1], LinearEnv(2, torch.eye(4), torch.zeros(4, 28)), None, tmp_path / f"s{i}",
+    alone = [SeedGroupTrainer(c, [1], linear_env(2, torch.eye(4), torch.zeros(4, 28)), None, tmp_path / f"s{i}",
                               HIDDEN, "elu", datasets=[data[i]]) for i, c in enumerate(cfgs)]
     for t in (both, *alone):
         for _ in range(2):

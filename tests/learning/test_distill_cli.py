@@ -10,7 +10,6 @@ import pytest
 import torch
 import yaml
 
-from dls_quadruped.cli import run_cli
 from dls_quadruped.envs.config import TASKS_DIR
 from dls_quadruped.learning import distill
 from dls_quadruped.learning.dataset import DiskDataset
@@ -33,24 +32,7 @@ def tiny_args(task: Path, run_dir: Path, *extra: str) -> list[str]:
             "--run-dir", str(run_dir), *extra]
 
 
-def one_line_error(capsys, argv) -> str:
-    with pytest.raises(SystemExit) as exit_:
-        run_cli(distill.main, argv)
-    assert exit_.value.code == 2
-    captured = capsys.readouterr()
-    lines = captured.err.strip().splitlines()
-    assert len(lines) == 1 and "error:" in lines[0], captured.err
-    assert "Traceback" not in captured.err + captured.out
-    return lines[0]
-
-
-def scripted(tmp_path: Path, name: str, n_in: int, n_out: int) -> Path:
-    path = tmp_path / name
-    torch.jit.save(torch.jit.script(torch.nn.Sequential(torch.nn.Linear(n_in, n_out))), str(path))
-    return path
-
-
-def test_tiny_run_resume_and_outputs(tmp_path, tiny_task, capsys):
+def test_tiny_run_resume_and_outputs(tmp_path, tiny_task, capsys, one_line_error):
     run_dir = tmp_path / "run"
     distill.main(tiny_args(tiny_task, run_dir))
     ckpt = torch.load(run_dir / "checkpoint.pt", weights_only=False)
@@ -68,40 +50,40 @@ def test_tiny_run_resume_and_outputs(tmp_path, tiny_task, capsys):
     sp = metrics["history"][1]["sp"]
     assert sp["episodes"] == 2 and sp["ci95"][0] <= sp["ci95"][1]
     assert (run_dir / "mse_sp.png").stat().st_size > 0 and list(run_dir.glob("events.out.tfevents.*"))
-    student, meta = load_student(run_dir / "exported" / "student.pt")
+    student, meta = load_student(run_dir / "exported" / "student.pt2")
     assert meta["encoding"]["horizon"] == 5 and meta["output_dim"] == 64 and meta["epochs_trained"] == 2
     assert student(torch.zeros(3, 259)).shape == (3, 64)
     # a corrupt dataset is named and nothing else is touched
     (run_dir / "dataset" / "state.json").unlink()
-    line = one_line_error(capsys, ["--resume", "--run-dir", str(run_dir), "--epochs", "3"])
+    line = one_line_error(distill.main, ["--resume", "--run-dir", str(run_dir), "--epochs", "3"])
     assert "dataset" in line and "state.json is missing" in line
     assert (run_dir / "checkpoint.pt").is_file() and (run_dir / "dataset" / "obs.npy").is_file()
 
 
-def test_bad_input_is_one_line(tmp_path, tiny_task, capsys):
+def test_bad_input_is_one_line(tmp_path, tiny_task, one_line_error, save_policy):
     run = tmp_path / "r"
-    assert "unknown encoding" in one_line_error(capsys, tiny_args(tiny_task, run, "--encoding", "cubic-spline"))
-    line = one_line_error(capsys, tiny_args(tiny_task, run, "--horizon", "0"))
+    assert "unknown encoding" in one_line_error(distill.main, tiny_args(tiny_task, run, "--encoding", "cubic-spline"))
+    line = one_line_error(distill.main, tiny_args(tiny_task, run, "--horizon", "0"))
     assert "encoding.horizon: must be >= 1, got 0" in line
-    assert ">= 4 with a spline" in one_line_error(capsys, tiny_args(tiny_task, run, "--horizon", "3"))
-    assert "must be > 0" in one_line_error(capsys, tiny_args(tiny_task, run, "--dt", "0"))
-    line = one_line_error(capsys, tiny_args(tiny_task, run, "--dt", "0.03"))
+    assert ">= 4 with a spline" in one_line_error(distill.main, tiny_args(tiny_task, run, "--horizon", "3"))
+    assert "must be > 0" in one_line_error(distill.main, tiny_args(tiny_task, run, "--dt", "0"))
+    line = one_line_error(distill.main, tiny_args(tiny_task, run, "--dt", "0.03"))
     assert "0.03 s is not a multiple of the env step 0.02 s" in line
-    line = one_line_error(capsys, tiny_args(tiny_task, run, "--expert", str(tmp_path / "none.pt")))
+    line = one_line_error(distill.main, tiny_args(tiny_task, run, "--expert", str(tmp_path / "none.pt")))
     assert "none.pt not found" in line
     (tmp_path / "junk.pt").write_bytes(b"not a model")
-    assert "not a TorchScript actor" in one_line_error(capsys, tiny_args(tiny_task, run, "--expert",
-                                                                         str(tmp_path / "junk.pt")))
-    line = one_line_error(capsys, tiny_args(tiny_task, run, "--expert", str(scripted(tmp_path, "o.pt", 72, 28))))
+    assert "not a TorchScript actor" in one_line_error(distill.main, tiny_args(tiny_task, run, "--expert",
+                                                                               str(tmp_path / "junk.pt")))
+    line = one_line_error(distill.main, tiny_args(tiny_task, run, "--expert", str(save_policy(torch.nn.Linear(72, 28), 72, tmp_path / "o.pt2"))))
     assert "takes 72 observations; the task gives 259" in line
-    line = one_line_error(capsys, tiny_args(tiny_task, run, "--expert", str(scripted(tmp_path, "a.pt", 259, 12))))
+    line = one_line_error(distill.main, tiny_args(tiny_task, run, "--expert", str(save_policy(torch.nn.Linear(259, 12), 259, tmp_path / "a.pt2"))))
     assert "outputs (12,) actions per robot; the task needs 28" in line
     assert not run.exists()  # nothing was written for a refused run
-    assert "--resume: no checkpoint.pt" in one_line_error(capsys, ["--resume", "--run-dir", str(run)])
+    assert "--resume: no checkpoint.pt" in one_line_error(distill.main, ["--resume", "--run-dir", str(run)])
     run.mkdir()
     (run / "checkpoint.pt").write_bytes(b"garbage")
-    assert "is unreadable" in one_line_error(capsys, ["--resume", "--run-dir", str(run)])
-    assert "is not empty" in one_line_error(capsys, tiny_args(tiny_task, run))
+    assert "is unreadable" in one_line_error(distill.main, ["--resume", "--run-dir", str(run)])
+    assert "is not empty" in one_line_error(distill.main, tiny_args(tiny_task, run))
 
 
 def test_expert_fixture_exists():

@@ -10,7 +10,6 @@ from dls_quadruped.learning.collect import SlidingWindows, beta, collect
 from dls_quadruped.learning.distill_config import EncodingSection, SelectorSection
 from dls_quadruped.mpc.config import EncodingConfig
 from dls_quadruped.mpc.encodings import encode
-from tests.learning.distill_fakes import ScriptedEnv, tag_expert
 
 
 def expected_windows(lengths: list[int], steps: int, horizon: int, stride: int) -> set[tuple]:
@@ -27,9 +26,9 @@ def expected_windows(lengths: list[int], steps: int, horizon: int, stride: int) 
 
 
 @pytest.mark.parametrize("horizon,stride", [(5, 1), (5, 2), (1, 1), (3, 3)])
-def test_windows_match_hand_built_trajectories(horizon, stride):
+def test_windows_match_hand_built_trajectories(horizon, stride, scripted_env, tag_expert):
     lengths = [7, 12, 30, 9]  # different episode lengths: resets at different steps
-    env = ScriptedEnv(lengths)
+    env = scripted_env(lengths)
     windows = SlidingWindows(env.num_envs, 3, 28, horizon, stride)
     obs = env.get_observations()["policy"]
     seen = set()
@@ -51,8 +50,8 @@ def test_windows_match_hand_built_trajectories(horizon, stride):
     assert seen == expected_windows(lengths, steps, horizon, stride)
 
 
-def test_window_across_a_reset_is_dropped():
-    env = ScriptedEnv([6])  # H = 5, k = 2 needs 9 steps of one episode: a 6-step episode gives none
+def test_window_across_a_reset_is_dropped(scripted_env, tag_expert):
+    env = scripted_env([6])  # H = 5, k = 2 needs 9 steps of one episode: a 6-step episode gives none
     windows = SlidingWindows(1, 3, 28, horizon=5, stride=2)
     obs = env.get_observations()["policy"]
     emitted = 0
@@ -74,8 +73,8 @@ def test_dt_0p04_is_every_second_env_step():
         EncodingSection(dt=0.01, horizon=5).stride(0.02)
 
 
-def test_collect_labels_and_count():
-    env = ScriptedEnv([11, 8, 20])
+def test_collect_labels_and_count(scripted_env, tag_expert):
+    env = scripted_env([11, 8, 20])
     cfg = EncodingConfig("discrete", "first", 3)
     rows = []
     info = collect(env, tag_expert, lambda a: encode(a, cfg), 50, cfg, 2,
@@ -89,8 +88,8 @@ def test_collect_labels_and_count():
         torch.testing.assert_close(lab, encode(acts, cfg), rtol=0, atol=0)
 
 
-def test_dagger_applies_the_beta_mixture():
-    env = ScriptedEnv([50, 50])
+def test_dagger_applies_the_beta_mixture(scripted_env, tag_expert):
+    env = scripted_env([50, 50])
     cfg = EncodingConfig("first", "first", 2)
 
     def student(obs):
@@ -98,7 +97,7 @@ def test_dagger_applies_the_beta_mixture():
 
     collect(env, tag_expert, lambda a: encode(a, cfg), 10, cfg, 1, lambda o, lab: None, beta_value=0.25,
             student=student)
-    obs0 = ScriptedEnv([50, 50]).get_observations()["policy"]
+    obs0 = scripted_env([50, 50]).get_observations()["policy"]
     torch.testing.assert_close(env.applied[0], 0.25 * tag_expert(obs0) + 0.75 * -3.0)
 
 

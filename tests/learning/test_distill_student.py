@@ -21,7 +21,6 @@ from dls_quadruped.learning.student import (
 )
 from dls_quadruped.mpc.config import EncodingConfig
 from dls_quadruped.mpc.encodings import decode, encode, encoded_dim
-from tests.learning.distill_fakes import LinearEnv
 
 ALL = [(p, F, H) for p in ("discrete", "spline", "first") for F in ("discrete", "spline", "first") for H in (5, 10, 15)]
 
@@ -61,7 +60,7 @@ def test_first_action_index_of_a_spline_is_theta_0():
     assert idx[16].item() == 41
 
 
-def test_export_round_trip(tmp_path):
+def test_export_round_trip(tmp_path, save_policy):
     cfg = EncodingConfig("first", "spline", 10)
     torch.manual_seed(1)
     student = Student(259, cfg, [32, 16])
@@ -77,8 +76,7 @@ def test_export_round_trip(tmp_path):
                                                            "constrained_fit": True}
     assert meta_back["output_dim"] == 64 and (tmp_path / "student.json").is_file()
     with pytest.raises(ValueError, match="not a distilled student"):
-        torch.jit.save(torch.jit.script(torch.nn.Linear(2, 2)), str(tmp_path / "plain.pt"))
-        load_student(tmp_path / "plain.pt")
+        load_student(save_policy(torch.nn.Linear(2, 2), 2, tmp_path / "plain.pt2"))
 
 
 def rotation(dim: int, angle: float) -> torch.Tensor:
@@ -98,7 +96,7 @@ def one_thread():
     torch.set_num_threads(before)
 
 
-def test_student_learns_a_linear_expert_to_near_zero_mse(tmp_path, one_thread):
+def test_student_learns_a_linear_expert_to_near_zero_mse(tmp_path, one_thread, linear_env):
     """Expert a = K s on s_{t+1} = A s + B a with A + B K = R (a rotation): its horizon at s_t is
     K R^{jk} s_t, j = 0..H-1, so every label is a known linear function of s_t."""
     gen = torch.Generator().manual_seed(0)
@@ -106,7 +104,7 @@ def test_student_learns_a_linear_expert_to_near_zero_mse(tmp_path, one_thread):
     K = 0.5 * torch.randn(28, dim, generator=gen)
     B = 0.1 * torch.randn(dim, 28, generator=gen)
     R = rotation(dim, 0.15)
-    env = LinearEnv(64, R - B @ K, B)
+    env = linear_env(64, R - B @ K, B)
     cfg = load_distill_config(overrides={
         "algorithm": "naive", "encoding": {"p": "first", "F": "spline", "horizon": 5, "dt": 0.04},
         "train": {"epochs": 6, "datapoints_per_epoch": 1000, "dataset_cap": 6000, "batch_size": 64, "passes": 3,

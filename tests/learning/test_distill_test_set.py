@@ -11,7 +11,6 @@ from dls_quadruped.learning.distill_test_set import (
     record_expert_episodes,
     window_starts,
 )
-from tests.learning.distill_fakes import ScriptedEnv, tag_expert
 
 
 def test_one_start_per_stratum_by_hand():
@@ -45,10 +44,10 @@ def test_starts_cover_every_phase_of_15_s_episodes():
         assert per.min() >= 5 and per.max() <= 8, (e, per.tolist())
 
 
-def test_recorded_windows_are_the_collection_windows():
+def test_recorded_windows_are_the_collection_windows(scripted_env, tag_expert):
     """Cut from a recording, a window is what SlidingWindows emits for the same steps: the tag expert
     names (env, step, episode) in every action; a fall (episode of 7 steps) ends the recording."""
-    env = ScriptedEnv([7, 30, 30])
+    env = scripted_env([7, 30, 30])
     env.max_episode_length = 20
     env.device = "cpu"
     rec = record_expert_episodes(env, tag_expert, seed=5, episodes=3)
@@ -60,7 +59,7 @@ def test_recorded_windows_are_the_collection_windows():
     with pytest.raises(ValueError, match="past its episode"):
         cut_windows(rec, torch.tensor([0]), torch.tensor([3]), horizon=3, stride=2)  # steps 3, 5, 7 of 7
     ring = SlidingWindows(3, 3, 28, horizon=3, stride=2)  # the same windows, emitted online
-    env2 = ScriptedEnv([7, 30, 30])
+    env2 = scripted_env([7, 30, 30])
     got = {}
     for _ in range(15):
         o = env2.get_observations()["policy"]

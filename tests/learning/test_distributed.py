@@ -85,7 +85,7 @@ def test_torchrun_two_cpu_ranks_end_with_identical_weights(tmp_path):
     assert sorted(p.name for p in run_dir.glob("model_*.pt")) == ["model_0.pt", "model_1.pt"]
     ckpt = _tensors(torch.load(run_dir / "model_1.pt", weights_only=False)["actor_state_dict"])
     assert all(torch.equal(v, a1[f".actor_state_dict{k}"]) for k, v in ckpt.items())
-    assert (run_dir / "exported" / "policy.pt").is_file() and (run_dir / "task.yaml").is_file()
+    assert (run_dir / "exported" / "policy.pt2").is_file() and (run_dir / "task.yaml").is_file()
 
     # a second launch onto the same, now non-empty, --run-dir: both ranks refuse with one line each,
     # nothing in the directory changes, and no rank is left waiting for the others

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 import yaml
 
-from dls_quadruped.cli import run_cli
 from dls_quadruped.envs.config import TASKS_DIR, available_tasks
 from dls_quadruped.learning import play, train
 
@@ -32,17 +31,6 @@ def tiny(tmp_path_factory) -> tuple[Path, Path]:
                                     "agent": {"actor": {"hidden_dims": [8]}, "critic": {"hidden_dims": [8]}}}))
     run_dir = train.main(["--task", str(task), "--num-envs", "2", "--iterations", "1", "--log-root", str(root / "runs")])
     return task, run_dir
-
-
-def _one_line_error(capsys, argv: list[str]) -> str:
-    with pytest.raises(SystemExit) as exit_:
-        run_cli(play.main, argv)
-    assert exit_.value.code == 2
-    captured = capsys.readouterr()
-    lines = captured.err.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in captured.err + captured.out, captured.err
-    assert ": error: " in lines[0]  # "<prog>: error: ..." (prog: the module run with python -m)
-    return lines[0]
 
 
 def test_play_writes_plots_and_trot_contacts(tmp_path):
@@ -94,7 +82,7 @@ def test_play_default_is_the_newest_readable_checkpoint_of_the_latest_run(tiny, 
 
 def test_play_takes_exported_and_committed_actors(tiny, tmp_path):
     task, run_dir = tiny
-    exported = run_dir / "exported" / "policy.pt"
+    exported = run_dir / "exported" / "policy.pt2"
     out = play.main(["--task", str(task), "--checkpoint", str(exported), "--log-root", str(run_dir.parents[1]), *SHORT])
     assert out == run_dir / "exported" / "play" and np.load(out / "play.npz")["action"].any()
     # a committed policy lies outside the log root: its folder gets nothing, the output goes under the task's runs
@@ -104,36 +92,36 @@ def test_play_takes_exported_and_committed_actors(tiny, tmp_path):
     assert sorted(COMMITTED.parent.iterdir()) == before
 
 
-def test_play_without_checkpoint_is_one_line(tmp_path, capsys):
-    line = _one_line_error(capsys, ["--task", "base", "--log-root", str(tmp_path), *SHORT])
+def test_play_without_checkpoint_is_one_line(tmp_path, one_line_error):
+    line = one_line_error(play.main, ["--task", "base", "--log-root", str(tmp_path), *SHORT])
     assert f"no checkpoint under {tmp_path / 'base'}/; train one with make train TASK=base" in line
     assert "--checkpoint" in line
     assert not any(tmp_path.iterdir())  # nothing written
 
 
-def test_play_checkpoint_of_another_task_names_both(tiny, capsys):
+def test_play_checkpoint_of_another_task_names_both(tiny, one_line_error):
     _, run_dir = tiny
     # the same observation layout, another task: a model_<it>.pt says which task it was trained on
-    line = _one_line_error(capsys, ["--task", "base", "--checkpoint", str(run_dir / "model_0.pt"), *SHORT])
+    line = one_line_error(play.main, ["--task", "base", "--checkpoint", str(run_dir / "model_0.pt"), *SHORT])
     assert "--checkpoint" in line and "trained on task 'tiny', this is task 'base'" in line
     # another observation size: the exported actor's input width against the env's
-    line = _one_line_error(capsys, ["--task", "base", "--checkpoint", str(run_dir / "exported" / "policy.pt"),
-                                    "--set", NO_HEIGHT_SCAN, *SHORT])
+    line = one_line_error(play.main, ["--task", "base", "--checkpoint", str(run_dir / "exported" / "policy.pt2"),
+                                      "--set", NO_HEIGHT_SCAN, *SHORT])
     assert f"takes {POLICY_OBS} observation inputs, the env of task base gives {POLICY_OBS - SCAN_OBS}" in line
 
 
-def test_play_unknown_task_lists_the_tasks(tmp_path, capsys):
-    line = _one_line_error(capsys, ["--task", "nope", "--log-root", str(tmp_path), *SHORT])
+def test_play_unknown_task_lists_the_tasks(tmp_path, one_line_error):
+    line = one_line_error(play.main, ["--task", "nope", "--log-root", str(tmp_path), *SHORT])
     assert line.endswith(f"unknown task 'nope'; available: {available_tasks()}")
 
 
 @pytest.mark.parametrize("pair", ["env.episode_length_s", "=10", "env..episode_length_s=10", "env.episode_length_s=",
                                   "env.episode_length_s=[1,"])
-def test_play_malformed_set_is_one_line(pair, capsys):
-    line = _one_line_error(capsys, ["--task", "base", "--zero-action", "--set", pair])
+def test_play_malformed_set_is_one_line(pair, one_line_error):
+    line = one_line_error(play.main, ["--task", "base", "--zero-action", "--set", pair])
     assert f"error: argument --set: {pair!r}" in line and "expected KEY=VALUE" in line
 
 
-def test_play_set_is_checked_like_the_task_file(capsys):
-    line = _one_line_error(capsys, ["--task", "base", "--zero-action", "--set", "env.episode_lenght_s=10"])
+def test_play_set_is_checked_like_the_task_file(one_line_error):
+    line = one_line_error(play.main, ["--task", "base", "--zero-action", "--set", "env.episode_lenght_s=10"])
     assert "<override>: env.episode_lenght_s: unknown key; allowed: [" in line and "'episode_length_s'" in line

@@ -1,7 +1,7 @@
 """A run continued from a checkpoint file in another directory, by a fresh process, takes the iteration
 the uninterrupted run would have taken (issue 25, items 4 and 6).
 
-The tiny task of ``test_train_faults`` ends episodes after 25 policy steps, so at the end of an
+The tiny task (``tests/conftest.py``'s ``write_task``) ends episodes after 25 policy steps, so at the end of an
 iteration (24 steps per env) robots are in the middle of their episodes, some have fallen and been
 reset, and the curricula move every iteration: everything a resume could lose is in play.
 """
@@ -12,6 +12,7 @@ import random
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,8 +21,8 @@ import torch
 from dls_quadruped.cli import UserError
 from dls_quadruped.learning import train
 from dls_quadruped.learning.runner import read_checkpoint
-from tests.learning.test_train_faults import REPO, args, write_task
 
+REPO = Path(__file__).resolve().parents[2]
 WALL_CLOCK = {"tot_time", "versions", "infos"}
 """Keys that hold wall time or library versions, not training state."""
 
@@ -46,15 +47,15 @@ def differences(a, b, where: str = "") -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def uninterrupted(tmp_path_factory):
+def uninterrupted(tmp_path_factory, write_task, train_args):
     """Three iterations in one process; a checkpoint after each."""
     tmp = tmp_path_factory.mktemp("uninterrupted")
     task = write_task(tmp)
-    run_dir = train.main(args(task, tmp / "run", "--iterations", "3", "--seed", "7"))
+    run_dir = train.main(train_args(task, tmp / "run", "--iterations", "3", "--seed", "7"))
     return task, run_dir
 
 
-def test_resumed_iteration_equals_the_uninterrupted_one(uninterrupted, tmp_path):
+def test_resumed_iteration_equals_the_uninterrupted_one(uninterrupted, tmp_path, train_args):
     task, run_dir = uninterrupted
     portable = tmp_path / "elsewhere" / "tiny_resume.pt"  # e.g. committed beside the policies
     portable.parent.mkdir()
@@ -62,7 +63,7 @@ def test_resumed_iteration_equals_the_uninterrupted_one(uninterrupted, tmp_path)
     resumed_dir = tmp_path / "resumed"
     # a fresh process: no torch/numpy/python RNG, module cache or simulator left over from the first run
     out = subprocess.run([sys.executable, "-m", "dls_quadruped.learning.train",
-                          *args(task, resumed_dir, "--iterations", "1", "--resume-from", str(portable))],
+                          *train_args(task, resumed_dir, "--iterations", "1", "--resume-from", str(portable))],
                          cwd=tmp_path, capture_output=True, text=True, timeout=300, check=False)
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     assert "resumed from" in out.stdout and "note:" not in out.stdout
@@ -84,7 +85,7 @@ def test_resumed_iteration_equals_the_uninterrupted_one(uninterrupted, tmp_path)
     assert got["iter"] == 2 and got["logger_state"]["tot_timesteps"] == 3 * 4 * 24
 
 
-def test_resume_without_the_episodes_in_progress_differs(uninterrupted, tmp_path):
+def test_resume_without_the_episodes_in_progress_differs(uninterrupted, tmp_path, train_args):
     """The control: the old resume (every robot restarts its episode) does *not* repeat iteration 2,
     so the test above would see a missing piece of state."""
     task, run_dir = uninterrupted
@@ -94,18 +95,18 @@ def test_resume_without_the_episodes_in_progress_differs(uninterrupted, tmp_path
     torch.save(ckpt, portable)
     state = (torch.get_rng_state(), np.random.get_state(), random.getstate())
     try:
-        resumed = train.main(args(task, tmp_path / "resumed", "--iterations", "1", "--resume-from", str(portable)))
+        resumed = train.main(train_args(task, tmp_path / "resumed", "--iterations", "1", "--resume-from", str(portable)))
     finally:
         torch.set_rng_state(state[0]), np.random.set_state(state[1]), random.setstate(state[2])
     moved = differences(read_checkpoint(run_dir / "model_2.pt"), read_checkpoint(resumed / "model_2.pt"))
     assert ".actor_state_dict.mlp.0.weight" in moved and ".env_state.episodes.sim.shards.mj.qpos" in moved
 
 
-def test_checkpoint_copy_writes_every_checkpoint_to_one_file(tmp_path):
+def test_checkpoint_copy_writes_every_checkpoint_to_one_file(tmp_path, write_task, train_args):
     task = write_task(tmp_path)
     copy = tmp_path / "policies" / "tiny_resume.pt"
     copy.parent.mkdir()
-    run_dir = train.main(args(task, tmp_path / "run", "--iterations", "2", "--checkpoint-copy", str(copy)))
+    run_dir = train.main(train_args(task, tmp_path / "run", "--iterations", "2", "--checkpoint-copy", str(copy)))
     assert differences(read_checkpoint(run_dir / "model_1.pt"), read_checkpoint(copy)) == []
     assert not list(copy.parent.glob("*.tmp"))
 
@@ -114,34 +115,34 @@ def test_checkpoint_copy_writes_every_checkpoint_to_one_file(tmp_path):
     (("--resume",), r"--resume-from continues from a checkpoint file in a new run directory"),
     (("--seed", "3"), r"--seed 3: .*model_1.pt was trained with seed 7; give --seed 7"),
 ])
-def test_resume_from_bad_flags_is_one_line_and_writes_nothing(uninterrupted, tmp_path, extra, message):
+def test_resume_from_bad_flags_is_one_line_and_writes_nothing(uninterrupted, tmp_path, extra, message, train_args):
     task, run_dir = uninterrupted
     target = tmp_path / "resumed"
     with pytest.raises(UserError, match=message):
-        train.main(args(task, target, "--resume-from", str(run_dir / "model_1.pt"), *extra))
+        train.main(train_args(task, target, "--resume-from", str(run_dir / "model_1.pt"), *extra))
     assert not target.exists()
 
 
-def test_resume_from_another_task_is_refused_naming_both(uninterrupted, tmp_path):
+def test_resume_from_another_task_is_refused_naming_both(uninterrupted, tmp_path, write_task, train_args):
     _, run_dir = uninterrupted
     other = write_task(tmp_path, "other")  # the same observation and action sizes, another task
     target = tmp_path / "resumed"
     with pytest.raises(UserError, match=r"^--resume-from: .*model_1.pt was trained on task 'tiny', "
                                         r"this is task 'other'$"):
-        train.main(args(other, target, "--resume-from", str(run_dir / "model_1.pt")))
+        train.main(train_args(other, target, "--resume-from", str(run_dir / "model_1.pt")))
     assert not any(p.name.startswith(("model_", "events")) for p in target.iterdir())
 
 
-def test_resume_from_a_truncated_file_is_one_line(uninterrupted, tmp_path):
+def test_resume_from_a_truncated_file_is_one_line(uninterrupted, tmp_path, train_args):
     _, run_dir = uninterrupted
     broken = tmp_path / "broken.pt"
     broken.write_bytes((run_dir / "model_1.pt").read_bytes()[:1000])
     with pytest.raises(UserError, match=r"^--resume-from: cannot read .*broken.pt: "):
-        train.main(args(REPO / "tasks" / "base.yaml", tmp_path / "resumed", "--resume-from", str(broken)))
+        train.main(train_args(REPO / "tasks" / "base.yaml", tmp_path / "resumed", "--resume-from", str(broken)))
     assert not (tmp_path / "resumed").exists()
 
 
-def test_resume_without_num_envs_keeps_the_checkpoints_robots(uninterrupted, tmp_path):
+def test_resume_without_num_envs_keeps_the_checkpoints_robots(uninterrupted, tmp_path, train_args):
     """The tiny task's own ``env.num_envs`` is not the 4 robots it was trained with: a continued run without
     ``--num-envs`` keeps the checkpoint's 4 (and so continues exactly), instead of restarting every episode
     on the task's default."""
@@ -149,7 +150,7 @@ def test_resume_without_num_envs_keeps_the_checkpoints_robots(uninterrupted, tmp
     assert train.checkpoint_num_envs(read_checkpoint(run_dir / "model_1.pt")) == 4
     assert train.checkpoint_num_envs({"iter": 3}) is None  # a checkpoint without episodes: the task's count
     resumed_dir = tmp_path / "resumed"
-    argv = args(task, resumed_dir, "--iterations", "1", "--resume-from", str(run_dir / "model_1.pt"))
+    argv = train_args(task, resumed_dir, "--iterations", "1", "--resume-from", str(run_dir / "model_1.pt"))
     i = argv.index("--num-envs")
     del argv[i:i + 2]
     train.main(argv)

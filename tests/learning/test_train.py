@@ -14,6 +14,7 @@ from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.learning import train
 from dls_quadruped.learning.export import ONNX_ATOL, onnx_error, typical_observations
+from dls_quadruped.learning.policy_file import ExportedModule, load_module
 from dls_quadruped.learning.runner import (
     AtomicOnPolicyRunner,
     latest_checkpoint,
@@ -39,7 +40,7 @@ def test_train_resume_export(tmp_path):
     key = next(k for k in first["actor_state_dict"] if "weight" in k)
     assert not torch.equal(first["actor_state_dict"][key], last["actor_state_dict"][key])
 
-    # exported TorchScript and ONNX policies == the checkpoint's deterministic actor, at any batch size
+    # exported program and ONNX policies == the checkpoint's deterministic actor, at any batch size
     task = load_task("base", overrides={"scene": {"num_workers": 0}})
     env = LocomotionEnv(task, num_envs=8, verbose=False)
     try:
@@ -49,18 +50,19 @@ def test_train_resume_export(tmp_path):
         obs = env.get_observations()
         for _ in range(3):
             obs, *_ = env.step(torch.randn(8, 28))
-        jit = torch.jit.load(str(run_dir / "exported" / "policy.pt"))
+        program = load_module(run_dir / "exported" / "policy.pt2")
+        assert isinstance(program, ExportedModule)
         onnx_path = run_dir / "exported" / "policy.onnx"
         assert not list(onnx_path.parent.glob("*.data"))  # weights embedded: the .onnx alone is the policy
-        for batch, x in (("env", obs["policy"]), ("1", typical_observations(jit, 1)),
-                         ("64", typical_observations(jit, 64))):
+        for batch, x in (("env", obs["policy"]), ("1", typical_observations(program, 1)),
+                         ("64", typical_observations(program, 64))):
             with torch.no_grad():
                 expected = policy(TensorDict({"policy": x}, batch_size=[x.shape[0]]))
-                got_jit = jit(x)
+                got_program = program(x)
             sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
             got_onnx = torch.from_numpy(sess.run(None, {"obs": x.numpy()})[0])
             assert expected.shape == (x.shape[0], 28), batch
-            assert (got_jit - expected).abs().max() <= 1e-5, batch
+            assert (got_program - expected).abs().max() <= 1e-5, batch
             assert (got_onnx - expected).abs().max() <= 1e-5, batch
         model = onnx.load(str(onnx_path))
         onnx.checker.check_model(model)
@@ -75,7 +77,7 @@ def test_committed_actor_onnx_matches_its_torchscript(task):
     """docs/policies/<task>_actor.onnx was exported with <task>_actor.pt (``python -m
     dls_quadruped.learning.export``); both give the same actions for 1 and for 64 observations."""
     root = Path(__file__).resolve().parents[2] / "docs" / "policies"
-    jit = torch.jit.load(str(root / f"{task}_actor.pt")).eval()
+    jit = load_module(root / f"{task}_actor.pt")
     for batch in (1, 64):
         assert onnx_error(root / f"{task}_actor.onnx", jit, batch) <= ONNX_ATOL, batch
     assert ONNX_ATOL == 1e-5

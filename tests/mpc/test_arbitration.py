@@ -14,7 +14,6 @@ from dls_quadruped.mpc import arbitration, warm_start
 from dls_quadruped.mpc.arbitration import Memory, select
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.sampler import SamplingMPC
-from tests.mpc.test_solve_glue import _problem
 
 INF = math.inf
 
@@ -63,10 +62,11 @@ def test_running_group_cost_restarts_where_a_cost_is_not_finite() -> None:
     assert index.tolist() == [0, 1]
 
 
-def _two_identical_groups(cfg: SamplerConfig, solves: int, b: int = 16, fused: bool = True, reset_at: int = -1):
+def _two_identical_groups(perturbed_standing, cfg: SamplerConfig, solves: int, b: int = 16, fused: bool = True,
+                          reset_at: int = -1):
     """``solves`` solves of B robots, two groups around the same naive warm start (their winners differ by the
     noise alone); per solve: the (B, M) costs the arbitration saw and the result."""
-    state, refs, phase = _problem(b, 3)
+    state, refs, phase = perturbed_standing(b, 3)
     mpc = SamplingMPC(cfg, seed=5)
     mpc.fused = fused
     default = warm_start.nominal_trot(b, cfg)
@@ -88,13 +88,13 @@ def _two_identical_groups(cfg: SamplerConfig, solves: int, b: int = 16, fused: b
     return list(zip(seen, results, strict=True)), mpc
 
 
-def test_switching_cost_changes_the_winner_only_within_the_penalty() -> None:
+def test_switching_cost_changes_the_winner_only_within_the_penalty(perturbed_standing) -> None:
     """Real solves, s = 1000: each winner is the argmin of the sample costs plus s on every sample outside the
     previous winner's group (written per sample here, float64); both cases occur: a runner-up within s that
     the plain argmin would have taken, and one more than s below that takes over."""
     s, m = 1000.0, 200
     group = torch.arange(m) >= m // 2
-    solves, _ = _two_identical_groups(SamplerConfig(num_samples=m, switching_cost=s), 6)
+    solves, _ = _two_identical_groups(perturbed_standing, SamplerConfig(num_samples=m, switching_cost=s), 6)
     prev = None
     kept = switched = 0
     for costs, result in solves:
@@ -114,10 +114,10 @@ def test_switching_cost_changes_the_winner_only_within_the_penalty() -> None:
     assert kept > 0 and switched > 0, (kept, switched)
 
 
-def test_zero_settings_are_the_plain_argmin_bit_for_bit() -> None:
+def test_zero_settings_are_the_plain_argmin_bit_for_bit(perturbed_standing) -> None:
     """select with s = 0 and beta = 0 on real cost matrices, whatever the memory: torch's min, value and index;
     and a config with both 0 never arbitrates (the solve is the one without the fields)."""
-    solves, _ = _two_identical_groups(SamplerConfig(num_samples=200, switching_cost=1.0), 3)
+    solves, _ = _two_identical_groups(perturbed_standing, SamplerConfig(num_samples=200, switching_cost=1.0), 3)
     for costs, result in solves:
         memory = Memory(result.warm_start_index.flip(0), torch.rand(16, 2, dtype=torch.float64))
         cost, index, _ = select(costs, (100, 100), 0.0, 0.0, memory)
@@ -126,9 +126,9 @@ def test_zero_settings_are_the_plain_argmin_bit_for_bit() -> None:
     assert not SamplerConfig(switching_cost=0.0, group_cost_smoothing=0.0).arbitrates
 
 
-def test_reset_and_fallback_clear_the_memory() -> None:
+def test_reset_and_fallback_clear_the_memory(perturbed_standing) -> None:
     cfg = SamplerConfig(num_samples=200, switching_cost=1000.0, group_cost_smoothing=0.5)
-    solves, mpc = _two_identical_groups(cfg, 3, b=4, reset_at=2)
+    solves, mpc = _two_identical_groups(perturbed_standing, cfg, 3, b=4, reset_at=2)
     mem = mpc._arbitration
     assert torch.equal(mem.winner, solves[-1][1].warm_start_index) and bool(torch.isfinite(mem.average).all())
     mpc.reset(torch.tensor([2]))
@@ -141,9 +141,9 @@ def test_reset_and_fallback_clear_the_memory() -> None:
     assert int(result.best_index[1]) == int(costs[1].argmin())
 
 
-def test_a_fallback_robot_has_no_previous_winner() -> None:
+def test_a_fallback_robot_has_no_previous_winner(perturbed_standing) -> None:
     cfg = SamplerConfig(num_samples=100, switching_cost=50.0)
-    state, refs, phase = _problem(3, 1)
+    state, refs, phase = perturbed_standing(3, 1)
     mpc = SamplingMPC(cfg)
     ws = warm_start.nominal_trot(3, cfg)
     mpc.solve(state, refs, [ws, ws], proportions=(0.5, 0.5), phase=phase)

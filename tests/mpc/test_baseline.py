@@ -9,12 +9,10 @@ import pytest
 import torch
 
 from dls_quadruped.core.state import RobotState
-from dls_quadruped.mpc.baseline import (
-    BaselineConfig,
-    heuristic_footholds_h,
-    run_baseline,
-)
+from dls_quadruped.mpc.baseline import BaselineConfig
+from dls_quadruped.mpc.baseline_run import run_baseline
 from dls_quadruped.mpc.config import SamplerConfig
+from dls_quadruped.mpc.inputs import heuristic_footholds_h
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.terrain import TerrainConfig, build_scene
 
@@ -92,11 +90,12 @@ def test_baseline_walks_forward_at_half_a_metre_per_second(plane_run):
 def test_baseline_walks_on_flat_terrain_tiles_as_on_the_plane(plane_run):
     """Issue 8: on the terrain's flat tiles (into the next row) the baseline walks as on MuJoCo's
     plane; on the old height-field tiles it fell after 4.7-5.4 s."""
-    model, terrain = build_scene(TerrainConfig(types=("flat", "rugged"), num_rows=3))
+    tiles = TerrainConfig(types=("flat", "rugged"), num_rows=3)
+    _, terrain = build_scene(tiles)
     start = terrain.tile_origins_w[0, 0]  # row 0 of the flat column; 15 s at 0.5 m/s crosses into row 1
     # a flat column is one box (no seam between its rows): with row seams, seed 0 of the naive-only MPC sagged
     # and fell at the seam, where a foot gets a second, tilted contact from the neighbouring box's edge
-    run = run_baseline((0.5, 0.0, 0.0), seconds=15.0, cfg=BASELINE_CFG, seed=0, model=model,
+    run = run_baseline((0.5, 0.0, 0.0), seconds=15.0, cfg=BASELINE_CFG, seed=0, terrain=tiles,
                        origin_w=(float(start[0]), float(start[1])))
     assert not run.fallen.any()
     assert run.qpos[-1, 0, 0] - start[0] > 0.5 * CFG_TILE  # walked into the next row

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-from dls_quadruped.bench.mpc import (
+from dls_quadruped.bench.mpc import SECTION, markdown_table, update_docs
+from dls_quadruped.bench.mpc_builds import (
     BUILDS_SECTION,
-    SECTION,
     build_notes,
     builds_table,
-    markdown_table,
     update_builds_docs,
-    update_docs,
 )
 
 

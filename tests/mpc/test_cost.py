@@ -14,10 +14,9 @@ from dls_quadruped.mpc.cost import (
     state_cost,
 )
 from dls_quadruped.mpc.srbd import robot_srbd_model
-from tests.mpc.conftest import standing
 
 
-def test_state_cost_by_hand():
+def test_state_cost_by_hand(standing):
     w = CostWeights()
     state, refs = standing(1)
     x = state.as_vector().clone()
@@ -32,7 +31,7 @@ def test_state_cost_by_hand():
     assert initial_cost(x, refs, w).item() == pytest.approx(expected, rel=1e-5)
 
 
-def test_input_cost_only_foothold_xy():
+def test_input_cost_only_foothold_xy(standing):
     w = CostWeights()
     _, refs = standing(1)
     u = refs.input_vector().clone()
@@ -42,7 +41,7 @@ def test_input_cost_only_foothold_xy():
     assert input_cost(u, refs.input_vector(), w).item() == pytest.approx(10.0, rel=1e-6)
 
 
-def test_nan_cost_is_inf_and_rollout_cost_sums_steps():
+def test_nan_cost_is_inf_and_rollout_cost_sums_steps(standing):
     assert torch.equal(nan_to_inf(torch.tensor([1.0, float("nan")])), torch.tensor([1.0, float("inf")]))
     state, refs = standing(1)
     model = robot_srbd_model()

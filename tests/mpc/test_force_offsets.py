@@ -23,7 +23,6 @@ from dls_quadruped.mpc.samples import (
     offsets_from_forces,
 )
 from dls_quadruped.mpc.srbd import robot_srbd_model
-from tests.mpc.conftest import FEET_W, standing
 
 WEIGHT = LatentActionConfig().weight  # m g = 24.638 kg * 9.81 m/s^2 = 241.7 N
 
@@ -66,7 +65,7 @@ def test_decoded_samples_zero_swing_force_and_share_the_weight():
     torch.testing.assert_close(F[5, 1, 0], torch.tensor(0.5 * (WEIGHT / 2 - 20.0)))
 
 
-def _single_sample_inputs(ws: torch.Tensor, phase: torch.Tensor, seed: int = 5) -> KernelInputs:
+def _single_sample_inputs(standing, ws: torch.Tensor, phase: torch.Tensor, seed: int = 5) -> KernelInputs:
     """Every kernel input for B robots with M = 16 samples; sample 0 is the warm start itself (perturb 0)."""
     b = ws.shape[0]
     state, refs = standing(b)
@@ -89,7 +88,7 @@ def _kernels(cfg: SamplerConfig):
 
 
 @pytest.mark.parametrize("enc_F", ["spline", "first", "discrete"])
-def test_every_kernel_ignores_swing_parameters_and_costs_the_hand_forces(enc_F):
+def test_every_kernel_ignores_swing_parameters_and_costs_the_hand_forces(enc_F, standing):
     """Two robots whose warm starts differ only in the force offsets of legs that swing through the whole
     horizon cost the same in every kernel; and sample 0's cost equals a rollout with forces written by hand
     (m g / stance legs + offset), costed by cost.rollout_cost_reference without any decode."""
@@ -104,7 +103,7 @@ def test_every_kernel_ignores_swing_parameters_and_costs_the_hand_forces(enc_F):
     act[1, :, 16 + 3 * 1:16 + 3 * 2] = torch.tensor([80.0, -60.0, 300.0])  # robot 1: FR's offsets, never felt
     act[1, :, 16 + 3 * 2:16 + 3 * 3] = torch.tensor([-90.0, 40.0, -200.0])  # robot 1: RL's
     ws = encode(act, cfg.encoding)
-    inp = _single_sample_inputs(ws, phase)
+    inp = _single_sample_inputs(standing, ws, phase)
     # by hand: FL, RR carry m g / 2 + their offset, F_xy = 0; targets at the nominal footholds p = 0
     contact = torch.tensor([True, False, False, True]).expand(2, 1, n, 4)
     force = torch.zeros(2, 1, n, 4, 3)
@@ -119,16 +118,16 @@ def test_every_kernel_ignores_swing_parameters_and_costs_the_hand_forces(enc_F):
         assert (costs[:, 1:] != costs[:, :1]).any(), name  # the other samples do differ (F is sampled)
 
 
-def test_all_zero_offsets_hold_the_robot_in_every_kernel():
+def test_all_zero_offsets_hold_the_robot_in_every_kernel(standing, feet_w):
     """Zero offsets with all four legs down (d = 1): F_z = m g / 4 each, total m g (the model's mass is the
     latent action's), so a robot at rest at the reference height with feet around the CoM barely moves:
     the z and v_z costs stay tiny for every kernel."""
     cfg = SamplerConfig(num_samples=16, horizon=10, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0, sigma_F=0.0)
     ws = warm_start.nominal_trot(1, cfg, duty=1.0)
-    inp = _single_sample_inputs(ws, torch.zeros(1, 4))
+    inp = _single_sample_inputs(standing, ws, torch.zeros(1, 4))
     inp.x0[:, 3:12] = 0.0
     inp.refs.lin_vel_w[:] = 0.0
-    inp.x0[:, 12:] = FEET_W.flatten()  # symmetric about the CoM: no moment
+    inp.x0[:, 12:] = feet_w.flatten()  # symmetric about the CoM: no moment
     nominal = torch.tensor(cfg.action.nominal_foothold_b)  # the targets of p = 0 (base at the origin)
     inp.refs.foothold_w[:] = torch.cat([nominal, torch.full((4, 1), cfg.action.foot_radius)], dim=-1)
     assert abs(robot_srbd_model().mass * robot_srbd_model().gravity - WEIGHT) < 1e-3

@@ -16,10 +16,9 @@ from dls_quadruped.mpc.kernel import (
 from dls_quadruped.mpc.rng import normals
 from dls_quadruped.mpc.samples import group_layout
 from dls_quadruped.mpc.srbd import robot_srbd_model
-from tests.mpc.conftest import standing
 
 
-def _inputs(cfg: SamplerConfig, seed: int = 7) -> KernelInputs:
+def _inputs(standing, cfg: SamplerConfig, seed: int = 7) -> KernelInputs:
     gen = torch.Generator().manual_seed(seed)
     state, refs = standing(2)
     x0 = state.as_vector()
@@ -45,27 +44,27 @@ def _assert_costs_match(fast: torch.Tensor, ref: torch.Tensor) -> None:
 
 
 @pytest.mark.parametrize("enc_p,enc_F", [("first", "spline"), ("discrete", "discrete"), ("spline", "first")])
-def test_fused_eager_matches_reference(enc_p, enc_F):
+def test_fused_eager_matches_reference(enc_p, enc_F, standing):
     cfg = SamplerConfig(num_samples=300, horizon=5, encoding_p=enc_p, encoding_F=enc_F)
-    inp = _inputs(cfg)
+    inp = _inputs(standing, cfg)
     model = robot_srbd_model()
     ref = reference_costs(inp, cfg, model)
     assert ref.shape == (2, 300) and torch.isfinite(ref).all()
     _assert_costs_match(fast_costs(inp, cfg, model, compiled=False), ref)
 
 
-def test_fused_eager_matches_reference_sigma_off():
+def test_fused_eager_matches_reference_sigma_off(standing):
     cfg = SamplerConfig(num_samples=200, horizon=6, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0)
-    inp = _inputs(cfg, seed=3)
+    inp = _inputs(standing, cfg, seed=3)
     model = robot_srbd_model()
     _assert_costs_match(fast_costs(inp, cfg, model, compiled=False), reference_costs(inp, cfg, model))
 
 
 @pytest.mark.slow
-def test_compiled_matches_reference():
+def test_compiled_matches_reference(standing):
     """torch.compile'd kernel (minutes to compile cold on 2 cores; cached afterwards)."""
     cfg = SamplerConfig(num_samples=2000, horizon=10)
-    inp = _inputs(cfg, seed=11)
+    inp = _inputs(standing, cfg, seed=11)
     model = robot_srbd_model()
     _assert_costs_match(fast_costs(inp, cfg, model, compiled=True), reference_costs(inp, cfg, model))
 
@@ -80,18 +79,18 @@ def cpp_lib():
 
 @pytest.mark.parametrize("enc_p,enc_F,horizon", [("first", "spline", 10), ("discrete", "discrete", 5),
                                                  ("spline", "first", 7)])
-def test_cpp_matches_reference(cpp_lib, enc_p, enc_F, horizon):
+def test_cpp_matches_reference(cpp_lib, enc_p, enc_F, horizon, standing):
     cfg = SamplerConfig(num_samples=300, horizon=horizon, encoding_p=enc_p, encoding_F=enc_F)  # 300 = 18 x 16 + 12
-    inp = _inputs(cfg)
+    inp = _inputs(standing, cfg)
     model = robot_srbd_model()
     ref = reference_costs(inp, cfg, model)
     assert torch.isfinite(ref).all()
     _assert_costs_match(cpp_kernel.cpp_costs(inp, cfg, model, cpp_lib), ref)
 
 
-def test_cpp_sigma_off_threads_and_nan(cpp_lib):
+def test_cpp_sigma_off_threads_and_nan(cpp_lib, standing):
     cfg = SamplerConfig(num_samples=200, horizon=6, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0)
-    inp = _inputs(cfg, seed=3)
+    inp = _inputs(standing, cfg, seed=3)
     model = robot_srbd_model()
     ref = reference_costs(inp, cfg, model)
     threads = torch.get_num_threads()
@@ -110,7 +109,7 @@ def test_cpp_sigma_off_threads_and_nan(cpp_lib):
     assert torch.equal(nan_costs[0], one[0])
 
 
-def test_cpp_build_failure_warns_and_falls_back(monkeypatch, tmp_path):
+def test_cpp_build_failure_warns_and_falls_back(monkeypatch, tmp_path, standing):
     monkeypatch.setenv("CXX", str(tmp_path / "no-such-compiler"))
     monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
     cpp_kernel.load.cache_clear()
@@ -120,13 +119,13 @@ def test_cpp_build_failure_warns_and_falls_back(monkeypatch, tmp_path):
         calls = []
         monkeypatch.setattr(kernel, "fast_costs", lambda inp, cfg, model: calls.append(cfg) or torch.zeros(2, 3))
         cfg = SamplerConfig(num_samples=3, horizon=5)
-        assert torch.equal(kernel.cpp_costs(_inputs(cfg), cfg, robot_srbd_model()), torch.zeros(2, 3))
+        assert torch.equal(kernel.cpp_costs(_inputs(standing, cfg), cfg, robot_srbd_model()), torch.zeros(2, 3))
         assert calls == [cfg]
     finally:
         cpp_kernel.load.cache_clear()
 
 
-def test_cpp_build_fallback_says_which_flags_and_cache_keys_host(cpp_lib, monkeypatch, tmp_path, capsys):
+def test_cpp_build_fallback_says_which_flags_and_cache_keys_host(cpp_lib, monkeypatch, tmp_path, capsys, standing):
     """-march=native rejected -> the next flag set (here without OpenMP) builds, says so once per process, and
     computes the same costs; a library built on another CPU is not reused."""
     monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
@@ -138,7 +137,7 @@ def test_cpp_build_fallback_says_which_flags_and_cache_keys_host(cpp_lib, monkey
         err = capsys.readouterr().err
         assert err.count("did not build with '-O1 -march=no-such-cpu -fopenmp'; built with '-O1 -fno-math-errno'") == 1
         cfg = SamplerConfig(num_samples=100, horizon=5)
-        inp = _inputs(cfg)
+        inp = _inputs(standing, cfg)
         model = robot_srbd_model()
         _assert_costs_match(cpp_kernel.cpp_costs(inp, cfg, model, lib), cpp_kernel.cpp_costs(inp, cfg, model, cpp_lib))
         cpp_kernel.load.cache_clear()  # as in a new process: the cached library is reused and says so again

@@ -12,7 +12,6 @@ from dls_quadruped.mpc.encodings import encode, encoded_dim
 from dls_quadruped.mpc.sampler import SamplingMPC
 from dls_quadruped.mpc.samples import decode_samples, group_layout, sample_encoded
 from dls_quadruped.mpc.srbd import SRBDState, robot_srbd_model, srbd_step
-from tests.mpc.conftest import standing
 
 PHASE = torch.tensor([[0.0, 0.5, 0.5, 0.0], [0.2, 0.7, 0.7, 0.2]])
 
@@ -105,7 +104,7 @@ def test_solve_returns_best_and_is_deterministic(standing_pair):
     assert not r.fallback.any() and r.reason == ""
 
 
-def test_closed_loop_on_srbd_tracks_height_and_velocity():
+def test_closed_loop_on_srbd_tracks_height_and_velocity(standing):
     """The MPC driving the SRBD model itself (perfect model): stays up, accelerates towards 0.5 m/s."""
     state, refs = standing(1)
     cfg = _cfg(num_samples=256, horizon=10, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0)

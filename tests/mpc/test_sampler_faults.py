@@ -11,14 +11,13 @@ import torch
 from dls_quadruped.mpc import warm_start
 from dls_quadruped.mpc.config import CostWeights, SamplerConfig
 from dls_quadruped.mpc.sampler import SamplingMPC
-from tests.mpc.conftest import standing
 
 B = 3
 PHASE = torch.tensor([[0.0, 0.5, 0.5, 0.0]]).repeat(B, 1)
 FIELDS = ("f", "d", "foot_target_w", "force_w", "p_h", "F_h", "best_encoded")
 
 
-def _inputs() -> dict:
+def _inputs(standing) -> dict:
     state, refs = standing(B)
     return {"state": state, "refs": refs, "phase": PHASE.clone(), "base_xy_w": torch.zeros(B, 2),
             "base_yaw": torch.zeros(B), "terrain_z_w": torch.zeros(B, 4)}
@@ -46,11 +45,11 @@ def _assert_finite_unless_fallback(r) -> None:
 @pytest.mark.parametrize("name", ["phase", "base_xy_w", "base_yaw", "terrain_z_w", "refs.com_height_w",
                                   "refs.lin_vel_w", "refs.yaw_rate", "refs.foothold_w"])
 @pytest.mark.parametrize("value", [math.nan, math.inf])
-def test_non_finite_input_falls_back_for_that_robot_only(name, value, kernel):
+def test_non_finite_input_falls_back_for_that_robot_only(name, value, kernel, standing):
     cfg = SamplerConfig(num_samples=64, horizon=4, kernel=kernel)
     mpc = SamplingMPC(cfg, seed=0)
-    first = _solve(mpc, _inputs(), cfg)
-    inp = _inputs()
+    first = _solve(mpc, _inputs(standing), cfg)
+    inp = _inputs(standing)
     _poison(inp, name, 1, value)
     r = _solve(mpc, inp, cfg)
     assert r.fallback.tolist() == [False, True, False]
@@ -58,20 +57,20 @@ def test_non_finite_input_falls_back_for_that_robot_only(name, value, kernel):
     assert torch.equal(r.force_w[1], first.force_w[1])
     _assert_finite_unless_fallback(r)
     twin = SamplingMPC(cfg, seed=0)  # same seeds, clean inputs: robots 0 and 2 must not notice robot 1
-    _solve(twin, _inputs(), cfg)
-    clean = _solve(twin, _inputs(), cfg)
+    _solve(twin, _inputs(standing), cfg)
+    clean = _solve(twin, _inputs(standing), cfg)
     assert torch.equal(r.best_index[[0, 2]], clean.best_index[[0, 2]])
     assert torch.equal(r.force_w[[0, 2]], clean.force_w[[0, 2]])
 
 
-def test_random_poisoning_never_leaks_a_non_finite_action():
+def test_random_poisoning_never_leaks_a_non_finite_action(standing):
     cfg = SamplerConfig(num_samples=64, horizon=4, kernel="reference")
     mpc = SamplingMPC(cfg, seed=0)
     gen = torch.Generator().manual_seed(0)
     names = ["phase", "base_xy_w", "base_yaw", "terrain_z_w", "refs.com_height_w", "refs.lin_vel_w",
              "refs.yaw_rate", "refs.foothold_w"]
     for _ in range(20):
-        inp = _inputs()
+        inp = _inputs(standing)
         for robot in range(B):
             if torch.rand((), generator=gen) < 0.5:
                 name = names[int(torch.randint(len(names), (), generator=gen))]
@@ -80,9 +79,9 @@ def test_random_poisoning_never_leaks_a_non_finite_action():
         _assert_finite_unless_fallback(r)
 
 
-def test_first_solve_with_a_bad_reference_uses_the_warm_start():
+def test_first_solve_with_a_bad_reference_uses_the_warm_start(standing):
     cfg = SamplerConfig(num_samples=64, horizon=4, kernel="reference")
-    inp = _inputs()
+    inp = _inputs(standing)
     _poison(inp, "refs.lin_vel_w", 0, math.nan)
     r = _solve(SamplingMPC(cfg), inp, cfg)
     assert r.fallback.tolist() == [True, False, False] and "first warm start" in r.reason

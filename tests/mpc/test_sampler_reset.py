@@ -8,10 +8,9 @@ import torch
 from dls_quadruped.mpc import warm_start
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.sampler import SamplingMPC
-from tests.mpc.conftest import standing
 
 
-def test_reset_some_robots_gives_them_the_default() -> None:
+def test_reset_some_robots_gives_them_the_default(standing) -> None:
     cfg = SamplerConfig(num_samples=64, kernel="reference")
     mpc = SamplingMPC(cfg)
     state, refs = standing(3)

@@ -11,10 +11,7 @@ import torch
 
 from dls_quadruped.mpc import cpp_kernel, solve_glue, warm_start
 from dls_quadruped.mpc.config import SamplerConfig
-from dls_quadruped.mpc.cost import Refs
 from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
-from dls_quadruped.mpc.srbd import SRBDState
-from tests.mpc.conftest import standing
 
 
 @pytest.fixture(scope="module")
@@ -25,24 +22,13 @@ def libs():
     return kernel_lib, glue
 
 
-def _problem(b: int, seed: int) -> tuple[SRBDState, Refs, torch.Tensor]:
-    """B perturbed standing robots with perturbed footholds and gait phases."""
-    gen = torch.Generator().manual_seed(seed)
-    state, refs = standing(b)
-    noise = lambda t, s: t + s * torch.randn(t.shape, generator=gen)
-    state = SRBDState(noise(state.com_pos_w, 0.01), noise(state.com_vel_w, 0.1), noise(state.euler, 0.05),
-                      noise(state.ang_vel_b, 0.1), noise(state.foot_pos_w, 0.01))
-    refs = Refs(refs.com_height_w, noise(refs.lin_vel_w, 0.2), noise(refs.yaw_rate, 0.2), noise(refs.foothold_w, 0.02))
-    return state, refs, torch.rand(b, 4, generator=gen)
-
-
-def _run(cfg: SamplerConfig, fused: bool, b: int, solves: int = 5, nan_at: int | None = None,
+def _run(perturbed_standing, cfg: SamplerConfig, fused: bool, b: int, solves: int = 5, nan_at: int | None = None,
          frame: bool = False, same_twice: bool = False) -> list[MPCResult]:
     """``solves`` solves with the naive warm start (70 %) and a trot at 1.8 Hz (30 %); every third one records the
     step costs (the fused path then decodes the winner with torch); at ``nan_at`` robot 0's state and robot
     B-1's velocity reference are not finite; ``frame``: pass base_xy_w, base_yaw, terrain_z_w; ``same_twice``: two
     groups of 50 % around the naive warm start instead (their best costs differ by the noise alone)."""
-    state, refs, phase = _problem(b, 3)
+    state, refs, phase = perturbed_standing(b, 3)
     mpc = SamplingMPC(cfg, seed=5)
     mpc.fused = fused
     default, trot = warm_start.nominal_trot(b, cfg), warm_start.nominal_trot(b, cfg, freq=1.8)
@@ -81,28 +67,30 @@ def _assert_identical(a: MPCResult, b: MPCResult) -> None:
 @pytest.mark.parametrize(("enc_p", "enc_F", "b"), [("first", "spline", 1), ("first", "spline", 16),
                                                    ("discrete", "discrete", 3), ("spline", "first", 2),
                                                    ("spline", "spline", 5)])
-def test_fused_solve_is_the_torch_solve_bit_for_bit(libs, enc_p, enc_F, b):
+def test_fused_solve_is_the_torch_solve_bit_for_bit(libs, enc_p, enc_F, b, perturbed_standing):
     cfg = SamplerConfig(num_samples=400, horizon=10, encoding_p=enc_p, encoding_F=enc_F)
     for nan_at, frame in ((None, b == 3), (1, b != 3)):
-        torch_path, fused = _run(cfg, False, b, nan_at=nan_at, frame=frame), _run(cfg, True, b, nan_at=nan_at, frame=frame)
+        torch_path = _run(perturbed_standing, cfg, False, b, nan_at=nan_at, frame=frame)
+        fused = _run(perturbed_standing, cfg, True, b, nan_at=nan_at, frame=frame)
         for r_torch, r_fused in zip(torch_path, fused, strict=True):
             _assert_identical(r_torch, r_fused)
     assert fused[1].fallback[0] and fused[1].fallback[-1] and "state of robots [0]" in fused[1].reason
 
 
-def test_fused_solve_full_size_two_threads(libs):
+def test_fused_solve_full_size_two_threads(libs, perturbed_standing):
     """M = 10 000, N = 10 (the benchmark's size), kernel on 2 threads: still the torch path's result."""
     cfg = SamplerConfig()
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
-        for r_torch, r_fused in zip(_run(cfg, False, 2, solves=2), _run(cfg, True, 2, solves=2), strict=True):
+        for r_torch, r_fused in zip(_run(perturbed_standing, cfg, False, 2, solves=2),
+                                    _run(perturbed_standing, cfg, True, 2, solves=2), strict=True):
             _assert_identical(r_torch, r_fused)
     finally:
         torch.set_num_threads(threads)
 
 
-def test_fused_solve_counts_the_kernel_and_reuses_its_buffers(libs):
+def test_fused_solve_counts_the_kernel_and_reuses_its_buffers(libs, standing):
     state, refs = standing(2)
     cfg = SamplerConfig(num_samples=300)
     mpc = SamplingMPC(cfg)
@@ -113,11 +101,11 @@ def test_fused_solve_counts_the_kernel_and_reuses_its_buffers(libs):
     assert first.best_encoded.data_ptr() != second.best_encoded.data_ptr()  # results are never buffers
 
 
-def test_without_the_glue_library_the_torch_path_runs(libs, monkeypatch):
+def test_without_the_glue_library_the_torch_path_runs(libs, monkeypatch, perturbed_standing):
     cfg = SamplerConfig(num_samples=300)
-    expected = _run(cfg, False, 2, solves=2)
+    expected = _run(perturbed_standing, cfg, False, 2, solves=2)
     monkeypatch.setattr(solve_glue, "load", lambda: None)
-    for r_torch, r_fallback in zip(expected, _run(cfg, True, 2, solves=2), strict=True):
+    for r_torch, r_fallback in zip(expected, _run(perturbed_standing, cfg, True, 2, solves=2), strict=True):
         _assert_identical(r_torch, r_fallback)
 
 
@@ -131,15 +119,15 @@ def test_all_finite_matches_torch(libs):
 
 
 @pytest.mark.parametrize(("switching_cost", "smoothing"), [(1000.0, 0.0), (0.0, 0.9), (1000.0, 0.5)])
-def test_fused_solve_with_arbitration_is_the_torch_solve(libs, switching_cost, smoothing):
+def test_fused_solve_with_arbitration_is_the_torch_solve(libs, switching_cost, smoothing, perturbed_standing):
     """The arbitration between two groups (mpc/arbitration.py) picks the same winners on both paths, with a
     fallback at solve 1, around different and around the same warm start; around the same one it picks other
     winners than the plain argmin (the check is not vacuous)."""
     cfg = SamplerConfig(num_samples=400, horizon=10, switching_cost=switching_cost, group_cost_smoothing=smoothing)
     for nan_at, same in ((None, False), (1, True)):
-        torch_path, fused = _run(cfg, False, 5, nan_at=nan_at, same_twice=same), _run(cfg, True, 5, nan_at=nan_at,
-                                                                                      same_twice=same)
+        torch_path = _run(perturbed_standing, cfg, False, 5, nan_at=nan_at, same_twice=same)
+        fused = _run(perturbed_standing, cfg, True, 5, nan_at=nan_at, same_twice=same)
         for r_torch, r_fused in zip(torch_path, fused, strict=True):
             _assert_identical(r_torch, r_fused)
-    plain = _run(SamplerConfig(num_samples=400, horizon=10), True, 5, nan_at=1, same_twice=True)
+    plain = _run(perturbed_standing, SamplerConfig(num_samples=400, horizon=10), True, 5, nan_at=1, same_twice=True)
     assert any(not torch.equal(a.best_index, p.best_index) for a, p in zip(fused, plain, strict=True))

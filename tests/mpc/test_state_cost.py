@@ -19,7 +19,6 @@ from dls_quadruped.mpc.encodings import encode
 from dls_quadruped.mpc.sampler import SamplingMPC
 from dls_quadruped.mpc.samples import decode_samples
 from dls_quadruped.mpc.srbd import robot_srbd_model
-from tests.mpc.conftest import standing
 
 PHASE = torch.tensor([[0.0, 0.5, 0.5, 0.0], [0.2, 0.7, 0.7, 0.2]])
 DP = (0.05, -0.03)
@@ -35,7 +34,7 @@ def _horizon(cfg: SamplerConfig, dp: tuple[float, float]) -> torch.Tensor:
 
 
 @pytest.mark.parametrize("kernel", ["reference", "cpp"])
-def test_same_states_same_state_cost_whatever_the_footholds(kernel):
+def test_same_states_same_state_cost_whatever_the_footholds(kernel, standing):
     if kernel == "cpp" and cpp_kernel.load() is None:
         pytest.skip("no C++ compiler for the MPC kernel")
     cfg = SamplerConfig(num_samples=8, horizon=6, kernel=kernel, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0, sigma_F=0.0)

@@ -10,14 +10,10 @@ import torch
 
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.mpc import warm_start
-from dls_quadruped.mpc.baseline import (
-    BaselineConfig,
-    ModelBasedBaseline,
-    mpc_inputs,
-    stance_ground_z,
-)
+from dls_quadruped.mpc.baseline import BaselineConfig, ModelBasedBaseline
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import rollout_cost_reference
+from dls_quadruped.mpc.inputs import mpc_inputs, stance_ground_z
 from dls_quadruped.mpc.samples import decode_samples
 from dls_quadruped.mpc.srbd import (
     com_height_reference,

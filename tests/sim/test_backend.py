@@ -16,7 +16,7 @@ from dls_quadruped.control.latent_action import (
 )
 from dls_quadruped.eval.balance_run import _yaw, run_balance
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import SimConfig, VecSim
+from dls_quadruped.sim.cpu_backend import SimConfig, VecSim
 from dls_quadruped.sim.interface import home_state
 
 
@@ -42,9 +42,9 @@ def _rollout(model, num_envs, steps, cfg, seed=0, noise=0.05, init_lin_vel=None)
 
 
 @pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
-def test_64_robots_stand_then_trot_in_place(model):
+def test_64_robots_stand_then_trot_in_place():
     """Issue 2 acceptance: 10 s standing + 10 s trotting, height +-3 cm, |roll|,|pitch| < 0.1, feet lift >= 3 cm."""
-    run = run_balance(num_envs=64, stand_seconds=10.0, trot_seconds=10.0, model=model)
+    run = run_balance(num_envs=64, stand_seconds=10.0, trot_seconds=10.0)
     s = run.summary
     assert s["num_fallen"] == 0
     for phase in ("stand", "trot"):
@@ -135,10 +135,10 @@ def test_external_wrench_pushes_the_base(model):
         assert abs(float(state.base_lin_vel_w[1, 1])) < 0.02
 
 
-def test_balance_baseline_works_at_any_heading(model):
+def test_balance_baseline_works_at_any_heading():
     """Attitude feedback lives in the yaw-aligned frame: robots facing any direction stand and trot."""
     yaw = torch.tensor([0.0, 1.5, 3.0, -2.0], dtype=torch.float64)
-    run = run_balance(num_envs=4, stand_seconds=1.0, trot_seconds=2.0, yaw=yaw, model=model)
+    run = run_balance(num_envs=4, stand_seconds=1.0, trot_seconds=2.0, yaw=yaw)
     assert run.summary["num_fallen"] == 0, run.summary
     assert run.summary["trot_roll_abs_max"] < 0.1 and run.summary["trot_pitch_abs_max"] < 0.1, run.summary
     q = run.qpos[-1, :, 3:7]

@@ -9,7 +9,7 @@ import mujoco
 import pytest
 
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import SimConfig, VecSim, WorkerError
+from dls_quadruped.sim.cpu_backend import SimConfig, VecSim, WorkerError
 
 
 def test_surviving_worker_ends_without_a_traceback_after_another_died(capfd):

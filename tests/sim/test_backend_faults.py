@@ -14,7 +14,8 @@ import mujoco
 import pytest
 
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import SimConfig, VecSim, WorkerError, _inside_main_guard
+from dls_quadruped.sim.cpu_backend import SimConfig, VecSim, WorkerError
+from dls_quadruped.sim.cpu_workers import _inside_main_guard
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -85,7 +86,7 @@ def test_main_guard_detection_reads_the_script(tmp_path):
 SCRIPT = """\
 import mujoco, torch
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import SimConfig, VecSim
+from dls_quadruped.sim.cpu_backend import SimConfig, VecSim
 
 def go():
     with VecSim(mujoco.MjModel.from_xml_path(str(C.SCENE_PATH)), 2, SimConfig(num_workers=1)) as sim:

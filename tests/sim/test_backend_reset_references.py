@@ -6,7 +6,7 @@ import mujoco
 import torch
 
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import SimConfig, VecSim
+from dls_quadruped.sim.cpu_backend import SimConfig, VecSim
 
 
 def test_reset_restores_standing_references_of_the_reset_robots_only():

@@ -32,7 +32,7 @@ SCRIPT = textwrap.dedent("""\
             return env, env.scene.sim._procs, lambda: env.step(env.action_manager.raw_action * 0.0)
         import mujoco
         from dls_quadruped.robots.aliengo import constants as C
-        from dls_quadruped.sim.backend import SimConfig, VecSim
+        from dls_quadruped.sim.cpu_backend import SimConfig, VecSim
         sim = VecSim(mujoco.MjModel.from_xml_path(str(C.SCENE_PATH)), 2, SimConfig(num_workers=2))
         return sim, sim._procs, lambda: sim.step(1)
 

@@ -20,7 +20,7 @@ from dls_quadruped.core.state import RobotState
 from dls_quadruped.envs.config import ConfigError, load_task
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import VecSim
+from dls_quadruped.sim.cpu_backend import VecSim
 from dls_quadruped.sim.interface import SimBackend, SimConfig
 from dls_quadruped.sim.registry import (
     backend_names,

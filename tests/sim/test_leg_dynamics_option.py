@@ -31,7 +31,7 @@ from dls_quadruped.control.latent_action import (
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.eval.balance_run import _yaw
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import VecSim
+from dls_quadruped.sim.cpu_backend import VecSim
 from dls_quadruped.sim.interface import LEG_DYNAMICS, SimConfig, home_state
 from dls_quadruped.sim.regions import RegionConfig
 from dls_quadruped.sim.terrain import TerrainConfig, build_scene

@@ -10,9 +10,10 @@ import pytest
 import torch
 
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import SimConfig, VecSim
+from dls_quadruped.sim.cpu_backend import SimConfig, VecSim
 from dls_quadruped.sim.regions import ROBOT_REACH, RegionConfig, build_region_models
-from dls_quadruped.sim.terrain import TERRAIN_GEOM_PREFIX, TerrainConfig, build_scene
+from dls_quadruped.sim.terrain import TerrainConfig, build_scene
+from dls_quadruped.sim.terrain_geometry import TERRAIN_GEOM_PREFIX
 
 # every tile type, small tiles (cell = 2 m): many cell and tile borders within a few metres
 CFG = TerrainConfig(types=("flat", "rugged", "slope_up", "slope_down", "boxes", "stairs_up", "stairs_down"),

@@ -14,7 +14,7 @@ REPO = Path(__file__).resolve().parents[2]
 SCRIPT = """\
 import mujoco
 from dls_quadruped.robots.aliengo import constants as C
-from dls_quadruped.sim.backend import SimConfig, VecSim
+from dls_quadruped.sim.cpu_backend import SimConfig, VecSim
 
 if __name__ == "__main__":  # guarded, and still not re-importable from <stdin>
     with VecSim(mujoco.MjModel.from_xml_path(str(C.SCENE_PATH)), 2, SimConfig(num_workers={workers})) as sim:
@@ -33,7 +33,7 @@ def test_script_on_stdin_is_refused_with_workers_and_runs_without(workers):
         return
     assert out.returncode != 0 and "stepped" not in out.stdout
     last = out.stderr.strip().splitlines()[-1]
-    assert last.startswith("dls_quadruped.sim.backend.WorkerError: <stdin> starts simulator worker processes "
+    assert last.startswith("dls_quadruped.sim.cpu_workers.WorkerError: <stdin> starts simulator worker processes "
                            "from a script that is not a file"), out.stderr[-2000:]
     assert 'under an `if __name__ == "__main__":` guard (see docs/env.md) or use num_workers=0' in last
     assert "FileNotFoundError" not in out.stderr  # no worker was started

@@ -10,12 +10,8 @@ import pytest
 import torch
 
 from dls_quadruped.sim.height_scan import HeightScanConfig, height_scan, scan_pattern
-from dls_quadruped.sim.terrain import (
-    TERRAIN_TYPES,
-    TerrainConfig,
-    build_scene,
-    generate_tiles,
-)
+from dls_quadruped.sim.terrain import TerrainConfig, build_scene
+from dls_quadruped.sim.terrain_tiles import TERRAIN_TYPES, generate_tiles
 
 SMALL = {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0}
 

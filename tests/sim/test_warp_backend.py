@@ -295,8 +295,8 @@ def test_closed_loop_mpc_on_the_warp_backend_follows_the_cpu_backend(mjw):
     commands, sampler seed and kernel on both; the states differ at float32 round-off, which can move a solve's
     argmin to another sample; none did here (base positions 1e-5 m apart after 1 s), so the 0.4 s (20 solves)
     base trajectories are compared within 1 mm and the base velocities within 1 cm/s."""
-    from dls_quadruped.closed_loop.__main__ import commands, make_env
     from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
+    from dls_quadruped.closed_loop.episodes import commands, make_env
     from dls_quadruped.closed_loop.runner import run_closed_loop
     from dls_quadruped.mpc.config import SamplerConfig
 

@@ -17,7 +17,8 @@ import torch
 from dls_quadruped.sim.interface import SimConfig
 from dls_quadruped.sim.regions import RegionConfig
 from dls_quadruped.sim.registry import make_backend
-from dls_quadruped.sim.terrain import TERRAIN_TYPES, TerrainConfig, build_scene
+from dls_quadruped.sim.terrain import TerrainConfig, build_scene
+from dls_quadruped.sim.terrain_tiles import TERRAIN_TYPES
 
 pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
 

@@ -20,7 +20,7 @@ from dls_quadruped.control.latent_action import (
 )
 from dls_quadruped.core.rotations import yaw_from_quat
 from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
-from dls_quadruped.envs.managers.base import format_table
+from dls_quadruped.envs.managers.base import ManagerBase, format_table
 
 
 def resolve_action_config(task: TaskConfig) -> LatentActionConfig:
@@ -32,7 +32,7 @@ def resolve_action_config(task: TaskConfig) -> LatentActionConfig:
     return dataclass_from_dict(LatentActionConfig, section.get("latent") or {}, task, "actions.latent")
 
 
-class ActionManager:
+class ActionManager(ManagerBase):
     """Holds the raw, previous raw, applied (network units) and applied physical actions, (B, 28) each.
 
     Also, of the last processed action (training diagnostics, ``learning/diagnostics.py``): ``saturated``
@@ -43,7 +43,7 @@ class ActionManager:
     """
 
     def __init__(self, task: TaskConfig, env):
-        self.env = env
+        super().__init__(env)
         self.cfg = resolve_action_config(task)
         self.interface = ActionInterface(self.cfg, env.scene.terrain.height_at)
         n, dev = env.num_envs, env.device

@@ -1,4 +1,5 @@
-"""Shared manager machinery: resolve YAML term entries to functions and check their parameters.
+"""Shared manager machinery: the lifecycle every manager shares (:class:`ManagerBase`), and the resolution of
+YAML term entries to functions with their parameters checked.
 
 A term entry in a task file looks like::
 
@@ -28,12 +29,55 @@ from dataclasses import dataclass, field
 from types import ModuleType
 from typing import Any
 
+import torch
+
 from dls_quadruped.envs.config import (
     TaskConfig,
     interval_problem,
     type_hints,
     type_problem,
 )
+
+
+class ManagerBase:
+    """The lifecycle every manager of ``LocomotionEnv`` shares.
+
+    A manager is built from the task with the env (``Manager(task, env)``), resolves its terms there (a bad task
+    fails at build time), and then:
+
+    * ``reset(env_ids)``: the episodes of ``env_ids`` ended; clear their per-episode buffers and return the
+      episode logs (``{"Episode_Reward/<term>": 0-dim tensor, ...}``; none by default);
+    * ``state_dict()`` / ``load_state_dict(state)``: what outlives an episode and a checkpoint carries (reward
+      weights, command ranges, curriculum state, terrain levels; nothing by default). ``check_state_dict``
+      raises before anything is written, so the env checks every manager's part before loading any. The
+      per-robot buffers of the episodes in progress are not in here: ``envs/episode_state.py`` finds them;
+    * ``summary()``: the table printed when the env starts.
+
+    Args:
+        env: the ``LocomotionEnv`` being built (its ``num_envs``, ``device``, ``schedule``, earlier managers).
+    """
+
+    def __init__(self, env) -> None:
+        self.env = env
+
+    def reset(self, env_ids: torch.Tensor) -> dict[str, Any]:
+        """Episode logs of ``env_ids``, whose episodes ended; their per-episode buffers are cleared."""
+        return {}
+
+    def state_dict(self) -> dict[str, Any]:
+        """What of this manager outlives an episode, as copies (a checkpoint's part)."""
+        return {}
+
+    def check_state_dict(self, state: dict[str, Any]) -> None:
+        """Raise ``ValueError`` if ``state`` (:meth:`state_dict` output) does not fit this manager's task."""
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict` output (checked first: nothing is written if it does not fit)."""
+        self.check_state_dict(state)
+
+    def summary(self) -> str:
+        """The manager's terms as a table (empty for a manager without terms)."""
+        return ""
 
 
 @dataclass

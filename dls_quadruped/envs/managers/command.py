@@ -17,11 +17,19 @@ walked with this displacement.
 
 from __future__ import annotations
 
+import copy
+from typing import Any
+
 import torch
 
 from dls_quadruped.core.rotations import yaw_from_quat
 from dls_quadruped.envs.config import TaskConfig
-from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
+from dls_quadruped.envs.managers.base import (
+    ManagerBase,
+    Term,
+    format_table,
+    resolve_terms,
+)
 from dls_quadruped.envs.mdp import commands as cmd_mdp
 
 
@@ -34,9 +42,9 @@ def resolve_command(task: TaskConfig) -> Term:
     return terms[0]
 
 
-class CommandManager:
+class CommandManager(ManagerBase):
     def __init__(self, task: TaskConfig, env):
-        self.env = env
+        super().__init__(env)
         self.term = resolve_command(task)
         self.params = self.term.params  # mutable: curricula widen the ranges
         self.resampling_time_s = tuple(float(x) for x in self.term.extra["resampling_time_s"])
@@ -86,6 +94,19 @@ class CommandManager:
         self.commanded_disp.index_fill_(0, env_ids, 0.0)
         self.commanded_yaw[env_ids] = yaw_from_quat(self.env.state.base_quat_w[env_ids]).to(self.commanded_yaw)
         return {}
+
+    def state_dict(self) -> dict[str, Any]:
+        """``{"params": {name: value}}``: the command term's parameters (ranges) as a curriculum left them."""
+        return {"params": copy.deepcopy(self.params)}
+
+    def check_state_dict(self, state: dict[str, Any]) -> None:
+        if set(state["params"]) != set(self.params):
+            raise ValueError(f"checkpoint command parameters {sorted(state['params'])} != task's {sorted(self.params)}")
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.check_state_dict(state)
+        self.params.clear()
+        self.params.update(copy.deepcopy(state["params"]))  # in place: the term holds this dict
 
     def summary(self) -> str:
         return format_table("commands", ("term", "function", "resampling_time_s", "params"),

@@ -3,10 +3,18 @@
 
 from __future__ import annotations
 
+import copy
+from typing import Any
+
 import torch
 
 from dls_quadruped.envs.config import TaskConfig
-from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
+from dls_quadruped.envs.managers.base import (
+    ManagerBase,
+    Term,
+    format_table,
+    resolve_terms,
+)
 from dls_quadruped.envs.mdp import curriculum as cur_mdp
 
 
@@ -36,9 +44,9 @@ def check_reward_names(task: TaskConfig, terms: list[Term], rewards: list[str]) 
                                  f"unknown reward term(s) {unknown}; the task's rewards are {sorted(rewards)}")
 
 
-class CurriculumManager:
+class CurriculumManager(ManagerBase):
     def __init__(self, task: TaskConfig, env):
-        self.env = env
+        super().__init__(env)
         self.terms = resolve_curriculum(task)
         check_reward_names(task, self.terms, list(env.reward_manager.weights))
         self.state: dict = {}
@@ -52,6 +60,16 @@ class CurriculumManager:
         for t in self.terms:
             self.values[t.name] = t(self.env, env_ids)
         return {f"Curriculum/{k}": v for k, v in self.values.items()}
+
+    def state_dict(self) -> dict[str, Any]:
+        """``{"state": terms' state, "values": last value per term}``."""
+        return {"state": copy.deepcopy(self.state), "values": dict(self.values)}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.check_state_dict(state)
+        self.state.clear()
+        self.state.update(copy.deepcopy(state["state"]))
+        self.values.update(state["values"])
 
     def summary(self) -> str:
         return format_table("curriculum", ("term", "function", "params"),

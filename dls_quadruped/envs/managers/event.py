@@ -8,7 +8,12 @@ from __future__ import annotations
 import torch
 
 from dls_quadruped.envs.config import TaskConfig
-from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
+from dls_quadruped.envs.managers.base import (
+    ManagerBase,
+    Term,
+    format_table,
+    resolve_terms,
+)
 from dls_quadruped.envs.mdp import events as event_mdp
 
 MODES = ("startup", "reset", "interval")
@@ -26,9 +31,9 @@ def resolve_events(task: TaskConfig) -> list[Term]:
     return terms
 
 
-class EventManager:
+class EventManager(ManagerBase):
     def __init__(self, task: TaskConfig, env):
-        self.env = env
+        super().__init__(env)
         # placement first: VecSim.reset clears the base wrench, so e.g. external_wrench must come after it
         self.terms = sorted(resolve_events(task), key=lambda t: t.func is not event_mdp.reset_robot)
         self.timers: dict[str, torch.Tensor] = {}

@@ -15,7 +15,12 @@ import torch
 from tensordict import TensorDict
 
 from dls_quadruped.envs.config import TaskConfig, type_problem
-from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
+from dls_quadruped.envs.managers.base import (
+    ManagerBase,
+    Term,
+    format_table,
+    resolve_terms,
+)
 from dls_quadruped.envs.mdp import observations as obs_mdp
 
 GROUP_KEYS = ("noise_scale", "terms")
@@ -39,11 +44,11 @@ def resolve_groups(task: TaskConfig) -> tuple[dict[str, list[Term]], dict[str, f
     return groups, noise_scale
 
 
-class ObservationManager:
+class ObservationManager(ManagerBase):
     """Computes the observation groups as a TensorDict {group: (B, D_group)}."""
 
     def __init__(self, task: TaskConfig, env):
-        self.env = env
+        super().__init__(env)
         self.groups, self.noise_scale = resolve_groups(task)
         self.dims: dict[str, dict[str, int]] = {}
 

@@ -6,10 +6,17 @@ are logged at reset as ``Episode_Reward/<term>`` (sum over the episode / episode
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 
 from dls_quadruped.envs.config import TaskConfig
-from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
+from dls_quadruped.envs.managers.base import (
+    ManagerBase,
+    Term,
+    format_table,
+    resolve_terms,
+)
 from dls_quadruped.envs.mdp import rewards as reward_mdp
 
 
@@ -18,9 +25,9 @@ def resolve_rewards(task: TaskConfig) -> list[Term]:
     return resolve_terms(task, "rewards", reward_mdp, {"weight": ...})
 
 
-class RewardManager:
+class RewardManager(ManagerBase):
     def __init__(self, task: TaskConfig, env):
-        self.env = env
+        super().__init__(env)
         self.terms = resolve_rewards(task)
         self.weights = {t.name: float(t.extra["weight"]) for t in self.terms}
         self.episode_sums = {t.name: torch.zeros(env.num_envs, device=env.device) for t in self.terms}
@@ -60,6 +67,18 @@ class RewardManager:
             logs[f"Episode_Reward/{name}"] = s[env_ids].mean() / self.env.max_episode_length_s
             s.index_fill_(0, env_ids, 0.0)
         return logs
+
+    def state_dict(self) -> dict[str, Any]:
+        """``{"weights": {term: weight}}``: the weights as a curriculum left them."""
+        return {"weights": dict(self.weights)}
+
+    def check_state_dict(self, state: dict[str, Any]) -> None:
+        if set(state["weights"]) != set(self.weights):
+            raise ValueError(f"checkpoint reward terms {sorted(state['weights'])} != task's {sorted(self.weights)}")
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.check_state_dict(state)
+        self.weights.update(state["weights"])
 
     def summary(self) -> str:
         rows = [(t.name, t.func.__name__, self.weights[t.name], t.params) for t in self.terms]

@@ -13,11 +13,13 @@ terrain curriculum moves rows.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import mujoco
 import torch
 
 from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
+from dls_quadruped.envs.managers.base import ManagerBase
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.height_scan import HeightScanConfig, scan_pattern
 from dls_quadruped.sim.interface import LEG_DYNAMICS, SimBackend, SimConfig
@@ -48,9 +50,9 @@ class SceneConfig:
     njmax: int | None = field(default=None, metadata={"min": 1})
 
 
-class SceneManager:
+class SceneManager(ManagerBase):
     def __init__(self, task: TaskConfig, env):
-        self.env = env
+        super().__init__(env)
         self.cfg = dataclass_from_dict(SceneConfig, task.section("scene"), task, "scene")
         self.terrain_cfg = dataclass_from_dict(TerrainConfig, task.section("terrain"), task, "terrain")
         try:
@@ -102,6 +104,20 @@ class SceneManager:
         lv = torch.where(lv >= rows, self.env.schedule.integers(env_ids, 0, rows, stream="terrain_level"), lv.clamp(min=0))
         self.terrain_levels[env_ids] = lv
         self.env_origins[env_ids] = self.tile_origins[lv, self.terrain_types[env_ids]]
+
+    def state_dict(self) -> dict[str, Any]:
+        """``{"terrain_levels": (B,) long}`` on the CPU."""
+        return {"terrain_levels": self.terrain_levels.cpu().clone()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Move every robot to its saved level; saved for another number of robots, the saved levels are cycled
+        over this env's robots (the level distribution is kept)."""
+        self.check_state_dict(state)
+        n, dev = self.env.num_envs, self.env.device
+        levels = torch.as_tensor(state["terrain_levels"], dtype=torch.long)
+        if levels.shape != (n,):
+            levels = levels[torch.arange(n) % len(levels)]
+        self.update_levels(torch.arange(n, device=dev), levels.to(dev) - self.terrain_levels)
 
     def reset_robots(self, env_ids: torch.Tensor, base_pos_w: torch.Tensor, base_quat_w: torch.Tensor,
                      joint_pos: torch.Tensor) -> None:

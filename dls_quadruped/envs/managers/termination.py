@@ -10,7 +10,12 @@ from __future__ import annotations
 import torch
 
 from dls_quadruped.envs.config import TaskConfig
-from dls_quadruped.envs.managers.base import Term, format_table, resolve_terms
+from dls_quadruped.envs.managers.base import (
+    ManagerBase,
+    Term,
+    format_table,
+    resolve_terms,
+)
 from dls_quadruped.envs.mdp import terminations as term_mdp
 
 NONFINITE_ACTION = "nonfinite_action"
@@ -21,9 +26,9 @@ def resolve_terminations(task: TaskConfig) -> list[Term]:
     return resolve_terms(task, "terminations", term_mdp, {"time_out": False})
 
 
-class TerminationManager:
+class TerminationManager(ManagerBase):
     def __init__(self, task: TaskConfig, env):
-        self.env = env
+        super().__init__(env)
         self.terms = resolve_terminations(task)
         n = env.num_envs
         self.terminated = torch.zeros(n, dtype=torch.bool, device=env.device)

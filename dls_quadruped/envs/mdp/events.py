@@ -16,6 +16,7 @@ import torch
 from dls_quadruped.core.rotations import quat_from_yaw
 from dls_quadruped.core.torch_cache import constant_cache
 from dls_quadruped.robots.aliengo import constants as C
+from dls_quadruped.sim.interface import home_state
 
 
 def _uniform(env, env_ids: torch.Tensor, shape: tuple[int, ...], rng, stream: str) -> torch.Tensor:
@@ -79,6 +80,26 @@ def reset_robot(env, env_ids: torch.Tensor, joint_scale: tuple[float, float] = (
     heading = _uniform(env, env_ids, (), yaw, "reset_robot")
     z = spawn_height(env.scene.terrain, xy, heading, q, height)
     env.scene.reset_robots(env_ids, torch.cat([xy, z[:, None]], dim=-1), quat_from_yaw(heading), q)
+
+
+def reset_home(env, env_ids: torch.Tensor, joint_noise: float = 0.0, yaw: float | list[float] = 0.0,
+               origin_xy: list[float] = (0.0, 0.0), seed: int = 0) -> None:
+    """Place robots in the home pose of ``sim.interface.home_state``: base ``STANDING_BASE_HEIGHT + 5 mm`` above
+    z = 0 at ``origin_xy`` (x, y) [m] (a flat patch), heading ``yaw`` [rad] (one for all envs or one per env),
+    joints nominal + U(-joint_noise, joint_noise) [rad] from a generator seeded with ``seed`` for every env at
+    once (not the episode schedule: a restarted robot starts from its first pose again). The start of the balance
+    controller's and the model-based baseline's runs (``envs/home_task.py``); list it before other reset events
+    (a backend reset clears the base wrench). ``origin_xy`` is a point, not a ``[low, high]`` range."""
+    if len(origin_xy) != 2:
+        raise ValueError(f"reset_home: origin_xy must be (x, y) [m], got {origin_xy!r}")
+    home = home_state(env.num_envs, seed, joint_noise, yaw)
+    pos = home["base_pos_w"] + torch.tensor([*origin_xy, 0.0], dtype=torch.float64)
+    ids = env_ids.cpu()
+    env.scene.reset_robots(env_ids, pos[ids], home["base_quat_w"][ids], home["joint_pos"][ids])
+
+
+PLACEMENT_EVENTS = (reset_robot, reset_home)
+"""The reset events that place robots; an env needs one of them in ``reset`` mode."""
 
 
 def randomize_friction(env, env_ids: torch.Tensor, friction_range: tuple[float, float]) -> None:

@@ -1,4 +1,4 @@
-"""Vectorised MuJoCo backend: N AlienGo robots with the low-level controller, on all cores.
+"""The CPU backend ``VecSim``: N AlienGo robots with the low-level controller, on all cores.
 
 Design (measured in ``docs/benchmarks.md``): the robots are split into contiguous
 shards, one per worker process. Each worker owns a ``mujoco.batch.Batch`` (one thread),
@@ -7,7 +7,7 @@ decimation loop by itself; the main process only writes commands into shared mem
 and reads the state back, once per high-level step. This spreads the Pinocchio calls,
 which hold the GIL, over the cores as well as the physics. With ``num_workers=0`` a
 single in-process shard is used (its ``Batch`` uses all threads), which is handy for
-debugging and gives bit-identical results.
+debugging and gives bit-identical results. The worker processes themselves are :mod:`cpu_workers`.
 
 This is the ``cpu`` backend of the seam in ``sim/interface.py`` (``make_backend("cpu", ...)``); inputs may
 live on any device (they are copied to the CPU), the state lives on the CPU.
@@ -22,15 +22,10 @@ Usage::
 
 from __future__ import annotations
 
-import ast
-import atexit
 import multiprocessing as mp
-import multiprocessing.util  # registers its exit handler before ours below, so ours runs first
 import os
 import signal
-import sys
 import time
-import weakref
 from typing import Any
 
 import mujoco
@@ -38,189 +33,25 @@ import numpy as np
 import torch
 
 from dls_quadruped.core.state import RobotState
-from dls_quadruped.sim.interface import SimConfig, robot_weight, standing_references
+from dls_quadruped.sim.cpu_workers import (
+    RUNNING,
+    WorkerError,
+    check_main_guard,
+    execute,
+    join_rows,
+    process_state,
+    shard_rows,
+    worker_main,
+)
+from dls_quadruped.sim.interface import (
+    SimConfig,
+    reset_coordinates,
+    robot_weight,
+    standing_references,
+)
 from dls_quadruped.sim.shard import STATE_SPECS, Shard, SharedBuffers
 
 _BOOL_FIELDS = ("base_contact", "diverged")
-
-
-def _execute(shard: Shard, cmd: str, arg: Any) -> Any:
-    """Run one backend command on a shard (same code in-process and in a worker); returns its answer
-    (the snapshot for "snapshot", else None).
-
-    ``arg`` is the step count for "step", the shard-local ids for "reset"/"set_lin_vel",
-    ``(name, ids, values)`` for "model_field" and the shard's snapshot for "restore".
-    """
-    if cmd == "snapshot":
-        return shard.snapshot()
-    if cmd == "restore":
-        return shard.restore(arg)
-    if cmd == "step":
-        shard.step(arg)
-    elif cmd == "reset":
-        shard.reset(arg)
-    elif cmd == "set_lin_vel":
-        shard.set_lin_vel(arg)
-    elif cmd == "model_field":
-        shard.set_model_field(*arg)
-    else:
-        raise ValueError(f"unknown backend command {cmd!r}")
-
-
-def _join_rows(parts: list[Any]) -> Any:
-    """Shard snapshots (nested dicts of arrays/tensors, rows = robots) joined along the rows."""
-    if isinstance(parts[0], dict):
-        return {k: _join_rows([p[k] for p in parts]) for k in parts[0]}
-    if isinstance(parts[0], torch.Tensor):
-        return torch.cat(parts)
-    return np.concatenate(parts)
-
-
-def _rows(snap: Any, lo: int, hi: int) -> Any:
-    """Rows [lo, hi) of every array in a (nested dict) snapshot."""
-    if isinstance(snap, dict):
-        return {k: _rows(v, lo, hi) for k, v in snap.items()}
-    return snap[lo:hi].clone() if isinstance(snap, torch.Tensor) else np.array(snap[lo:hi], copy=True)
-
-
-class WorkerError(RuntimeError):
-    """A simulator worker process died, hung or could not start."""
-
-
-_RUNNING: weakref.WeakSet[VecSim] = weakref.WeakSet()
-"""Simulators whose workers are running (added when they start, removed by ``close``)."""
-
-
-def _close_running() -> None:
-    """At interpreter exit, close every simulator the script did not close.
-
-    Without it a script that ends by an exception, ``sys.exit`` or Ctrl-C while a ``VecSim`` is
-    still referenced (a traceback holds its frame) hangs for ever: ``multiprocessing``'s own exit
-    handler sends SIGTERM to daemonic children, which the workers ignore (so the trainer can save
-    on Ctrl-C), then joins them without a timeout, while they wait for a command. ``atexit`` runs
-    handlers last-registered-first, and this module imports ``multiprocessing.util`` before
-    registering, so this runs before that join.
-    """
-    for sim in list(_RUNNING):
-        try:
-            sim.close()
-        except Exception:  # noqa: BLE001, S110 -- at exit, a failure to close one must not leave the others running
-            pass
-
-
-atexit.register(_close_running)
-
-
-def _reply(conn: Any, message: tuple) -> bool:
-    """Send ``message`` to the parent; False when it is gone or stopped listening (the worker then ends
-    quietly: e.g. close() after another worker died hangs up before this worker's last answer arrives)."""
-    try:
-        conn.send(message)
-    except (BrokenPipeError, ConnectionResetError, EOFError, OSError):
-        return False
-    return True
-
-
-def _worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: SimConfig) -> None:
-    """Worker process loop: execute commands on one shard until 'close' (or until the parent is gone)."""
-    # Ctrl-C in a terminal and a SIGTERM to the process group reach the workers too; the trainer
-    # handles them (it saves a checkpoint first), and a worker ends when its pipe closes.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    torch.set_num_threads(1)
-    try:
-        shard = Shard(model, buffers, cfg.control, nthread=1, regions=cfg.regions,
-                      leg_dynamics=cfg.leg_dynamics)
-    except Exception as err:  # report construction errors to the parent instead of hanging it
-        _reply(conn, ("error", repr(err)))
-        return
-    if not _reply(conn, ("ok", None)):
-        return
-    while True:
-        try:
-            cmd, arg = conn.recv()
-        except (EOFError, OSError):  # the parent died or closed the pipe: nothing left to serve
-            return
-        if cmd == "close":
-            _reply(conn, ("ok", None))
-            return
-        try:
-            answer = ("ok", _execute(shard, cmd, arg))
-        except Exception as err:
-            answer = ("error", f"{cmd}: {err!r}")
-        if not _reply(conn, answer):
-            return
-
-
-def _process_state(pid: int) -> str:
-    """Linux process state letter and meaning from /proc (e.g. 'T (stopped)'), or 'unknown'."""
-    names = {"R": "running", "S": "sleeping", "D": "disk wait", "T": "stopped", "t": "traced", "Z": "zombie"}
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            letter = fh.read().rsplit(")", 1)[1].split()[0]
-    except (OSError, IndexError):
-        return "unknown"
-    return f"{letter} ({names.get(letter, '?')})"
-
-
-def check_main_guard() -> None:
-    """Refuse to start worker processes from a script's unguarded module-level code.
-
-    Workers are started with ``spawn``: each one re-imports the main script, so a script that
-    builds the simulator at module level outside ``if __name__ == "__main__":`` would start
-    workers from the workers (Python refuses, the workers die). Detected before any worker starts
-    from the calling frames: a module-level frame of ``__main__`` whose line is not inside such a
-    guard in the script's source. A script the workers cannot re-import at all (``python - <<EOF`` reads it
-    from standard input, ``__file__`` is ``<stdin>``) is refused whatever its guard: its workers would die
-    while the parent blocks writing their start data.
-
-    Raises:
-        WorkerError: naming the script and line, with the fix.
-    """
-    main = sys.modules.get("__main__")
-    path = getattr(main, "__file__", None)
-    if path is None or getattr(main, "__spec__", None) is not None:  # interactive, -c, -m: nothing re-imported
-        return
-    if not os.path.isfile(os.path.join(mp.process.ORIGINAL_DIR or "", path)):  # where spawn looks for it
-        raise WorkerError(
-            f"{path} starts simulator worker processes from a script that is not a file; the workers re-import "
-            "the script (spawn) and cannot. Save it to a file with that code under an `if __name__ == \"__main__\":` "
-            "guard (see docs/env.md) or use num_workers=0 (scene.num_workers: 0)")
-    frame = sys._getframe(1)
-    while frame is not None:
-        if frame.f_code.co_name == "<module>" and frame.f_globals.get("__name__") == "__main__":
-            line = frame.f_lineno
-            if not _inside_main_guard(path, line):
-                raise WorkerError(
-                    f"{path}:{line} starts simulator worker processes from module-level code without an "
-                    "`if __name__ == \"__main__\":` guard; the workers re-import the script (spawn) and would "
-                    "start workers themselves. Put that code under the guard (see docs/env.md) or use "
-                    "num_workers=0 (scene.num_workers: 0)")
-            return
-        frame = frame.f_back
-
-
-def _inside_main_guard(path: str, line: int) -> bool:
-    """Whether ``line`` of the script lies in the body of a top-level ``if __name__ == "__main__":``."""
-    try:
-        with open(path) as fh:
-            tree = ast.parse(fh.read())
-    except (OSError, SyntaxError):
-        return True  # cannot tell: do not block
-    for node in tree.body:
-        if (isinstance(node, ast.If) and _is_main_test(node.test)
-                and any(n.lineno <= line <= (n.end_lineno or n.lineno) for n in node.body)):
-            return True
-    return False
-
-
-def _is_main_test(test: ast.expr) -> bool:
-    if not (isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], ast.Eq)):
-        return False
-    sides = [test.left, test.comparators[0]]
-    names = [s.id for s in sides if isinstance(s, ast.Name)]
-    consts = [s.value for s in sides if isinstance(s, ast.Constant)]
-    return names == ["__name__"] and consts == ["__main__"]
 
 
 class VecSim:
@@ -256,11 +87,11 @@ class VecSim:
         else:
             check_main_guard()
             ctx = mp.get_context("spawn")
-            _RUNNING.add(self)  # before the first start: a Ctrl-C between two starts still closes the first
+            RUNNING.add(self)  # before the first start: a Ctrl-C between two starts still closes the first
             for w in range(workers):
                 parent, child = ctx.Pipe()
                 rows = self.buf.rows(self._bounds[w], self._bounds[w + 1])
-                proc = ctx.Process(target=_worker_main, args=(child, model, rows, cfg), daemon=True)
+                proc = ctx.Process(target=worker_main, args=(child, model, rows, cfg), daemon=True)
                 proc.start()
                 child.close()  # only the worker holds its end: a dead worker then reads as EOF, not a hang
                 self._conns.append(parent)
@@ -277,6 +108,12 @@ class VecSim:
     def _standing_references(self, rows: slice | torch.Tensor) -> None:
         """References of ``rows``: standing (:func:`~dls_quadruped.sim.interface.standing_references`)."""
         standing_references(self.buf.command, rows, self.total_weight())
+
+    @property
+    def in_process_shard(self) -> Shard | None:
+        """The one shard when it runs in this process (``num_workers=0``): its ``Batch``, low-level controller
+        and leg terms, for benchmarks and diagnostics to read or time; None when the shards run in workers."""
+        return self._shard
 
     def total_weight(self) -> float:
         """m g of the robot in this model [N]."""
@@ -323,7 +160,7 @@ class VecSim:
                 raise self._died(w, during)
             if time.monotonic() > deadline:
                 raise WorkerError(f"simulator worker {w} (pid {proc.pid}) gave no answer within {timeout:g} s "
-                                  f"during {during} (process state: {_process_state(proc.pid)}); "
+                                  f"during {during} (process state: {process_state(proc.pid)}); "
                                   "SimConfig.reply_timeout_s sets the limit")
         try:
             return conn.recv()
@@ -346,7 +183,7 @@ class VecSim:
                 arg = payload
             else:
                 arg = ids.numpy() if payload is None else (payload[0], ids.numpy(), payload[1])
-            _execute(self._shard, cmd, arg)
+            execute(self._shard, cmd, arg)
             return
         if not self._conns:
             raise WorkerError("the simulator is closed (a worker failed earlier or close() was called)")
@@ -426,16 +263,8 @@ class VecSim:
             return self.state
         if ids.min() < 0 or ids.max() >= self.num_envs:
             raise ValueError(f"env_ids must be in [0, {self.num_envs}), got min {ids.min()} max {ids.max()}")
-        zeros3 = torch.zeros(n, 3, dtype=torch.float64)
-        quat = self._check_rows("base_quat_w", base_quat_w, n, (4,))
-        qpos = torch.cat(
-            [self._check_rows("base_pos_w", base_pos_w, n, (3,)), quat / quat.norm(dim=1, keepdim=True),
-             self._check_rows("joint_pos", joint_pos, n, (12,))], dim=1)
-        qvel = torch.cat(
-            [zeros3 if base_lin_vel_w is None else self._check_rows("base_lin_vel_w", base_lin_vel_w, n, (3,)),
-             zeros3 if base_ang_vel_b is None else self._check_rows("base_ang_vel_b", base_ang_vel_b, n, (3,)),
-             torch.zeros(n, 12, dtype=torch.float64) if joint_vel is None
-             else self._check_rows("joint_vel", joint_vel, n, (12,))], dim=1)
+        qpos, qvel = reset_coordinates(self._check_rows, n, base_pos_w, base_quat_w, joint_pos, joint_vel,
+                                       base_lin_vel_w, base_ang_vel_b)
         if phase is None:
             phase = torch.tensor([0.0, 0.5, 0.5, 0.0], dtype=torch.float64).expand(n, 4)
         c = self.buf.command
@@ -491,7 +320,7 @@ class VecSim:
         (``Shard.snapshot``, joined in robot order, so it does not depend on the worker count) and the
         shared state and command buffers (the last published state, the held references, wrenches)."""
         parts = self._each("snapshot", [None] * self._num_shards())
-        return {"shards": _join_rows(parts),
+        return {"shards": join_rows(parts),
                 "state": {k: v.clone() for k, v in self.buf.state.items()},
                 "command": {k: v.clone() for k, v in self.buf.command.items()}}
 
@@ -506,7 +335,7 @@ class VecSim:
         if n != self.num_envs:
             raise ValueError(f"simulator snapshot of {n} robots, this simulator has {self.num_envs}")
         b = self._bounds
-        self._each("restore", [_rows(snap["shards"], b[w], b[w + 1]) for w in range(self._num_shards())])
+        self._each("restore", [shard_rows(snap["shards"], b[w], b[w + 1]) for w in range(self._num_shards())])
         for group, saved in (("state", snap["state"]), ("command", snap["command"])):
             for k, v in getattr(self.buf, group).items():
                 v.copy_(saved[k])
@@ -518,7 +347,7 @@ class VecSim:
     def _each(self, cmd: str, args: list[Any]) -> list[Any]:
         """Send ``(cmd, args[w])`` to shard w, every shard; their answers in shard order."""
         if self._shard is not None:
-            return [_execute(self._shard, cmd, args[0])]
+            return [execute(self._shard, cmd, args[0])]
         if not self._conns:
             raise WorkerError("the simulator is closed (a worker failed earlier or close() was called)")
         for w, arg in enumerate(args):
@@ -539,20 +368,20 @@ class VecSim:
                 pass
         for conn, proc in zip(self._conns, self._procs):
             try:
-                stopped = _process_state(proc.pid).startswith(("T", "t"))  # cannot answer: kill it below
+                stopped = process_state(proc.pid).startswith(("T", "t"))  # cannot answer: kill it below
                 if not stopped and conn.poll(max(0.0, deadline - time.monotonic())):
                     conn.recv()
             except (BrokenPipeError, EOFError, OSError):
                 pass
             conn.close()
         for proc in self._procs:
-            if not _process_state(proc.pid).startswith(("T", "t")):
+            if not process_state(proc.pid).startswith(("T", "t")):
                 proc.join(timeout=max(0.0, deadline - time.monotonic()))
             if proc.is_alive():
                 proc.kill()  # SIGTERM is ignored by workers; a stopped one ignores everything but SIGKILL
                 proc.join(timeout=5)
         self._conns, self._procs = [], []
-        _RUNNING.discard(self)
+        RUNNING.discard(self)
 
     def __enter__(self) -> VecSim:
         return self
@@ -565,4 +394,3 @@ class VecSim:
             self.close()
         except Exception:
             pass
-

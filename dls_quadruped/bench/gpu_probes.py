@@ -1,0 +1,186 @@
+"""What one ``LocomotionEnv.step`` costs a GPU, measured by call site: host syncs, kernel launches, busy time.
+
+The probes of the GPU check (``bench/gpu_check.py``, sections ``syncs``, ``launches`` and ``gpu_busy``): each
+builds the base task on a Warp backend, steps it a few times outside the count (compilation, graph capture),
+then counts while it steps with random actions (robots fall and reset; pushes every ~0.3 s).
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+import warnings
+from collections import Counter
+
+import numpy as np
+import torch
+
+
+def sync_device(device: torch.device) -> None:
+    """Wait for the device's queued work (CUDA only: the CPU has none)."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def _site(frames: list[traceback.FrameSummary]) -> str:
+    """The innermost frame of this package (else the innermost frame) as ``file:line``."""
+    for f in reversed(frames):
+        if "dls_quadruped" in f.filename and "gpu_probes" not in f.filename:
+            return f"{f.filename.split('dls_quadruped/')[-1]}:{f.lineno}"
+    return f"{frames[-1].filename}:{frames[-1].lineno}" if frames else "?"
+
+
+def _base_with_pushes(backend: str) -> dict:
+    return {"scene": {"backend": backend, "num_workers": 0},
+            "events": {"push": {"func": "push_robot", "mode": "interval", "interval_s": [0.2, 0.4],
+                                "params": {"velocity_range": [-0.5, 0.5]}}}}
+
+
+def syncs(backend: str, device: torch.device, num_envs: int, steps: int) -> dict:
+    """Host synchronisations per ``env.step`` by site: torch's (CUDA sync debug mode) and Warp array reads."""
+    import warp as wp
+
+    from dls_quadruped.envs.config import load_task
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    env = LocomotionEnv(load_task("base", overrides=_base_with_pushes(backend)), num_envs=num_envs,
+                        device=str(device), seed=0, verbose=False)
+    from dls_quadruped.core.sync_probe import sync_probe
+
+    sites: Counter = Counter()
+    probe_sites: Counter = Counter()
+    per_step, per_step_probe, done_steps = [], [], 0
+    warp_reads = {"n": 0}
+    orig_numpy = wp.array.numpy
+
+    def counted_numpy(self, *a, **k):
+        warp_reads["n"] += 1
+        sites["warp.array.numpy @ " + _site(traceback.extract_stack()[:-1])] += 1
+        return orig_numpy(self, *a, **k)
+
+    try:
+        g = torch.Generator(device=device).manual_seed(0)
+        for _ in range(3):  # compile and capture outside the count
+            env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
+        sync_device(device)
+        wp.array.numpy = counted_numpy
+        if device.type == "cuda":
+            torch.cuda.set_sync_debug_mode("warn")
+        for _ in range(steps):
+            action = torch.randn(num_envs, env.num_actions, generator=g, device=device)
+            with warnings.catch_warnings(record=True) as caught, sync_probe() as probe:
+                warnings.simplefilter("always")
+                before = warp_reads["n"]
+                _, _, dones, _ = env.step(action)
+            torch_syncs = [w for w in caught if "synchroniz" in str(w.message).lower()]
+            for w in torch_syncs:
+                sites[f"cuda @ {w.filename.split('dls_quadruped/')[-1]}:{w.lineno}"] += 1
+            for site, k in probe.by_site().items():
+                probe_sites[site] += k
+            per_step.append(len(torch_syncs) + warp_reads["n"] - before)
+            per_step_probe.append(probe.total)
+            done_steps += int(bool(dones.any()))
+    finally:
+        if device.type == "cuda":
+            torch.cuda.set_sync_debug_mode(0)
+        wp.array.numpy = orig_numpy
+        env.close()
+    return {"num_envs": num_envs, "steps": steps, "steps_with_resets": done_steps,
+            "syncs_per_step_mean": float(np.mean(per_step)), "syncs_per_step_max": int(np.max(per_step)),
+            "by_site": dict(sites.most_common(40)),
+            "counted": "torch's CUDA sync debug mode + warp.array.numpy()" if device.type == "cuda"
+            else "warp.array.numpy() only (torch's sync debug mode needs CUDA)",
+            "probe_per_step_mean": float(np.mean(per_step_probe)), "probe_by_site": dict(probe_sites.most_common(40)),
+            "probe": "core/sync_probe.py: Python-level host reads and uploads (the cuda count also sees C++ ones)"}
+
+
+def launches(backend: str, device: torch.device, num_envs: int, steps: int) -> dict:
+    """Warp kernel launches (graph replays count one each) and torch operators per ``env.step``, by kind.
+
+    Counted: every ``wp.launch`` / ``wp.launch_tiled`` / ``wp.capture_launch`` call (MuJoCo Warp's kernels outside a
+    captured graph, and each graph) and every aten operator torch dispatches (``TorchDispatchMode``: on CUDA each
+    is roughly one kernel launch, views and metadata ops included, so an upper bound).
+    """
+    import warp as wp
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    from dls_quadruped.envs.config import load_task
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    class Ops(TorchDispatchMode):
+        def __init__(self):
+            super().__init__()
+            self.n = 0
+
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            self.n += 1
+            return func(*args, **(kwargs or {}))
+
+    counts = {"warp": 0}
+    names = ("launch", "launch_tiled", "capture_launch")
+    originals = {k: getattr(wp, k) for k in names}
+
+    def counted(fn):
+        def wrapper(*a, **k):
+            counts["warp"] += 1
+            return fn(*a, **k)
+        return wrapper
+
+    env = LocomotionEnv(load_task("base", overrides=_base_with_pushes(backend)), num_envs=num_envs,
+                        device=str(device), seed=0, verbose=False)
+    rows = []
+    try:
+        g = torch.Generator(device=device).manual_seed(0)
+        for _ in range(3):
+            env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
+        import mujoco_warp._src.warp_util  # noqa: F401  (MuJoCo Warp calls wp.launch through the warp module)
+        for k in names:
+            setattr(wp, k, counted(originals[k]))
+        for _ in range(steps):
+            action = torch.randn(num_envs, env.num_actions, generator=g, device=device)
+            counts["warp"] = 0
+            with Ops() as ops:
+                _, _, dones, _ = env.step(action)
+            rows.append((counts["warp"], ops.n, bool(dones.any())))
+    finally:
+        for k in names:
+            setattr(wp, k, originals[k])
+        env.close()
+    plain = [r for r in rows if not r[2]] or rows
+    reset = [r for r in rows if r[2]]
+    return {"num_envs": num_envs, "steps": steps, "warp_launches_per_step": float(np.mean([r[0] for r in plain])),
+            "torch_ops_per_step": float(np.mean([r[1] for r in plain])),
+            "warp_launches_reset_step": float(np.mean([r[0] for r in reset])) if reset else None,
+            "torch_ops_reset_step": float(np.mean([r[1] for r in reset])) if reset else None,
+            "steps_with_resets": len(reset)}
+
+
+def gpu_busy(backend: str, device: torch.device, num_envs: int, steps: int) -> dict:
+    """Kernel time over wall time for ``steps`` env steps (torch profiler; Warp's kernels are seen by CUPTI too)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    from dls_quadruped.envs.config import load_task
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    if device.type != "cuda":
+        return {"skipped": "needs CUDA"}
+    env = LocomotionEnv(load_task("base", overrides={"scene": {"backend": backend, "num_workers": 0}}),
+                        num_envs=num_envs, device=str(device), seed=0, verbose=False)
+    try:
+        g = torch.Generator(device=device).manual_seed(0)
+        for _ in range(3):
+            env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
+        sync_device(device)
+        with profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA]) as prof:
+            tic = time.perf_counter()
+            for _ in range(steps):
+                env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
+            sync_device(device)
+            wall = time.perf_counter() - tic
+        kernels = [e for e in prof.events() if e.device_type == torch.autograd.DeviceType.CUDA]
+        busy_us = sum(e.device_time for e in kernels)
+    finally:
+        env.close()
+    return {"num_envs": num_envs, "steps": steps, "wall_s": wall, "kernel_s": busy_us * 1e-6,
+            "busy_fraction": busy_us * 1e-6 / wall, "kernels_per_step": len(kernels) / steps,
+            "note": "wall time under the profiler (slower than without)"}

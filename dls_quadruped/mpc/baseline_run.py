@@ -1,0 +1,120 @@
+"""The model-based baseline walking in an env (``python -m dls_quadruped.mpc.run``, its acceptance tests).
+
+``ModelBasedBaseline`` (``mpc/baseline.py``) runs inside a ``LocomotionEnv`` of the home task
+(``envs/home_task.py``: robots in the home pose, no termination) as a controller of ``env.step_controlled``:
+one env step is one MPC period, whose solve's first action, in world references (``MPCResult.foot_target_w``,
+``force_w``), goes to the backend through ``env.apply_references`` for ``mpc_period / physics_dt`` physics
+steps; ``envs/recorder.py`` records every step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
+from dls_quadruped.envs.env import LocomotionEnv
+from dls_quadruped.envs.home_task import home_task, physics_dt
+from dls_quadruped.envs.recorder import record
+from dls_quadruped.mpc.baseline import BaselineConfig, ModelBasedBaseline
+from dls_quadruped.mpc.sampler import MPCResult
+from dls_quadruped.sim.terrain import TerrainConfig
+
+
+class BaselineEnvController:
+    """The model-based baseline acting in a ``LocomotionEnv`` whose step is one MPC period (``physics`` for
+    ``env.step_controlled``): one solve from ``env.state``, its references to ``env.apply_references``.
+
+    Args:
+        cmd_vel_h: (B, 3) command (v_x, v_y [m/s] in frame H, yaw rate [rad/s]).
+        device: where the MPC computes; seed: its noise's.
+    """
+
+    def __init__(self, env, cfg: BaselineConfig, cmd_vel_h: torch.Tensor, device: str = "cpu", seed: int = 0):
+        self.env, self.cmd = env, cmd_vel_h
+        self.baseline = ModelBasedBaseline(env.num_envs, cfg, device, seed)
+        self.result: MPCResult | None = None
+        """The last solve's result."""
+
+    def physics(self) -> None:
+        self.result, _ = self.baseline.step(self.env.state, self.cmd)
+        r = self.result
+        self.env.apply_references(r.f, r.d, r.foot_target_w, r.force_w, self.env.decimation)
+
+    def step(self, obs):
+        """One env step (a ``recorder.StepFn``)."""
+        return self.env.step_controlled(self.physics)
+
+
+@dataclass
+class BaselineRun:
+    """Recorded signals of a closed-loop baseline run, one row per MPC step (robot 0..B-1).
+
+    Attributes:
+        time: (T,) [s]; base_vel_w: (T, B, 3) [m/s]; base_height: (T, B) [m];
+        roll, pitch: (T, B) [rad]; contact: (T, B, 4) commanded stance;
+        best_cost, initial_cost: (T, B); fallen: (B,) bool; qpos: (T, B, 19).
+    """
+
+    time: np.ndarray
+    base_vel_w: np.ndarray
+    base_height: np.ndarray
+    roll: np.ndarray
+    pitch: np.ndarray
+    contact: np.ndarray
+    best_cost: np.ndarray
+    initial_cost: np.ndarray
+    fallen: np.ndarray
+    qpos: np.ndarray
+
+
+def _probes(ctrl: BaselineEnvController) -> dict:
+    """What ``run_baseline`` records after every step, by ``BaselineRun`` field (and the fall flags)."""
+    rpy = lambda env: rpy_from_rotmat(quat_to_rotmat(env.state.base_quat_w.double()))
+    return {
+        "base_vel_w": lambda env: env.state.base_lin_vel_w,
+        "base_height": lambda env: env.state.base_pos_w[:, 2],
+        "roll": lambda env: rpy(env)[:, 0],
+        "pitch": lambda env: rpy(env)[:, 1],
+        "contact": lambda env: env.state.contact_cmd,
+        "best_cost": lambda env: ctrl.result.best_cost,
+        "initial_cost": lambda env: ctrl.result.initial_cost,
+        "qpos": lambda env: torch.cat([env.state.base_pos_w, env.state.base_quat_w, env.state.joint_pos], 1),
+        "down": lambda env: env.state.base_contact | env.state.diverged,
+    }
+
+
+def run_baseline(
+    cmd_vel_h: tuple[float, float, float] = (0.5, 0.0, 0.0),
+    seconds: float = 15.0,
+    num_robots: int = 1,
+    cfg: BaselineConfig = BaselineConfig(),
+    seed: int = 0,
+    device: str = "cpu",
+    terrain: TerrainConfig | None = None,
+    origin_w: tuple[float, float] = (0.0, 0.0),
+    backend: str = "cpu",
+) -> BaselineRun:
+    """Walk B robots with the model-based baseline for ``seconds`` (a whole number of MPC periods).
+
+    ``terrain``: the ground (None: MuJoCo's plane), the robots spawned at ``origin_w`` (x, y) [m] on a flat patch
+    at z = 0 (the MPC plans on flat ground at z = 0). ``device``: where the MPC computes; ``backend``: the
+    simulator (``sim/registry.py``); the controller reads its state on the CPU.
+    """
+    period = cfg.sampler.mpc_period
+    decimation = round(period / physics_dt())
+    steps = round(seconds / period)
+    task = home_task(num_robots, steps * period, decimation, cmd_vel_h, terrain, seed, origin_xy=origin_w,
+                     backend=backend)
+    env = LocomotionEnv(task, num_envs=num_robots, seed=seed, verbose=False)
+    try:
+        cmd = torch.tensor(cmd_vel_h, dtype=torch.float32).expand(num_robots, 3)
+        ctrl = BaselineEnvController(env, cfg, cmd, device, seed)
+        rec = record(env, ctrl.step, _probes(ctrl), steps, desc=f"model-based baseline, {num_robots} robots")
+    finally:
+        env.close()
+    fields = {k: v for k, v in rec.after.items() if k != "down"}
+    return BaselineRun(time=np.array([(k + 1) * period for k in range(steps)]), fallen=rec.after["down"].any(axis=0),
+                       **fields)

@@ -1,0 +1,89 @@
+"""The Warp backend's input checks: host values checked on the host, device values on the device.
+
+A value given on the host (lists, arrays, CPU tensors for a CUDA backend) is checked before it is uploaded
+and raises at once. A value already on the backend's device (the env's own tensors) is checked there without
+a host read: an invalid one sets a 0-d bool flag, which the backend reads once every ``check_every`` step
+calls (``WarpSim.check_inputs``); out-of-range row ids are clamped meanwhile, so no write lands outside the
+batch.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+REFERENCES = ("freq", "duty", "p_td_w", "F_w")
+"""The latent references, flagged together (:attr:`DeviceInputs.bad_refs`)."""
+
+
+class DeviceInputs:
+    """Input checks of a backend of ``num_envs`` robots on ``device``, with their pending flags.
+
+    Args:
+        num_envs: number of robots N (row ids are in [0, N)).
+        device: the backend's device.
+    """
+
+    def __init__(self, num_envs: int, device: torch.device):
+        self.num_envs = num_envs
+        self.device = device
+        self.bad_refs = torch.zeros(len(REFERENCES), dtype=torch.bool, device=device)
+        """Non-finite freq, duty, p_td_w, F_w seen (in :data:`REFERENCES` order)."""
+        self.bad_inputs: dict[str, torch.Tensor] = {}
+        """Other inputs checked on the device (:meth:`ids`, :meth:`rows`), by name."""
+
+    def ids(self, env_ids: Any) -> torch.Tensor:
+        """Row ids as a long tensor on the device. Ids given on the host are range-checked there; ids already on
+        the device are checked on the device without a host read: out-of-range ones are clamped and flagged."""
+        if isinstance(env_ids, torch.Tensor) and env_ids.device == self.device and not env_ids.is_floating_point():
+            ids = env_ids.reshape(-1).long()
+            bad = (ids < 0) | (ids >= self.num_envs)
+            self.flag("env_ids").logical_or_(bad.any())
+            return ids.clamp(0, self.num_envs - 1)
+        host = torch.as_tensor(env_ids).reshape(-1).cpu().long()
+        if len(host) and (int(host.min()) < 0 or int(host.max()) >= self.num_envs):
+            raise ValueError(f"env_ids must be in [0, {self.num_envs}), got min {int(host.min())} max {int(host.max())}")
+        return host.to(self.device)
+
+    def flag(self, name: str) -> torch.Tensor:
+        """The device-side flag of input ``name`` (set when a value arrived invalid)."""
+        if name not in self.bad_inputs:
+            self.bad_inputs[name] = torch.zeros((), dtype=torch.bool, device=self.device)
+        return self.bad_inputs[name]
+
+    def shaped(self, name: str, value: Any, n: int, shape: tuple[int, ...]) -> torch.Tensor:
+        """``value`` as a float64 tensor on the device of shape (n, *shape) (no host read of its values)."""
+        value = torch.as_tensor(value).to(self.device, torch.float64)
+        if value.shape != (n, *shape):
+            raise ValueError(f"{name} must have shape {(n, *shape)}, got {tuple(value.shape)}")
+        return value
+
+    def rows(self, name: str, value: Any, n: int, shape: tuple[int, ...]) -> torch.Tensor:
+        """``value`` as a float64 tensor on the device of shape (n, *shape) with finite entries: checked on the host
+        when it comes from there, on the device (flagged, no host read) when it is already on the device."""
+        if isinstance(value, torch.Tensor) and value.device == self.device:
+            value = self.shaped(name, value, n, shape)
+            self.flag(name).logical_or_(~torch.isfinite(value).all())
+            return value
+        host = torch.as_tensor(value).cpu().to(torch.float64)  # host data: checked before it is uploaded
+        if host.shape != (n, *shape):
+            raise ValueError(f"{name} must have shape {(n, *shape)}, got {tuple(host.shape)}")
+        finite = torch.isfinite(host).reshape(n, -1).all(dim=1)
+        if not bool(finite.all()):
+            rows = torch.nonzero(~finite).flatten().tolist()
+            raise ValueError(f"{name} has non-finite values in rows {rows[:10]}")
+        return host.to(self.device)
+
+    def flags(self) -> tuple[tuple[str, ...], torch.Tensor]:
+        """The names of every flag and the flags as one bool tensor on the device (no host read)."""
+        keys = (*REFERENCES, *self.bad_inputs)
+        if not self.bad_inputs:
+            return keys, self.bad_refs
+        return keys, torch.cat([self.bad_refs, torch.stack(list(self.bad_inputs.values()))])
+
+    def clear(self) -> None:
+        """Lower every flag."""
+        self.bad_refs.zero_()
+        for flag in self.bad_inputs.values():
+            flag.zero_()
