@@ -117,6 +117,12 @@ def paired_csv(folder: str, policy: str, metric: str) -> Interval:
     return Interval(float(row["mean difference"]), lo, hi, f"{row['mean difference']} {row['95 % CI']}")
 
 
+def pushes_primary(folder: str = "pushes") -> Interval:
+    """The preregistered primary contrast of ``experiments/pushes.py`` (``report.json``), survival fraction."""
+    d = _json(folder, "report.json")["primary"]
+    return Interval(d["mean"], *d["ci95"], _fmt(d["mean"], *d["ci95"], 3))
+
+
 def _fmt(v: float, lo: float, hi: float, digits: int, unit: str = "") -> str:
     return f"{v:+.{digits}f}{unit} [{lo:+.{digits}f}, {hi:+.{digits}f}]"
 
@@ -345,6 +351,8 @@ ROWS = [
         lambda: cell("table18_multi_policy_medium_spawn_fix", "Δ survival (paired, fraction)",
                      "fig32_survival.csv", **{"Warm start": "base"}),
         P + "#fig-32-survival-task", +1, 0.38, 0.10, why="every controller at 0-10 %: no room to rise"),
+    Row("11 · pushes", "the same, on flat ground with pushes (preregistered)", "+38",
+        "base warm − base alone, survival", pushes_primary, P + "#fig-32-under-pushes-preregistered", +1),
     Row("11 · Fig. 32", "two warm starts survive 0 % on the survival task", "0 %", "base + speed, survival",
         lambda: cell("table18_multi_policy_medium_spawn_fix", "survival", "fig32_survival.csv",
                      **{"Warm start": "base + speed"}),
