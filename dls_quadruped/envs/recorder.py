@@ -28,12 +28,27 @@ import torch
 from tensordict import TensorDict
 
 from dls_quadruped.core.progress import progress
+from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
 
 Probe = Callable[[object], torch.Tensor]
 """env -> (E, ...) a quantity read before or after every step (the env axis first where it is masked)."""
 StepFn = Callable[[TensorDict], tuple[TensorDict, torch.Tensor, torch.Tensor, dict]]
 """obs -> (obs, reward (E,), dones (E,), extras with ``extras["time_outs"]`` (E,)): one env step."""
 
+
+
+def _rpy(env) -> torch.Tensor:
+    return rpy_from_rotmat(quat_to_rotmat(env.state.base_quat_w.double()))
+
+
+BASE_PROBES: dict[str, Callable] = {
+    "base_vel_w": lambda env: env.state.base_lin_vel_w,
+    "base_height": lambda env: env.state.base_pos_w[:, 2],
+    "roll": lambda env: _rpy(env)[:, 0],
+    "pitch": lambda env: _rpy(env)[:, 1],
+}
+"""Probes of the base every controller run records: (B, 3) world velocity [m/s], (B,) height [m], roll and pitch
+[rad] (float64, from the quaternion)."""
 
 @dataclass
 class EpisodeRecord:

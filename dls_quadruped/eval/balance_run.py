@@ -25,7 +25,7 @@ from dls_quadruped.control.latent_action import (
 from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.envs.home_task import home_task, physics_dt
-from dls_quadruped.envs.recorder import record
+from dls_quadruped.envs.recorder import BASE_PROBES, record
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.terrain import TerrainConfig
 
@@ -94,15 +94,8 @@ class BalanceEnvController:
         return self.env.step_controlled(self.physics)
 
 
-def _rpy(env) -> torch.Tensor:
-    return rpy_from_rotmat(quat_to_rotmat(env.state.base_quat_w.double()))
-
-
 PROBES = {
-    "base_height": lambda env: env.state.base_pos_w[:, 2],
-    "roll": lambda env: _rpy(env)[:, 0],
-    "pitch": lambda env: _rpy(env)[:, 1],
-    "base_vel_w": lambda env: env.state.base_lin_vel_w,
+    **BASE_PROBES,
     "foot_pos_w": lambda env: env.state.foot_pos_w,
     "contact_cmd": lambda env: env.state.contact_cmd,
     "foot_force_z": lambda env: env.state.foot_force_w[..., 2],

@@ -14,10 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.envs.home_task import home_task, physics_dt
-from dls_quadruped.envs.recorder import record
+from dls_quadruped.envs.recorder import BASE_PROBES, record
 from dls_quadruped.mpc.baseline import BaselineConfig, ModelBasedBaseline
 from dls_quadruped.mpc.sampler import MPCResult
 from dls_quadruped.sim.terrain import TerrainConfig
@@ -72,12 +71,8 @@ class BaselineRun:
 
 def _probes(ctrl: BaselineEnvController) -> dict:
     """What ``run_baseline`` records after every step, by ``BaselineRun`` field (and the fall flags)."""
-    rpy = lambda env: rpy_from_rotmat(quat_to_rotmat(env.state.base_quat_w.double()))
     return {
-        "base_vel_w": lambda env: env.state.base_lin_vel_w,
-        "base_height": lambda env: env.state.base_pos_w[:, 2],
-        "roll": lambda env: rpy(env)[:, 0],
-        "pitch": lambda env: rpy(env)[:, 1],
+        **BASE_PROBES,
         "contact": lambda env: env.state.contact_cmd,
         "best_cost": lambda env: ctrl.result.best_cost,
         "initial_cost": lambda env: ctrl.result.initial_cost,

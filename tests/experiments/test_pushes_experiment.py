@@ -23,3 +23,15 @@ def test_refinement_steps_between_the_speeds_that_bracket_half():
                                               ([-0.05, 0.1], "inconclusive"), ([0.0, 0.1], "inconclusive")])
 def test_verdict_follows_the_rules(ci, expected):
     assert verdict(ci) == expected
+
+
+def test_pushes_script_help_and_a_bad_stage():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = str(Path(__file__).resolve().parents[2] / "experiments" / "pushes.py")
+    ok = subprocess.run([sys.executable, script, "--help"], capture_output=True, text=True, timeout=120, check=False)
+    assert ok.returncode == 0 and "--push-speed" in ok.stdout and "calibrate" in ok.stdout
+    bad = subprocess.run([sys.executable, script, "sweep"], capture_output=True, text=True, timeout=120, check=False)
+    assert bad.returncode == 2 and "invalid choice: 'sweep'" in bad.stderr and "Traceback" not in bad.stderr
