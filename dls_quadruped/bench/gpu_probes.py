@@ -94,27 +94,47 @@ def syncs(backend: str, device: torch.device, num_envs: int, steps: int) -> dict
             "probe": "core/sync_probe.py: Python-level host reads and uploads (the cuda count also sees C++ ones)"}
 
 
-def launches(backend: str, device: torch.device, num_envs: int, steps: int) -> dict:
+COMPILED_GRAPH = "## Call CompiledFxGraph"
+"""The torch profiler's name prefix of a call of a ``torch.compile``'d graph; its direct children are its kernels."""
+
+
+def count_torch_ops(events) -> tuple[int, int]:
+    """(torch operators launched, of which inside compiled graphs) among a profiler's CPU ``events``.
+
+    An operator counts once where the Python side dispatched it: a top-level ``aten::`` event (none of its
+    ancestors an aten operator or a compiled graph; views and metadata ops included, so an upper bound on kernel
+    launches), or a direct child of a compiled graph's call (its fused kernels, and its extern calls such as a
+    LAPACK solve; CPU kernels are seen when ``torch._inductor.config.cpp.enable_kernel_profile`` was on when they
+    were compiled).
+    """
+    total = fused = 0
+    for e in events:
+        parent = e.cpu_parent
+        if parent is not None and parent.name.startswith(COMPILED_GRAPH):
+            total, fused = total + 1, fused + 1
+            continue
+        if not e.name.startswith("aten::"):
+            continue
+        while parent is not None and not (parent.name.startswith("aten::") or parent.name.startswith(COMPILED_GRAPH)):
+            parent = parent.cpu_parent
+        total += parent is None
+    return total, fused
+
+
+def launches(backend: str, device: torch.device, num_envs: int, steps: int, compile: bool | None = None) -> dict:
     """Warp kernel launches (graph replays count one each) and torch operators per ``env.step``, by kind.
 
     Counted: every ``wp.launch`` / ``wp.launch_tiled`` / ``wp.capture_launch`` call (MuJoCo Warp's kernels outside a
-    captured graph, and each graph) and every aten operator torch dispatches (``TorchDispatchMode``: on CUDA each
-    is roughly one kernel launch, views and metadata ops included, so an upper bound).
+    captured graph, and each graph) and every torch operator the step launches (:func:`count_torch_ops`, from the
+    torch profiler: eager operators, and the kernels of the physics step's compiled graphs, ``sim/warp_control.py``).
+    ``compile``: the scene's ``compile`` (None: the backend's default, on for CUDA).
     """
+    import torch._inductor.config as inductor_config
     import warp as wp
-    from torch.utils._python_dispatch import TorchDispatchMode
+    from torch.profiler import ProfilerActivity, profile
 
     from dls_quadruped.envs.config import load_task
     from dls_quadruped.envs.env import LocomotionEnv
-
-    class Ops(TorchDispatchMode):
-        def __init__(self):
-            super().__init__()
-            self.n = 0
-
-        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
-            self.n += 1
-            return func(*args, **(kwargs or {}))
 
     counts = {"warp": 0}
     names = ("launch", "launch_tiled", "capture_launch")
@@ -126,8 +146,15 @@ def launches(backend: str, device: torch.device, num_envs: int, steps: int) -> d
             return fn(*a, **k)
         return wrapper
 
-    env = LocomotionEnv(load_task("base", overrides=_base_with_pushes(backend)), num_envs=num_envs,
-                        device=str(device), seed=0, verbose=False)
+    overrides = _base_with_pushes(backend)
+    overrides["scene"]["compile"] = compile
+    kernel_profile = inductor_config.cpp.enable_kernel_profile
+    inductor_config.cpp.enable_kernel_profile = True  # CPU kernels of compiled graphs show in the profiler
+    try:
+        env = LocomotionEnv(load_task("base", overrides=overrides), num_envs=num_envs, device=str(device), seed=0,
+                            verbose=False)
+    finally:
+        inductor_config.cpp.enable_kernel_profile = kernel_profile
     rows = []
     try:
         g = torch.Generator(device=device).manual_seed(0)
@@ -139,17 +166,21 @@ def launches(backend: str, device: torch.device, num_envs: int, steps: int) -> d
         for _ in range(steps):
             action = torch.randn(num_envs, env.num_actions, generator=g, device=device)
             counts["warp"] = 0
-            with Ops() as ops:
+            with profile(activities=[ProfilerActivity.CPU]) as prof:
                 _, _, dones, _ = env.step(action)
-            rows.append((counts["warp"], ops.n, bool(dones.any())))
+            ops, fused = count_torch_ops(prof.events())
+            rows.append((counts["warp"], ops, fused, bool(dones.any())))
+        compiled = env.scene.sim.rate.compiled
     finally:
         for k in names:
             setattr(wp, k, originals[k])
         env.close()
-    plain = [r for r in rows if not r[2]] or rows
-    reset = [r for r in rows if r[2]]
-    return {"num_envs": num_envs, "steps": steps, "warp_launches_per_step": float(np.mean([r[0] for r in plain])),
+    plain = [r for r in rows if not r[3]] or rows
+    reset = [r for r in rows if r[3]]
+    return {"num_envs": num_envs, "steps": steps, "compiled": compiled,
+            "warp_launches_per_step": float(np.mean([r[0] for r in plain])),
             "torch_ops_per_step": float(np.mean([r[1] for r in plain])),
+            "torch_ops_in_compiled_graphs_per_step": float(np.mean([r[2] for r in plain])),
             "warp_launches_reset_step": float(np.mean([r[0] for r in reset])) if reset else None,
             "torch_ops_reset_step": float(np.mean([r[1] for r in reset])) if reset else None,
             "steps_with_resets": len(reset)}

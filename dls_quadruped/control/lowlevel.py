@@ -90,6 +90,28 @@ class LegTerms:
     foot_vel_w: torch.Tensor
 
 
+SOLVES = ("lu", "cramer")
+"""How :class:`LowLevelController` solves the swing leg's damped 3x3 system (its ``solve`` argument)."""
+
+
+def solve3_spd(A: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """x with ``A x = b`` for (..., 3, 3) symmetric positive definite A, (..., 3) b, by the adjugate (Cramer).
+
+    Elementwise over the batch: no pivoting, no LAPACK call, so it fuses into one kernel when compiled. For the
+    damped ``J^T J + lambda^2 I`` of a leg (condition at most ~1e8 at lambda = 1e-3) it agrees with LU to
+    round-off (tests/control/test_lowlevel.py); a singular A gives non-finite x, as LU does.
+    """
+    a, b_, c = A[..., 0, 0], A[..., 0, 1], A[..., 0, 2]
+    d, e, f = A[..., 1, 1], A[..., 1, 2], A[..., 2, 2]
+    # cofactors of the symmetric matrix [[a b c] [b d e] [c e f]]
+    c00, c01, c02 = d * f - e * e, c * e - b_ * f, b_ * e - c * d
+    c11, c12, c22 = a * f - c * c, b_ * c - a * e, a * d - b_ * b_
+    det = a * c00 + b_ * c01 + c * c02
+    x, y, z = b.unbind(-1)
+    return torch.stack([c00 * x + c01 * y + c02 * z, c01 * x + c11 * y + c12 * z,
+                        c02 * x + c12 * y + c22 * z], dim=-1) / det.unsqueeze(-1)
+
+
 class LowLevelController:
     """Stateful batched low-level controller: gait phases and lift-off positions live here.
 
@@ -99,11 +121,21 @@ class LowLevelController:
         dt: physics (= control) step [s].
         device: where the buffers live and ``compute`` runs; its inputs (terms, references, ids) must be
             there too. Default the CPU (the ``cpu`` backend); the Warp backends pass theirs.
+        solve: how the swing leg's damped 3x3 system is solved (:data:`SOLVES`): ``lu``
+            (``torch.linalg.solve_ex``, the CPU backend's, kept for its bit-identical results) or ``cramer``
+            (:func:`solve3_spd`: elementwise, so a compiled step fuses it, and no LAPACK call that reads pivots
+            back to the host; the Warp backends'). They agree to round-off (tests/control/test_lowlevel.py).
+
+    Every per-robot buffer (:attr:`STATE_FIELDS`) is updated in place, so its storage never moves: a captured
+    or compiled physics step (``sim/warp_control.py``) keeps pointing at it.
     """
 
     def __init__(self, num_robots: int, cfg: LowLevelConfig = LowLevelConfig(), dt: float = 0.005,
-                 device: torch.device | str = "cpu"):
+                 device: torch.device | str = "cpu", solve: str = "lu"):
+        if solve not in SOLVES:
+            raise ValueError(f"LowLevelController solve must be one of {SOLVES}, got {solve!r}")
         self.cfg = cfg
+        self.solve = solve
         self.dt = dt
         self.device = torch.device(device)
         dtype = torch.float64
@@ -160,7 +192,7 @@ class LowLevelController:
             if k not in state or tuple(state[k].shape) != tuple(mine.shape):
                 got = tuple(state[k].shape) if k in state else "missing"
                 raise ValueError(f"controller state {k}: expected shape {tuple(mine.shape)}, got {got}")
-            setattr(self, k, state[k].to(mine).clone())
+            mine.copy_(state[k])  # in place: the storage a compiled step points at stays
 
     def track_target(self, p_td_w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """One alpha-beta step on the horizontal targets: (tracked target (B, 4, 3), its velocity (B, 4, 3))."""
@@ -168,18 +200,18 @@ class LowLevelController:
             return p_td_w, None
         meas = p_td_w[..., :2].to(self.target_xy_w)
         fresh = self._fresh.view(-1, 1, 1)
-        self.target_xy_w = torch.where(fresh, meas, self.target_xy_w)
-        self.target_vel_xy_w = torch.where(fresh, torch.zeros_like(meas), self.target_vel_xy_w)
-        self._fresh[:] = False
-        pred = self.target_xy_w + self.dt * self.target_vel_xy_w  # constant-velocity prediction
+        xy = torch.where(fresh, meas, self.target_xy_w)
+        vel = torch.where(fresh, torch.zeros_like(meas), self.target_vel_xy_w)
+        pred = xy + self.dt * vel  # constant-velocity prediction
         resid = meas - pred
-        self.target_xy_w = pred + self._alpha * resid
-        self.target_vel_xy_w = self.target_vel_xy_w + (self._beta / self.dt) * resid
+        xy = pred + self._alpha * resid
+        vel = vel + (self._beta / self.dt) * resid
+        self.target_xy_w.copy_(xy)
+        self.target_vel_xy_w.copy_(vel)
         # a non-finite target must not stay in the tracker: that robot restarts from its next target
-        self._fresh |= ~torch.isfinite(self.target_xy_w).flatten(1).all(dim=1)
-        zero = torch.zeros_like(self.target_vel_xy_w[..., :1])
-        return (torch.cat([self.target_xy_w, p_td_w[..., 2:3].to(self.target_xy_w)], dim=-1),
-                torch.cat([self.target_vel_xy_w, zero], dim=-1))
+        self._fresh.copy_(~torch.isfinite(xy).flatten(1).all(dim=1))
+        zero = torch.zeros_like(vel[..., :1])
+        return (torch.cat([xy, p_td_w[..., 2:3].to(xy)], dim=-1), torch.cat([vel, zero], dim=-1))
 
     def compute(
         self,
@@ -203,16 +235,17 @@ class LowLevelController:
         cfg = self.cfg
         contact = contact_from_phase(self.phase, duty)  # (B, 4)
         # a stance foot's current position is the lift-off point of its next swing
-        self.p_lo_w = torch.where(contact.unsqueeze(-1), terms.foot_pos_w, self.p_lo_w)
-        self.contact = contact
+        p_lo_w = torch.where(contact.unsqueeze(-1), terms.foot_pos_w, self.p_lo_w)
+        self.p_lo_w.copy_(p_lo_w)
+        self.contact.copy_(contact)
 
         # --- swing: feedback linearisation in task space ---
         progress = swing_progress(self.phase, duty)
         swing_duration = ((1.0 - duty) / freq.clamp_min(1e-6)).clamp_min(cfg.min_swing_duration)
         target_w, target_vel_w = self.track_target(p_td_w)
-        p_ref, v_ref, a_ref = swing_reference(self.p_lo_w, target_w, cfg.step_height, progress, swing_duration,
+        p_ref, v_ref, a_ref = swing_reference(p_lo_w, target_w, cfg.step_height, progress, swing_duration,
                                               target_vel_w)
-        self.p_ref_w = p_ref
+        self.p_ref_w.copy_(p_ref)
         # a = a_ref + K_D (v_ref - v) + K_P (p_ref - p) - Jdot qdot  (foot acceleration to realise)
         acc = a_ref + self._kd * (v_ref - terms.foot_vel_w) + self._kp * (p_ref - terms.foot_pos_w) - terms.Jdot_qdot
         J = terms.J_leg
@@ -220,7 +253,10 @@ class LowLevelController:
         # qddot = J^-1 acc, damped: (J^T J + lambda^2 I) qddot = J^T acc. solve_ex: linalg.solve's own
         # singularity check reads the info codes back to the host (a GPU synchronisation per physics step); the
         # damped matrix is positive definite, and a non-finite leg gives non-finite torques either way
-        qdd = torch.linalg.solve_ex(Jt @ J + self._eye, (Jt @ acc.unsqueeze(-1))).result.squeeze(-1)
+        if self.solve == "lu":
+            qdd = torch.linalg.solve_ex(Jt @ J + self._eye, (Jt @ acc.unsqueeze(-1))).result.squeeze(-1)
+        else:
+            qdd = solve3_spd(Jt @ J + self._eye, (Jt @ acc.unsqueeze(-1)).squeeze(-1))
         tau_swing = (terms.M_leg @ qdd.unsqueeze(-1)).squeeze(-1) + terms.h_leg
 
         # --- stance: tau = -J^T F ---
@@ -228,5 +264,5 @@ class LowLevelController:
 
         tau = torch.where(contact.unsqueeze(-1), tau_stance, tau_swing)
         tau = torch.maximum(torch.minimum(tau, self._tau_limit), -self._tau_limit)
-        self.phase = advance_phase(self.phase, freq, self.dt)
+        self.phase.copy_(advance_phase(self.phase, freq, self.dt))
         return tau.reshape(-1, 12)

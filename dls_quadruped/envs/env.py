@@ -40,6 +40,7 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
+from dls_quadruped.core.compile import compile_wanted
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.envs import episode_state
 from dls_quadruped.envs.config import (
@@ -96,6 +97,7 @@ class LocomotionEnv(VecEnv):
         self.schedule = EpisodeSchedule(self.seed, self.num_envs, self.device)
         self.cfg = self.task.data
         self.scene = SceneManager(self.task, self)
+        self.schedule.compile = compile_wanted(self.scene.cfg.compile, self.device)  # scene.compile: docs/gpu.md
         self.physics_dt = self.scene.sim.physics_dt
         self.decimation = self.env_cfg.decimation
         self.step_dt = self.physics_dt * self.decimation

@@ -28,12 +28,38 @@ from contextlib import contextmanager
 
 import torch
 
+from dls_quadruped.core.compile import Fused
 from dls_quadruped.core.hashing import hash32
 
 
 def stream_id(name: str) -> int:
     """Stable 32-bit id of a stream name (crc32: the same in every process and Python version)."""
     return zlib.crc32(name.encode())
+
+
+def _draw_bits(seed_h: int, stream_h: int, keys: torch.Tensor, episode: torch.Tensor,
+               count: torch.Tensor, env_ids: torch.Tensor, element_h: torch.Tensor) -> torch.Tensor:
+    """(n, size) hashes of the envs ``env_ids``: h = hash(seed); then h = hash(h ^ hash(field)) over (key,
+    episode + 1, stream id, draw count); then one hash per element (``EpisodeSchedule._bits``). ``seed_h``,
+    ``stream_h`` are the hashes of the seed and stream id (Python ints: no upload; symbolic when compiled), ``element_h`` (size,) the hashes of the element indices."""
+    # the per-env fields hashed in one stacked call: the same numbers as hashing each on its own
+    key_ep_count = hash32(torch.stack([keys[env_ids], episode[env_ids] + 1, count[env_ids]]))
+    h = hash32(seed_h ^ key_ep_count[0])
+    h = hash32(h ^ key_ep_count[1])
+    h = hash32(h ^ stream_h)
+    h = hash32(h ^ key_ep_count[2])
+    return hash32(h[:, None] ^ element_h[None, :])
+
+
+_FUSED_DRAW: Fused | None = None
+
+
+def _fused_draw() -> Fused:
+    """:func:`_draw_bits` compiled (one per process; its batch size is dynamic)."""
+    global _FUSED_DRAW
+    if _FUSED_DRAW is None:
+        _FUSED_DRAW = Fused(_draw_bits, True, "EpisodeSchedule draws", dynamic=True)
+    return _FUSED_DRAW
 
 
 class EpisodeSchedule:
@@ -50,8 +76,9 @@ class EpisodeSchedule:
     """
 
     def __init__(self, seed: int, num_envs: int, device: torch.device | str = "cpu",
-                 episode_keys: torch.Tensor | None = None):
+                 episode_keys: torch.Tensor | None = None, compile: bool = False):
         self.num_envs = int(num_envs)
+        self.compile = bool(compile)  # the hash chain of a draw as one compiled kernel (core/compile.py)
         self.device = torch.device(device)
         self._hashes: dict[tuple, int | torch.Tensor] = {}
         self._advance: torch.Tensor | None = None  # see only()
@@ -106,19 +133,15 @@ class EpisodeSchedule:
         n, size = len(env_ids), 1
         for s in shape:
             size *= int(s)
-        # h = hash(seed); then h = hash(h ^ hash(field)) over (key, episode + 1, stream id, draw count); then one
-        # hash per element. The constant hashes (seed, stream id, element index) are cached and the per-env fields
-        # hashed in one stacked call: the same numbers as hashing each on its own, in half the torch calls.
-        key_ep_count = hash32(torch.stack([self.keys[env_ids], self.episode[env_ids] + 1, count[env_ids]]))
-        h = hash32(self._constant_hash("seed", self.seed) ^ key_ep_count[0])
-        h = hash32(h ^ key_ep_count[1])
-        h = hash32(h ^ self._constant_hash("stream", stream_id(stream)))
-        h = hash32(h ^ key_ep_count[2])
+        # the constant hashes (seed, stream id, element index) are cached
+        draw = _fused_draw() if self.compile else _draw_bits
+        bits = draw(self._constant_hash("seed", self.seed), self._constant_hash("stream", stream_id(stream)),
+                    self.keys, self.episode, count, env_ids, self._element_hash(size))
         if self._advance is None:
             count[env_ids] += 1
         else:
             count[env_ids] += self._advance.to(torch.long)
-        return hash32(h[:, None] ^ self._element_hash(size)[None, :]).reshape(n, *shape)
+        return bits.reshape(n, *shape)
 
     def _constant_hash(self, kind: str, value: int) -> int:
         """hash32 of one integer (the seed, a stream id), cached."""

@@ -67,6 +67,11 @@ class SimConfig:
     njmax: int | None = None
     """Warp backends: constraint rows allocated per robot (None: MuJoCo Warp's default for the model; 4 rows per
     contact with pyramidal cones, plus joint limits)."""
+    compile: bool | None = None
+    """Warp backends: run the torch work of a physics step (controller, leg kinematics, divergence checks)
+    compiled with ``torch.compile`` into a few fused kernels (``sim/warp_control.py``); None: on for CUDA devices,
+    off elsewhere (compiling takes seconds and, on the CPU, a C++ compiler; a failure falls back to eager with a
+    warning). The ``cpu`` backend ignores it."""
     leg_dynamics: str = "pinocchio"
     """``cpu``: where the low-level controller's leg terms (leg blocks of M, leg bias, foot Jacobians) come from
     at every physics step (:data:`LEG_DYNAMICS`): ``pinocchio`` (one Pinocchio call per robot, on the nominal

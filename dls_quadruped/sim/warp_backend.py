@@ -58,8 +58,9 @@ from dls_quadruped.sim.interface import (
     robot_weight,
     standing_references,
 )
-from dls_quadruped.sim.shard import MAX_ABS_QVEL, STATE_SPECS, contact_sensor_layout
+from dls_quadruped.sim.shard import STATE_SPECS, contact_sensor_layout
 from dls_quadruped.sim.warp_collision import ALLOCATION_OVERFLOWS, collision_stats
+from dls_quadruped.sim.warp_control import PhysicsRate
 from dls_quadruped.sim.warp_inputs import DeviceInputs
 from dls_quadruped.sim.warp_worlds import (
     WarpWorlds,
@@ -100,7 +101,7 @@ class WarpSim:
         self.base_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)
         if model.nkey < 1:
             raise ValueError("the scene needs a home keyframe (key 0): the reset pose of the CPU backend")
-        # overflows are flagged per robot and reported once (_freeze_diverged, _check_overflow)
+        # overflows are flagged per robot (warp_control.PhysicsRate.settle) and reported once (_check_overflow)
         self.worlds = w = WarpWorlds(model, n, cfg, self.wp_device, self.base_body, capture)
         self.m, self.d, self.culling, self._step1, self._step2 = w.m, w.d, w.culling, w.step1, w.step2
         self._qpos, self._qvel, self._time, self._ctrl, self._xfrc = w.qpos, w.qvel, w.time, w.ctrl, w.xfrc
@@ -108,7 +109,7 @@ class WarpSim:
         self._qacc_warmstart, self._overflow = w.qacc_warmstart, w.overflow
         self._warned_overflow = False
         self.dynamics = TorchLegDynamics(model, qM_pairs=csr_pairs(model))
-        self.controller = LowLevelController(n, cfg.control, dt=self.physics_dt, device=self.device)
+        self.controller = LowLevelController(n, cfg.control, dt=self.physics_dt, device=self.device, solve="cramer")
         self._sensor_slices = contact_sensor_layout(model)
         self._contact_sensors = torch.zeros_like(self._sensordata)
         dev, f64 = self.device, torch.float64
@@ -125,6 +126,7 @@ class WarpSim:
                     for k, s in STATE_SPECS.items() if k not in _BOOL_FIELDS}
         self.buf.update({k: torch.zeros(n, dtype=torch.bool, device=dev) for k in _BOOL_FIELDS})
         self.state = RobotState(**self.buf)
+        self.rate = PhysicsRate(self, cfg.compile)
         self._standing_references(slice(None))
         # every robot at the home keyframe, as the CPU backend starts
         ids = torch.arange(n, device=dev)
@@ -153,8 +155,7 @@ class WarpSim:
 
     def _dynamics_terms(self) -> LegTerms:
         """The controller's leg terms at the current state (``step1`` or ``forward`` ran on it), in float64."""
-        f64 = torch.float64
-        return self.dynamics.terms(self._qpos.to(f64), self._qvel.to(f64), self._M, self._qfrc_bias)
+        return self.rate.terms()
 
     def _check_open(self) -> None:
         if self._closed:
@@ -204,44 +205,24 @@ class WarpSim:
         self._check_open()
         if num_physics_steps < 1:
             raise ValueError(f"num_physics_steps must be >= 1, got {num_physics_steps}")
-        c = self.command
-        torch_stream = self.worlds.torch_stream()
+        torch_stream, rate = self.worlds.torch_stream(), self.rate
         with self._scope():
             self._xfrc[:, self.base_body] = self.wrench_w
-            for _ in range(num_physics_steps):
-                tau = self.controller.compute(self._terms, c["freq"], c["duty"], c["p_td_w"], c["F_w"])
-                self.diverged |= ~torch.isfinite(tau).all(dim=1)  # non-finite references (set_references)
-                self.tau = tau.masked_fill(self.diverged[:, None], 0.0)
-                self._ctrl.copy_(self.tau)
-                time_before = self._time.clone()
+            for _ in range(num_physics_steps):  # sim/warp_control.py: torch work compiled where asked
+                rate.control()
                 self._step2(torch_stream)
-                self._freeze_diverged(time_before)
-                self._contact_sensors.copy_(self._sensordata)  # step1 zeroes the acceleration-stage sensors
+                rate.settle()
                 self._step1(torch_stream)
-                self._terms = self._dynamics_terms()
+            self._terms = rate.terms()
         self._step_calls += 1
         if self._step_calls % self.check_every == 0:  # the host reads of this call, once per check_every calls
             self._check_overflow()
             self.check_inputs()
         return self._publish()
 
-    def _freeze_diverged(self, time_before: torch.Tensor) -> None:
-        """Flag robots whose state blew up or whose world ran out of contacts or constraint rows (MuJoCo Warp
-        dropped some: the step was wrong); hold every flagged robot at the keyframe, at rest, clock stopped."""
-        qpos, qvel = self._qpos, self._qvel
-        bad = ~torch.isfinite(qpos).all(dim=1) | ~torch.isfinite(qvel).all(dim=1)
-        bad |= qvel.abs().amax(dim=1) > MAX_ABS_QVEL
-        bad |= (self._overflow & ALLOCATION_OVERFLOWS) != 0  # sticky until the robot's reset clears it
-        self.diverged |= bad
-        div = self.diverged[:, None]
-        qpos.copy_(torch.where(div, self._key_qpos, qpos))
-        qvel.masked_fill_(div, 0.0)
-        self._qacc_warmstart.masked_fill_(div, 0.0)
-        self._time.copy_(torch.where(self.diverged, time_before, self._time))
-
     def _check_overflow(self) -> None:
         """Warn once when a world ran out of contact or constraint rows (one host read per ``step`` call until then);
-        :meth:`_freeze_diverged` already flagged those robots on the device."""
+        :meth:`warp_control.PhysicsRate.settle` already flagged those robots on the device."""
         if self._warned_overflow or not bool(((self._overflow & ALLOCATION_OVERFLOWS) != 0).any()):
             return
         self._warned_overflow = True
@@ -351,7 +332,7 @@ class WarpSim:
         self.worlds.load_state(snap["mj"], snap["model"])
         self.controller.load_state_dict(snap["controller"])
         self.diverged.copy_(snap["diverged"])
-        self.tau = snap["tau"].to(self.tau).clone()
+        self.tau.copy_(snap["tau"])
         self._contact_sensors.copy_(snap["contact_sensors"])
         for k, v in self.buf.items():
             v.copy_(snap["state"][k])

@@ -3,7 +3,8 @@
 Task file::
 
     terrain: {types: [flat, rugged, ...], num_rows: 10, ...}   # TerrainConfig fields
-    scene: {backend: cpu, num_workers: -1, max_init_level: 0, leg_dynamics: pinocchio, nconmax: 16, njmax: 64}  # nconmax/njmax: Warp only
+    scene: {backend: cpu, num_workers: -1, max_init_level: 0, leg_dynamics: pinocchio, nconmax: 16, njmax: 64,
+           compile: null}  # nconmax/njmax/compile: Warp only
 
 Each env owns a terrain tile: row = level (difficulty), column = type (envs spread evenly over
 the columns by their episode key, ``envs/schedule.py``). Robots reset onto their tile origin; the
@@ -39,7 +40,9 @@ class SceneConfig:
     ``pinocchio`` (default) or ``mujoco`` (MuJoCo's M and bias forces of each robot's own model);
     nconmax, njmax: Warp backends, contacts and constraint rows allocated per robot (``SimConfig``; null: MuJoCo
     Warp's guess for the model); the task files set them from measured use (docs/gpu.md "Contact and constraint
-    sizes")."""
+    sizes");
+    compile: Warp backends, the torch work of a physics step compiled into a few fused kernels (``SimConfig.compile``;
+    null: on for CUDA devices, off elsewhere; ``sim/warp_control.py``)."""
 
     backend: str = "cpu"
     num_workers: int = field(default=-1, metadata={"min": -1})
@@ -48,6 +51,7 @@ class SceneConfig:
     leg_dynamics: str = "pinocchio"
     nconmax: int | None = field(default=None, metadata={"min": 1})
     njmax: int | None = field(default=None, metadata={"min": 1})
+    compile: bool | None = None
 
 
 class SceneManager(ManagerBase):
@@ -68,7 +72,7 @@ class SceneManager(ManagerBase):
         self.sim: SimBackend = make_backend(self.cfg.backend, self.model, env.num_envs,
                                             SimConfig(num_workers=self.cfg.num_workers, regions=regions,
                                                       leg_dynamics=self.cfg.leg_dynamics, nconmax=self.cfg.nconmax,
-                                                      njmax=self.cfg.njmax))
+                                                      njmax=self.cfg.njmax, compile=self.cfg.compile))
         self.scan_cfg = HeightScanConfig()
         dev = env.device
         self.scan_pattern = scan_pattern(self.scan_cfg, dev)

@@ -1,0 +1,74 @@
+"""``fused``: a torch function compiled into a few fused kernels where that is asked for, eager where not.
+
+A physics step of the Warp backends runs ~200 small torch operators per robot batch (the low-level
+controller, the leg kinematics, the divergence checks): on a GPU each is a kernel launch of a few
+microseconds that the host has to issue, so the step is bound by the host, not the GPU (docs/gpu.md). Compiled
+with ``torch.compile`` (``fullgraph=True``, static shapes: the number of robots is fixed per backend) the same
+function is a handful of fused kernels (Triton on CUDA, C++ on the CPU) with the same results to round-off.
+
+Compiling costs seconds on the first call (and a C++ compiler on the CPU), so it is opt-in where that cost is
+not repaid: ``SimConfig.compile`` is None by default, meaning on for CUDA devices and off elsewhere. A function
+that fails to compile (no compiler, an unsupported operator) runs eagerly from then on, after one
+``RuntimeWarning`` naming it and the error: a run never stops because fusing did not work.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from typing import Any
+
+import torch
+
+
+def compile_wanted(setting: bool | None, device: torch.device | str) -> bool:
+    """Whether to compile for ``device``: ``setting`` when given, else on for CUDA devices only."""
+    if setting is None:
+        return torch.device(device).type == "cuda"
+    if not isinstance(setting, bool):
+        raise ValueError(f"compile must be true, false or null (null: on for CUDA devices), got {setting!r}")
+    return setting
+
+
+class Fused:
+    """``fn`` compiled with ``torch.compile(fullgraph=True, dynamic=dynamic)`` when ``enabled``, else ``fn`` itself.
+
+    ``dynamic=True`` for functions whose batch size changes from call to call (a reset's robots).
+
+    Attributes:
+        name: what the warning calls it.
+        compiled: True while calls go through the compiled function (False when disabled or after a failure).
+        error: the compile error that switched it to eager, if any.
+    """
+
+    def __init__(self, fn: Callable[..., Any], enabled: bool, name: str | None = None, dynamic: bool = False):
+        self.fn = fn
+        self.name = name or getattr(fn, "__qualname__", repr(fn))
+        self.compiled = bool(enabled)
+        self.error: BaseException | None = None
+        self._impl = torch.compile(fn, fullgraph=True, dynamic=dynamic) if enabled else fn
+        self._first = bool(enabled)
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        if not self._first:
+            return self._impl(*args, **kwargs)
+        self._first = False
+        try:
+            return self._impl(*args, **kwargs)
+        except Exception as err:  # noqa: BLE001 -- any compile failure falls back to eager (module doc)
+            if not _is_compile_error(err):
+                raise
+            self.compiled, self.error, self._impl = False, err, self.fn
+            warnings.warn(f"torch.compile of {self.name} failed, running it eagerly ({type(err).__name__}: "
+                          f"{str(err).splitlines()[0] if str(err) else ''})", RuntimeWarning, stacklevel=2)
+            return self.fn(*args, **kwargs)
+
+
+def _is_compile_error(err: BaseException) -> bool:
+    """An error raised by dynamo or inductor (compile-time), not by the function's own code."""
+    from torch._dynamo.exc import TorchDynamoException
+
+    if isinstance(err, TorchDynamoException):
+        return True
+    module = type(err).__module__ or ""
+    return module.startswith(("torch._dynamo", "torch._inductor", "torch._subclasses"))

@@ -1,0 +1,110 @@
+"""The torch side of one physics step of the Warp backends, as three functions compiled into a few fused kernels.
+
+Per physics step ``WarpSim.step`` (``sim/warp_backend.py``) runs::
+
+    control()   leg terms from MuJoCo Warp's state (torch kinematics + its M, qfrc_bias), low-level controller,
+                divergence flags, torques into MuJoCo Warp's ctrl
+    step2       MuJoCo Warp (a captured graph on CUDA)
+    settle()    robots whose state blew up (or whose world overflowed) flagged and frozen; contact sensors kept
+    step1       MuJoCo Warp (a captured graph on CUDA)
+
+and after the last physics step of a call ``terms()`` once, for the published foot state. Each of the three is a
+:class:`core.compile.Fused`: compiled with ``torch.compile`` when ``SimConfig.compile`` says so (default: on
+CUDA), so a physics step is a few fused torch kernels besides MuJoCo Warp's graphs, instead of ~450 operator
+launches (docs/gpu.md "Launches"). Every buffer they write is written in place (the controller's state, the
+torques, ``ctrl``, the flags, the clock): the storage a compiled graph points at never moves.
+
+Eager and compiled agree to round-off (``tests/sim/test_warp_control.py``); the controller's damped 3x3 solve is
+the elementwise one (``LowLevelController(solve="cramer")``) on both, so the two paths run the same arithmetic.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+
+from dls_quadruped.control.lowlevel import LegTerms
+from dls_quadruped.core.compile import Fused, compile_wanted
+from dls_quadruped.sim.shard import MAX_ABS_QVEL
+from dls_quadruped.sim.warp_collision import ALLOCATION_OVERFLOWS
+
+if TYPE_CHECKING:
+    from dls_quadruped.sim.warp_backend import WarpSim
+
+
+
+class PhysicsRate:
+    """The compiled (or eager) torch work of a :class:`WarpSim` physics step (module doc).
+
+    Args:
+        sim: the backend; its MuJoCo Warp buffers, controller, dynamics and commands are read from it.
+        compile: ``SimConfig.compile`` (None: on for CUDA devices).
+
+    Attributes:
+        compiled: whether the three functions run compiled (False after a compile failure, with a warning).
+    """
+
+    def __init__(self, sim: WarpSim, compile: bool | None = None):
+        self.sim = sim
+        on = compile_wanted(compile, sim.device)
+        self._control = Fused(self._control_eager, on, "WarpSim physics-step control")
+        self._settle = Fused(self._settle_eager, on, "WarpSim physics-step settle")
+        self._terms = Fused(self._terms_eager, on, "WarpSim leg terms")
+        self.time_before = torch.zeros_like(sim._time)
+        # the dynamics' constant tensors (chain parameters, index tables) are built on first use: build them here,
+        # eagerly, so the compiled functions find them made (creating them from numpy inside a trace fails)
+        self._terms_eager(sim._qpos, sim._qvel, sim._M, sim._qfrc_bias)
+
+    @property
+    def compiled(self) -> bool:
+        return self._control.compiled and self._settle.compiled and self._terms.compiled
+
+    # The buffers go in as arguments (not read from self inside the compiled code), so the graphs' inputs are the
+    # backend's live tensors and nothing is guarded on Python attributes.
+    def control(self) -> None:
+        """Torques of this physics step into ``ctrl`` (and ``sim.tau``); the controller advances its phases."""
+        s, c = self.sim, self.sim.command
+        self._control(s._qpos, s._qvel, s._M, s._qfrc_bias, c["freq"], c["duty"], c["p_td_w"], c["F_w"],
+                      s.diverged, s.tau, s._ctrl, s._time, self.time_before)
+
+    def settle(self) -> None:
+        """After ``step2``: flag and freeze diverged robots, keep the contact sensors ``step1`` will zero."""
+        s = self.sim
+        self._settle(s._qpos, s._qvel, s._qacc_warmstart, s._time, self.time_before, s._overflow, s.diverged,
+                     s._key_qpos, s._contact_sensors, s._sensordata)
+
+    def terms(self) -> LegTerms:
+        """The controller's leg terms at the current state (``step1`` or ``forward`` ran on it), float64."""
+        s = self.sim
+        return self._terms(s._qpos, s._qvel, s._M, s._qfrc_bias)
+
+    def _terms_eager(self, qpos, qvel, M, bias) -> LegTerms:
+        f64 = torch.float64
+        return self.sim.dynamics.terms(qpos.to(f64), qvel.to(f64), M, bias)
+
+    def _control_eager(self, qpos, qvel, M, bias, freq, duty, p_td_w, F_w, diverged, tau_out, ctrl, time,
+                       time_before) -> None:
+        terms = self._terms_eager(qpos, qvel, M, bias)
+        tau = self.sim.controller.compute(terms, freq, duty, p_td_w, F_w)
+        diverged |= ~torch.isfinite(tau).all(dim=1)  # non-finite references (set_references)
+        tau = tau.masked_fill(diverged[:, None], 0.0)
+        tau_out.copy_(tau)
+        ctrl.copy_(tau)
+        time_before.copy_(time)
+
+    @staticmethod
+    def _settle_eager(qpos, qvel, qacc_warmstart, time, time_before, overflow, diverged, key_qpos, contact_sensors,
+                      sensordata) -> None:
+        # robots whose state blew up or whose world ran out of contacts or constraint rows (MuJoCo Warp dropped
+        # some: the step was wrong) are flagged; every flagged robot is held at the keyframe, at rest, clock stopped
+        bad = ~torch.isfinite(qpos).all(dim=1) | ~torch.isfinite(qvel).all(dim=1)
+        bad |= qvel.abs().amax(dim=1) > MAX_ABS_QVEL
+        bad |= (overflow & ALLOCATION_OVERFLOWS) != 0  # sticky until the robot's reset clears it
+        diverged |= bad
+        div = diverged[:, None]
+        qpos.copy_(torch.where(div, key_qpos, qpos))
+        qvel.masked_fill_(div, 0.0)
+        qacc_warmstart.masked_fill_(div, 0.0)
+        time.copy_(torch.where(diverged, time_before, time))
+        contact_sensors.copy_(sensordata)  # step1 zeroes the acceleration-stage sensors

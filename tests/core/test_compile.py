@@ -1,0 +1,61 @@
+"""``core/compile.py``: when to compile, and a function that cannot be compiled runs eagerly after one warning."""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+import torch
+
+from dls_quadruped.core.compile import Fused, compile_wanted
+
+
+def test_compile_wanted_defaults_to_cuda_only_and_refuses_non_booleans():
+    assert compile_wanted(None, "cuda:0") and not compile_wanted(None, "cpu")
+    assert compile_wanted(True, "cpu") and not compile_wanted(False, "cuda")
+    with pytest.raises(ValueError, match="compile must be true, false or null"):
+        compile_wanted("yes", "cpu")
+
+
+def _branchy(x: torch.Tensor) -> torch.Tensor:
+    """Reads a value back and branches on it: dynamo cannot make one graph of it (fullgraph)."""
+    if x.sum().item() > 0:
+        return x * 2.0
+    return x - 1.0
+
+
+def test_a_function_that_does_not_compile_runs_eagerly_after_one_warning():
+    f = Fused(_branchy, True, "branchy")
+    x = torch.arange(3.0)
+    with pytest.warns(RuntimeWarning, match="torch.compile of branchy failed, running it eagerly"):
+        assert torch.equal(f(x), x * 2.0)
+    assert not f.compiled and f.error is not None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no second warning
+        assert torch.equal(f(-x - 1.0), -x - 2.0)
+
+
+def test_disabled_is_the_function_itself_and_its_errors_pass_through():
+    def bad(x):
+        raise ValueError("mine")
+
+    f = Fused(bad, False)
+    assert not f.compiled
+    with pytest.raises(ValueError, match="mine"):
+        f(torch.zeros(1))
+    assert torch.equal(Fused(_branchy, False)(torch.ones(2)), torch.full((2,), 2.0))
+
+
+@pytest.mark.slow
+def test_a_compiled_function_gives_the_eager_results():
+    def f(a, b, out):
+        out.copy_(torch.sin(a) * b + a.square())
+        return (out * 3.0).sum(dim=1)
+
+    g = torch.Generator().manual_seed(0)
+    a, b = torch.randn(8, 5, generator=g, dtype=torch.float64), torch.randn(8, 5, generator=g, dtype=torch.float64)
+    o1, o2 = torch.zeros_like(a), torch.zeros_like(a)
+    fused = Fused(f, True, "f")
+    r = fused(a, b, o2)
+    assert fused.compiled
+    assert torch.allclose(r, f(a, b, o1), rtol=1e-13, atol=0) and torch.allclose(o1, o2, rtol=1e-13, atol=0)

@@ -1,0 +1,79 @@
+"""The compiled physics step of the Warp backends (``sim/warp_control.py``) on Warp's CPU device.
+
+Compiled (``scene.compile: true``) and eager runs of the same seeded base episodes with random actions, resets and
+pushes agree (the two run the same arithmetic, so to round-off; in practice bit for bit), the compiled step is a
+fraction of the eager one's torch operators, and the schedule's compiled draws equal its eager ones bit for bit.
+Slow: compiling takes ~10-70 s on a 2-core machine (cached afterwards in torch's inductor cache).
+"""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from dls_quadruped.envs.schedule import EpisodeSchedule
+
+pytestmark = pytest.mark.slow
+
+EVENTFUL = {"env": {"episode_length_s": 0.3},
+            "events": {"push": {"func": "push_robot", "mode": "interval", "interval_s": [0.04, 0.1],
+                                "params": {"velocity_range": [-0.5, 0.5]}}}}
+
+
+def _run(compile: bool, steps: int = 25):
+    from dls_quadruped.envs.config import load_task
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    env = LocomotionEnv(load_task("base", overrides={**EVENTFUL, "scene": {"backend": "warp-cpu", "num_workers": 0,
+                                                                             "compile": compile}}),
+                        num_envs=4, seed=0, verbose=False)
+    try:
+        g = torch.Generator().manual_seed(0)
+        rows, resets = [], 0
+        for _ in range(steps):
+            obs, rew, done, _ = env.step(torch.randn(4, 28, generator=g))
+            s = env.state
+            rows.append(torch.cat([s.base_pos_w, s.joint_pos, s.joint_torque, s.foot_pos_w.flatten(1)], dim=1).double())
+            resets += int(done.sum())
+        return torch.stack(rows), rew, resets, env.scene.sim.rate.compiled, env.schedule.compile
+    finally:
+        env.close()
+
+
+def test_compiled_and_eager_physics_steps_agree():
+    pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
+    eager, rew_e, resets_e, comp_e, sched_e = _run(False)
+    fused, rew_c, resets_c, comp_c, sched_c = _run(True)
+    assert (comp_e, sched_e, comp_c, sched_c) == (False, False, True, True)
+    assert resets_e == resets_c > 4  # episodes of 15 steps, the same robots reset at the same steps
+    assert torch.allclose(fused, eager, rtol=1e-9, atol=1e-9), (fused - eager).abs().max()
+    assert torch.allclose(rew_c, rew_e, rtol=1e-6, atol=1e-7)
+
+
+def test_compiled_step_launches_a_fraction_of_the_torch_operators():
+    pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
+    from dls_quadruped.bench.gpu_probes import launches
+
+    eager = launches("warp-cpu", torch.device("cpu"), 4, 8, compile=False)
+    fused = launches("warp-cpu", torch.device("cpu"), 4, 8, compile=True)
+    assert fused["compiled"] and not eager["compiled"]
+    assert fused["warp_launches_per_step"] <= 150 and eager["warp_launches_per_step"] <= 150
+    assert 0 < fused["torch_ops_in_compiled_graphs_per_step"] <= 40  # 9 graph calls per env step, a few kernels each
+    assert fused["torch_ops_per_step"] < 0.25 * eager["torch_ops_per_step"]
+
+
+def test_compiled_schedule_draws_equal_eager_ones():
+    eager, fused = EpisodeSchedule(7, 32), EpisodeSchedule(7, 32, compile=True)
+    ids = torch.arange(32)
+    for s in (eager, fused):
+        s.start_episodes(ids)
+    g = torch.Generator().manual_seed(1)
+    for k in range(12):
+        sub = torch.randperm(32, generator=g)[: 1 + 2 * k]
+        for stream in ("command", "push_robot"):
+            assert torch.equal(eager.uniform(sub, (3,), -1.0, 2.0, stream=stream),
+                               fused.uniform(sub, (3,), -1.0, 2.0, stream=stream))
+            assert torch.equal(eager.integers(ids, 0, 7, stream=stream), fused.integers(ids, 0, 7, stream=stream))
+        if k == 5:
+            for s in (eager, fused):
+                s.start_episodes(sub)
