@@ -169,6 +169,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--optimise", type=lambda t: _names(t, OPTIMISABLE, "--optimise"), default=("F",),
                    help=f"variables the MPC samples, from {list(OPTIMISABLE)}")
     p.add_argument("--naive-share", type=float, default=0.0, help="rl_warm_start: share of samples around the naive warm start")
+    p.add_argument("--naive-gait", type=float, nargs=2, metavar=("FREQ", "DUTY"), default=None,
+                   help="naive_warm_start: its trot's frequency [Hz] in (0, 3] and duty cycle in (0, 1) "
+                        "(default 1.5 0.6, mpc.baseline.BaselineConfig)")
     p.add_argument("--kernel", default="cpp", choices=("cpp", "fast", "reference"))
     p.add_argument("--threads", type=positive_int, default=1, help="torch / MPC kernel threads")
     p.add_argument("--seed", type=int, default=0)
@@ -282,7 +285,9 @@ def main(argv: list[str] | None = None) -> dict:
         configs = [ControllerConfig(name, policy=args.policy, student=students or args.student, sampler=sampler,
                                     optimise=args.optimise, naive_share=args.naive_share if name == "rl_warm_start" else 0.0,
                                     shares=args.shares if name == "rl_warm_start" else None, ground=ground,
-                                    seed=args.seed) for name in args.controllers]
+                                    seed=args.seed,
+                                    naive_gait=tuple(args.naive_gait) if args.naive_gait and name == "naive_warm_start"
+                                    else None) for name in args.controllers]
     except ValueError as err:
         raise UserError(str(err)) from None
     heights = args.heights or STAIRS_HEIGHTS
@@ -304,6 +309,7 @@ def main(argv: list[str] | None = None) -> dict:
                      "push_speed": args.push_speed,
                      "samples": args.samples, "horizon": args.horizon, "dt": args.dt, "encoding": args.encoding,
                      "optimise": list(args.optimise), "naive_share": args.naive_share, "kernel": args.kernel,
+                     "naive_gait": args.naive_gait,
                      "sampler_seeds": args.sampler_seeds,
                      "threads": args.threads, "seed": args.seed, "policy": str(args.policy),
                      "student": [str(x) for x in students] if students else str(args.student),

@@ -76,6 +76,8 @@ class ControllerConfig:
         horizon_cost_every: record the chosen sample's cost per horizon step (Fig. 28) at every k-th solve
             (an eager re-rollout, ~1.5 ms per solve).
         ground: MPC controllers: the ground the MPC plans on, one of ``mpc.inputs.GROUNDS`` (``terrain``: the env's map).
+        naive_gait: ``naive_warm_start`` only: its periodic trot's (frequency [Hz], duty cycle) instead of
+            ``BaselineConfig``'s (1.5 Hz, 0.6); frequency in (0, 3] (the latent action's clip), duty in (0, 1).
     """
 
     name: str
@@ -88,6 +90,7 @@ class ControllerConfig:
     seed: int = 0
     horizon_cost_every: int = 10
     ground: str = "flat"
+    naive_gait: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         CONTROLLER_REGISTRY.check(self.name)
@@ -109,6 +112,10 @@ class ControllerConfig:
             check_shares(self.shares, len(self.students))
         if self.ground not in GROUNDS:
             raise ValueError(f"ground must be one of {list(GROUNDS)}, got {self.ground!r}")
+        if self.naive_gait is not None and self.name != "naive_warm_start":
+            raise ValueError(f"naive_gait applies to naive_warm_start only, got it for {self.name!r}")
+        if self.naive_gait is not None and not (0.0 < self.naive_gait[0] <= 3.0 and 0.0 < self.naive_gait[1] < 1.0):
+            raise ValueError(f"naive_gait must be (frequency in (0, 3] Hz, duty in (0, 1)), got {self.naive_gait!r}")
 
     @property
     def students(self) -> tuple[Path, ...]:
@@ -263,7 +270,8 @@ class MPCController(Controller):
             raise ValueError(f"the MPC period {cfg.sampler.mpc_period} s must be a whole number of physics steps "
                              f"({env.physics_dt} s) dividing the policy step ({env.decimation} physics steps)")
         self.solves_per_step = env.decimation // self.mpc_decimation
-        self.baseline_cfg = BaselineConfig(optimise=cfg.optimise, sampler=cfg.sampler)
+        gait = {} if cfg.naive_gait is None else {"freq": float(cfg.naive_gait[0]), "duty": float(cfg.naive_gait[1])}
+        self.baseline_cfg = BaselineConfig(optimise=cfg.optimise, sampler=cfg.sampler, **gait)
         # the C++ kernel computes on the CPU; the torch kernels where the env's tensors are
         self.device = torch.device("cpu") if cfg.sampler.kernel == "cpp" else torch.device(env.device)
         if cfg.name == "naive_warm_start":

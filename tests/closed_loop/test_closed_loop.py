@@ -149,6 +149,7 @@ def test_bad_configurations_are_refused(tmp_path: Path, capsys) -> None:
         (["--episodes", "3"], "must be even"),
         (["--student", str(tmp_path / "none.pt")], "--student .* not found"),
         (["--encoding", "first-cubic"], "--encoding: must be p-F"),
+        (["--controllers", "naive_warm_start", "--naive-gait", "1.5", "1.0"], r"naive_gait must be \(frequency"),
         (["--controllers", "rl_warm_start", "--horizon", "5"], r"horizon = 10 \(MPC: 5\)"),
     ):
         with pytest.raises(SystemExit) as exc:
@@ -192,3 +193,25 @@ def test_sampler_seeds_play_the_same_episodes_and_pair_controllers(tmp_path: Pat
     a = np.array(c["naive_warm_start"]["per_episode"]["initial_cost"]).mean(0)
     b = np.array(c["rl_baseline"]["per_episode"]["initial_cost"])[0]
     assert d["episodes"] == 2 and d["mean"] == pytest.approx(float((a - b).mean()))
+
+
+def test_naive_gait_sets_the_trot_the_naive_mpc_commands() -> None:
+    """--naive-gait 2.5 0.5: the gait phase advances 2.5 Hz x 0.02 s = 0.05 per policy step (0.03 at the default
+    1.5 Hz); the gait applies to the naive warm start only and stays in the latent action's range."""
+    advances = {}
+    for gait in (None, (2.5, 0.5)):
+        env = make_env(commands(2, 0, None), 0.5, seed=0, num_workers=0)
+        try:
+            ctrl = make_controller(ControllerConfig("naive_warm_start", sampler=SMALL, naive_gait=gait), env)
+            obs = env.get_observations()
+            before = env.state.phase.clone()
+            ctrl.step(obs)
+            advances[gait] = torch.remainder(env.state.phase - before, 1.0)
+        finally:
+            env.close()
+    assert torch.allclose(advances[None], torch.full_like(advances[None], 0.03), atol=1e-6)
+    assert torch.allclose(advances[(2.5, 0.5)], torch.full_like(advances[None], 0.05), atol=1e-6)
+    with pytest.raises(ValueError, match="naive_gait applies to naive_warm_start only"):
+        ControllerConfig("rl_baseline", policy=POLICY, naive_gait=(2.0, 0.6))
+    with pytest.raises(ValueError, match=r"naive_gait must be \(frequency in \(0, 3\] Hz, duty in \(0, 1\)\)"):
+        ControllerConfig("naive_warm_start", naive_gait=(3.5, 0.6))

@@ -147,3 +147,13 @@ def test_rugged_clearance_help_and_bad_difficulty() -> None:
     bad = subprocess.run([sys.executable, script, "--difficulty", "1.5"], cwd=REPO, capture_output=True, text=True,
                          timeout=120, check=False)
     assert bad.returncode == 2 and "each must be in [0, 1], got [1.5]" in bad.stderr
+
+
+@pytest.mark.slow  # ~30 s; the gait itself is tested fast in tests/closed_loop/test_closed_loop.py
+def test_naive_gait_sweep_runs_a_cell_at_its_gait(tmp_path: Path) -> None:
+    """Issue 38 item 6's script: one cell of the grid at 1.5 m/s, its gait recorded and tabulated."""
+    out = tmp_path / "gait"
+    _run("naive_gait_sweep.py", out, "--only", "naive_f2.5_d0.5")
+    cell = json.loads((out / "cells" / "naive_f2.5_d0.5.json").read_text())
+    assert cell["naive_gait"] == [2.5, 0.5] and cell["episodes"] == 2
+    assert "| 2.5 | 0.5 |" in (out / "table.md").read_text()
