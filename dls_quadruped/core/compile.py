@@ -26,7 +26,7 @@ def compile_wanted(setting: bool | None, device: torch.device | str) -> bool:
     if setting is None:
         return torch.device(device).type == "cuda"
     if not isinstance(setting, bool):
-        raise ValueError(f"compile must be true, false or null (null: on for CUDA devices), got {setting!r}")
+        raise ValueError(f"compile must be true, false or null (null: on for CUDA devices), got {setting!r}")  # noqa: TRY004
     return setting
 
 
@@ -54,8 +54,12 @@ class Fused:
             return self._impl(*args, **kwargs)
         self._first = False
         try:
-            return self._impl(*args, **kwargs)
-        except Exception as err:  # noqa: BLE001 -- any compile failure falls back to eager (module doc)
+            with warnings.catch_warnings():
+                # the package's lru_cache'd helpers build constant tensors (joint ranges, gravity): tracing the
+                # wrapped function, as dynamo does, makes the same constant, which is what its notice is about
+                warnings.filterwarnings("ignore", message="Dynamo detected a call to a `functools.lru_cache`")
+                return self._impl(*args, **kwargs)
+        except Exception as err:  # any compile failure falls back to eager (module doc); others are re-raised
             if not _is_compile_error(err):
                 raise
             self.compiled, self.error, self._impl = False, err, self.fn

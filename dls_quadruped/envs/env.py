@@ -97,7 +97,9 @@ class LocomotionEnv(VecEnv):
         self.schedule = EpisodeSchedule(self.seed, self.num_envs, self.device)
         self.cfg = self.task.data
         self.scene = SceneManager(self.task, self)
-        self.schedule.compile = compile_wanted(self.scene.cfg.compile, self.device)  # scene.compile: docs/gpu.md
+        # scene.compile (docs/gpu.md): the schedule's draws and the managers' computes compiled into fused kernels
+        self.compile = compile_wanted(self.scene.cfg.compile, self.device)
+        self.schedule.compile = self.compile
         self.physics_dt = self.scene.sim.physics_dt
         self.decimation = self.env_cfg.decimation
         self.step_dt = self.physics_dt * self.decimation

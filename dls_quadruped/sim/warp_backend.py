@@ -65,7 +65,6 @@ from dls_quadruped.sim.warp_inputs import DeviceInputs
 from dls_quadruped.sim.warp_worlds import (
     WarpWorlds,
     csr_pairs,
-    publish_contacts,
     warp_device_for,
 )
 
@@ -177,12 +176,9 @@ class WarpSim:
         remembered and raised by the next :meth:`check_inputs` (every :attr:`check_every` ``step`` calls), and
         until then it makes its robot diverge, which freezes it (no NaN is published).
         """
-        n, c = self.num_envs, self.command
-        for i, (name, value, shape) in enumerate((("freq", freq, (4,)), ("duty", duty, (4,)),
-                                                  ("p_td_w", p_td_w, (4, 3)), ("F_w", F_w, (4, 3)))):
-            value = self.inputs.shaped(name, value, n, shape)
-            self.inputs.bad_refs[i] |= ~torch.isfinite(value).all()
-            c[name].copy_(value)
+        n = self.num_envs
+        self.rate.store_references(*(self.inputs.shaped(name, value, n, shape) for name, value, shape in (
+            ("freq", freq, (4,)), ("duty", duty, (4,)), ("p_td_w", p_td_w, (4, 3)), ("F_w", F_w, (4, 3)))))
 
     def check_inputs(self) -> None:
         """Raise if an input checked on the device since the last check was invalid (one host read): non-finite
@@ -362,20 +358,5 @@ class WarpSim:
     # ------------------------------------------------------------------ output
     def _publish(self) -> RobotState:
         """Write the current state into the published float32 buffers (in place: ``state`` stays live)."""
-        s, qpos, qvel = self.buf, self._qpos, self._qvel
-        s["base_pos_w"].copy_(qpos[:, 0:3])
-        s["base_quat_w"].copy_(qpos[:, 3:7])
-        s["base_lin_vel_w"].copy_(qvel[:, 0:3])
-        s["base_ang_vel_b"].copy_(qvel[:, 3:6])
-        s["joint_pos"].copy_(qpos[:, 7:19])
-        s["joint_vel"].copy_(qvel[:, 6:18])
-        s["joint_torque"].copy_(self.tau)
-        s["foot_pos_w"].copy_(self._terms.foot_pos_w)
-        s["foot_vel_w"].copy_(self._terms.foot_vel_w)
-        sd = torch.where(self.diverged[:, None], 0.0, self._contact_sensors)
-        publish_contacts(sd, self._sensor_slices, s["foot_force_w"], s["base_contact"])
-        s["phase"].copy_(self.controller.phase)
-        s["contact_cmd"].copy_(self.controller.phase < self.command["duty"])
-        s["time"].copy_(self._time)
-        s["diverged"].copy_(self.diverged)
+        self.rate.publish()
         return self.state

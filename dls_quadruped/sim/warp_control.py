@@ -14,8 +14,9 @@ CUDA), so a physics step is a few fused torch kernels besides MuJoCo Warp's grap
 launches (docs/gpu.md "Launches"). Every buffer they write is written in place (the controller's state, the
 torques, ``ctrl``, the flags, the clock): the storage a compiled graph points at never moves.
 
-Eager and compiled agree to round-off (``tests/sim/test_warp_control.py``); the controller's damped 3x3 solve is
-the elementwise one (``LowLevelController(solve="cramer")``) on both, so the two paths run the same arithmetic.
+Eager and compiled agree to round-off (bit for bit on warp-cpu, ``tests/sim/test_warp_control.py``); the
+controller's damped 3x3 solve is the elementwise one (``LowLevelController(solve="cramer")``) on both, so the two
+paths run the same arithmetic. The backend's ``set_references`` and state publishing are compiled here too.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from dls_quadruped.control.lowlevel import LegTerms
 from dls_quadruped.core.compile import Fused, compile_wanted
 from dls_quadruped.sim.shard import MAX_ABS_QVEL
 from dls_quadruped.sim.warp_collision import ALLOCATION_OVERFLOWS
+from dls_quadruped.sim.warp_worlds import publish_contacts
 
 if TYPE_CHECKING:
     from dls_quadruped.sim.warp_backend import WarpSim
@@ -51,6 +53,8 @@ class PhysicsRate:
         self._control = Fused(self._control_eager, on, "WarpSim physics-step control")
         self._settle = Fused(self._settle_eager, on, "WarpSim physics-step settle")
         self._terms = Fused(self._terms_eager, on, "WarpSim leg terms")
+        self._publish = Fused(self._publish_eager, on, "WarpSim publish")
+        self._store = Fused(self._store_eager, on, "WarpSim set_references")
         self.time_before = torch.zeros_like(sim._time)
         # the dynamics' constant tensors (chain parameters, index tables) are built on first use: build them here,
         # eagerly, so the compiled functions find them made (creating them from numpy inside a trace fails)
@@ -108,3 +112,38 @@ class PhysicsRate:
         qacc_warmstart.masked_fill_(div, 0.0)
         time.copy_(torch.where(diverged, time_before, time))
         contact_sensors.copy_(sensordata)  # step1 zeroes the acceleration-stage sensors
+
+    def store_references(self, freq, duty, p_td_w, F_w) -> None:
+        """The latent references (float64, shaped) into the held commands; non-finite ones flagged on the device."""
+        c = self.sim.command
+        self._store(self.sim.inputs.bad_refs, (freq, duty, p_td_w, F_w), (c["freq"], c["duty"], c["p_td_w"], c["F_w"]))
+
+    @staticmethod
+    def _store_eager(bad_refs, values, held) -> None:
+        for i, (value, dst) in enumerate(zip(values, held)):
+            bad_refs[i] |= ~torch.isfinite(value).all()
+            dst.copy_(value)
+
+    def publish(self) -> None:
+        """The current state into the backend's published float32 buffers (``WarpSim.state``), in place."""
+        s = self.sim
+        self._publish(s.buf, s._qpos, s._qvel, s.tau, s._terms.foot_pos_w, s._terms.foot_vel_w, s.diverged,
+                      s._contact_sensors, s.controller.phase, s.command["duty"], s._time)
+
+    def _publish_eager(self, buf, qpos, qvel, tau, foot_pos_w, foot_vel_w, diverged, contact_sensors, phase, duty,
+                       time) -> None:
+        buf["base_pos_w"].copy_(qpos[:, 0:3])
+        buf["base_quat_w"].copy_(qpos[:, 3:7])
+        buf["base_lin_vel_w"].copy_(qvel[:, 0:3])
+        buf["base_ang_vel_b"].copy_(qvel[:, 3:6])
+        buf["joint_pos"].copy_(qpos[:, 7:19])
+        buf["joint_vel"].copy_(qvel[:, 6:18])
+        buf["joint_torque"].copy_(tau)
+        buf["foot_pos_w"].copy_(foot_pos_w)
+        buf["foot_vel_w"].copy_(foot_vel_w)
+        sd = torch.where(diverged[:, None], 0.0, contact_sensors)
+        publish_contacts(sd, self.sim._sensor_slices, buf["foot_force_w"], buf["base_contact"])
+        buf["phase"].copy_(phase)
+        buf["contact_cmd"].copy_(phase < duty)
+        buf["time"].copy_(time)
+        buf["diverged"].copy_(diverged)

@@ -1,8 +1,10 @@
-"""The compiled physics step of the Warp backends (``sim/warp_control.py``) on Warp's CPU device.
+"""The compiled env step of the Warp backends (``sim/warp_control.py``, the managers' computes) on Warp's CPU device.
 
 Compiled (``scene.compile: true``) and eager runs of the same seeded base episodes with random actions, resets and
-pushes agree (the two run the same arithmetic, so to round-off; in practice bit for bit), the compiled step is a
-fraction of the eager one's torch operators, and the schedule's compiled draws equal its eager ones bit for bit.
+pushes agree (the same arithmetic, but fused float32 code rounds differently: 5.3e-5 m after 25 steps of falling
+robots; each compiled function on one state to float32 round-off), the compiled step stays
+within the budget of 300 torch operators per env step, and the schedule's compiled draws equal its eager ones bit
+for bit.
 Slow: compiling takes ~10-70 s on a 2-core machine (cached afterwards in torch's inductor cache).
 """
 
@@ -31,7 +33,7 @@ def _run(compile: bool, steps: int = 25):
         g = torch.Generator().manual_seed(0)
         rows, resets = [], 0
         for _ in range(steps):
-            obs, rew, done, _ = env.step(torch.randn(4, 28, generator=g))
+            _, rew, done, _ = env.step(torch.randn(4, 28, generator=g))
             s = env.state
             rows.append(torch.cat([s.base_pos_w, s.joint_pos, s.joint_torque, s.foot_pos_w.flatten(1)], dim=1).double())
             resets += int(done.sum())
@@ -46,8 +48,41 @@ def test_compiled_and_eager_physics_steps_agree():
     fused, rew_c, resets_c, comp_c, sched_c = _run(True)
     assert (comp_e, sched_e, comp_c, sched_c) == (False, False, True, True)
     assert resets_e == resets_c > 4  # episodes of 15 steps, the same robots reset at the same steps
-    assert torch.allclose(fused, eager, rtol=1e-9, atol=1e-9), (fused - eager).abs().max()
-    assert torch.allclose(rew_c, rew_e, rtol=1e-6, atol=1e-7)
+    # float32 round-off of the compiled action conversion, amplified over 25 steps of falling robots: 5.3e-5 measured
+    assert torch.allclose(fused, eager, rtol=0, atol=1e-3), (fused - eager).abs().max()
+    assert torch.allclose(rew_c, rew_e, rtol=1e-3, atol=1e-4)
+
+
+def test_each_compiled_compute_matches_its_eager_function_on_one_state():
+    """On one state: the compiled action conversion, observations, rewards and terminations against the same
+    functions run eagerly, to float32 round-off (the compiled code may fuse and reorder float32 arithmetic)."""
+    pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
+    from dls_quadruped.envs.config import load_task
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    env = LocomotionEnv(load_task("base", overrides={**EVENTFUL, "scene": {"backend": "warp-cpu", "num_workers": 0,
+                                                                             "compile": True}}),
+                        num_envs=4, seed=0, verbose=False)
+    try:
+        g = torch.Generator().manual_seed(3)
+        for _ in range(6):
+            env.step(torch.randn(4, 28, generator=g))
+        am, om, rm, tm = env.action_manager, env.observation_manager, env.reward_manager, env.termination_manager
+        assert all(f.compiled for f in (am._convert, om._groups, rm._compute, tm._compute))
+        am.raw_action[:] = torch.randn(4, 28, generator=g)
+        refs = [am._convert(env.state), am._convert.fn(env.state)]
+        for a, b in zip(*refs):
+            assert torch.allclose(a, b, rtol=1e-6, atol=1e-6)
+        obs = [om._groups(), om._groups.fn()]
+        assert all(torch.allclose(obs[0][k], obs[1][k], rtol=1e-6, atol=1e-6) for k in obs[1])
+        sums = {k: v.clone() for k, v in rm.episode_sums.items()}
+        compiled = rm._compute(env.step_dt)
+        for k, v in sums.items():
+            rm.episode_sums[k].copy_(v)
+        assert torch.allclose(compiled, rm._compute.fn(env.step_dt), rtol=1e-5, atol=1e-6)
+        assert torch.equal(tm._compute(None), tm._compute.fn(None))
+    finally:
+        env.close()
 
 
 def test_compiled_step_launches_a_fraction_of_the_torch_operators():
@@ -58,8 +93,8 @@ def test_compiled_step_launches_a_fraction_of_the_torch_operators():
     fused = launches("warp-cpu", torch.device("cpu"), 4, 8, compile=True)
     assert fused["compiled"] and not eager["compiled"]
     assert fused["warp_launches_per_step"] <= 150 and eager["warp_launches_per_step"] <= 150
-    assert 0 < fused["torch_ops_in_compiled_graphs_per_step"] <= 40  # 9 graph calls per env step, a few kernels each
-    assert fused["torch_ops_per_step"] < 0.25 * eager["torch_ops_per_step"]
+    assert 0 < fused["torch_ops_in_compiled_graphs_per_step"] <= 40  # ~15 graph calls per env step, ~1 kernel each
+    assert fused["torch_ops_per_step"] <= 300 < eager["torch_ops_per_step"]  # issue 40's budget for base
 
 
 def test_compiled_schedule_draws_equal_eager_ones():

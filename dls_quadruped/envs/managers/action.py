@@ -18,6 +18,7 @@ from dls_quadruped.control.latent_action import (
     finite_entries,
     validate_raw,
 )
+from dls_quadruped.core.compile import Fused
 from dls_quadruped.core.rotations import yaw_from_quat
 from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
 from dls_quadruped.envs.managers.base import ManagerBase, format_table
@@ -56,6 +57,7 @@ class ActionManager(ManagerBase):
         self.saturated = torch.zeros(n, ACTION_DIM, dtype=torch.bool, device=dev)
         self.stance_frac = torch.ones(n, 4, device=dev)
         self.record_diagnostics = True
+        self._convert = Fused(self._convert_eager, getattr(env, "compile", False), "ActionManager.process")
 
     def process(self, raw: torch.Tensor, replan: bool = False, finite: bool = False,
                 num_physics_steps: int | None = None) -> None:
@@ -75,20 +77,25 @@ class ActionManager(ManagerBase):
         if not replan:
             self.prev_raw_action[:] = self.raw_action
         self.raw_action[:] = raw.clamp(-RAW_LIMIT, RAW_LIMIT)
-        s = self.env.state
+        f, d, p_td_w, F_w = self._convert(self.env.state)
+        if self.record_diagnostics:
+            self.saturated[:] = self.violation != 0
+            # the gait generator's contacts over the coming physics steps, from the current phase and the new f, d
+            steps = self.env.decimation if num_physics_steps is None else num_physics_steps
+            _, contact = contact_sequence(self.env.state.phase.to(f), f, d, self.env.physics_dt, steps)  # (B, N, 4)
+            self.stance_frac[:] = contact.to(self.stance_frac.dtype).mean(dim=-2)
+        self.env.scene.sim.set_references(f, d, p_td_w, F_w)
+
+    def _convert_eager(self, s) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The raw action in ``raw_action`` to world references (f, d, p_td_w, F_w); violation and applied actions
+        written (compiled with scene.compile)."""
         num_stance = s.contact_cmd.sum(dim=-1)
         refs = self.interface(self.raw_action, num_stance, s.base_pos_w, yaw_from_quat(s.base_quat_w),
                               check_finite=False)
         self.violation[:] = refs.violation
         self.applied_action[:] = self.raw_action - refs.violation
         self.applied_physical[:] = refs.action.to_vector()
-        if self.record_diagnostics:
-            self.saturated[:] = refs.violation != 0
-            # the gait generator's contacts over the coming physics steps, from the current phase and the new f, d
-            steps = self.env.decimation if num_physics_steps is None else num_physics_steps
-            _, contact = contact_sequence(s.phase.to(refs.f), refs.f, refs.d, self.env.physics_dt, steps)  # (B, N, 4)
-            self.stance_frac[:] = contact.to(self.stance_frac.dtype).mean(dim=-2)
-        self.env.scene.sim.set_references(refs.f, refs.d, refs.p_td_w, refs.F_w)
+        return refs.f, refs.d, refs.p_td_w, refs.F_w
 
     def finite_rows(self, raw: torch.Tensor) -> torch.Tensor:
         """(B,) bool: every entry of the robot's (B, 28) raw action and its physical value is finite

@@ -14,6 +14,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
+from dls_quadruped.core.compile import Fused
 from dls_quadruped.envs.config import TaskConfig, type_problem
 from dls_quadruped.envs.managers.base import (
     ManagerBase,
@@ -51,9 +52,16 @@ class ObservationManager(ManagerBase):
         super().__init__(env)
         self.groups, self.noise_scale = resolve_groups(task)
         self.dims: dict[str, dict[str, int]] = {}
+        self._groups = Fused(self._groups_eager, getattr(env, "compile", False), "ObservationManager.compute")
 
     def compute(self) -> TensorDict:
         """Evaluate every group: concatenation of its terms plus U(-noise, noise) x noise_scale."""
+        # the first call (the env's constructor) runs eagerly and records the terms' sizes; later ones are compiled
+        # with scene.compile
+        out = self._groups() if self.dims else self._groups_eager()
+        return TensorDict(out, batch_size=[self.env.num_envs], device=self.env.device)
+
+    def _groups_eager(self) -> dict[str, torch.Tensor]:
         out = {}
         ids = torch.arange(self.env.num_envs, device=self.env.device)
         for group, terms in self.groups.items():
@@ -65,9 +73,10 @@ class ObservationManager(ManagerBase):
                     value = value + self.env.schedule.uniform(ids, (value.shape[1],), -noise, noise,
                                                               stream=f"obs_noise/{group}/{term.name}")
                 parts.append(value)
-            self.dims.setdefault(group, {t.name: p.shape[1] for t, p in zip(terms, parts)})
+            if group not in self.dims:
+                self.dims[group] = {t.name: p.shape[1] for t, p in zip(terms, parts)}
             out[group] = torch.cat(parts, dim=-1)
-        return TensorDict(out, batch_size=[self.env.num_envs], device=self.env.device)
+        return out
 
     def summary(self) -> str:
         rows = [(g, t.name, t.func.__name__, self.dims.get(g, {}).get(t.name, "?"), t.extra["noise"] * self.noise_scale[g])

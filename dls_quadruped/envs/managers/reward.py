@@ -10,6 +10,7 @@ from typing import Any
 
 import torch
 
+from dls_quadruped.core.compile import Fused
 from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import (
     ManagerBase,
@@ -32,9 +33,14 @@ class RewardManager(ManagerBase):
         self.weights = {t.name: float(t.extra["weight"]) for t in self.terms}
         self.episode_sums = {t.name: torch.zeros(env.num_envs, device=env.device) for t in self.terms}
         self.step_reward = torch.zeros(env.num_envs, len(self.terms), device=env.device)
+        # compiled with scene.compile (a weight a curriculum switches on recompiles once)
+        self._compute = Fused(self._compute_eager, getattr(env, "compile", False), "RewardManager.compute")
 
     def compute(self, dt: float) -> torch.Tensor:
         """(B,) total reward of this policy step; non-finite term values count as 0 (and are logged)."""
+        return self._compute(dt)
+
+    def _compute_eager(self, dt: float) -> torch.Tensor:
         total = torch.zeros(self.env.num_envs, device=self.env.device)
         for i, term in enumerate(self.terms):
             w = self.weights[term.name]
