@@ -70,6 +70,8 @@ def test_the_check_runs_on_warp_cpu(tmp_path: Path):
         assert rep["trajectories"][name]["vs_warp-cpu"]["ok"], rep["trajectories"][name]
         assert rep["trajectories"][name]["vs_cpu"]["ok"], rep["trajectories"][name]
     assert rep["syncs"]["syncs_per_step_max"] == 0  # no Warp array read inside env.step
+    fused, eager = rep["launches"]["compiled"], rep["launches"]["eager"]
+    assert fused["compiled"] and fused["torch_ops_per_step"] <= 300 < eager["torch_ops_per_step"]
     rows = rep["env"]["rows"]
     assert {(r["task"], r["captured"]) for r in rows} == {("base", True), ("base", False), ("rough", True),
                                                           ("rough", False)}
