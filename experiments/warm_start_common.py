@@ -82,6 +82,7 @@ class Cell:
                                                   # (None: the scale's)
     naive_gait: tuple[float, float] | None = None  # naive_warm_start: (frequency [Hz], duty) of its trot
                                                   # (None: BaselineConfig's 1.5 Hz, 0.6)
+    com_height: float | None = None               # MPC controllers: CoM height reference [m] (None: ~0.324)
 
     def __post_init__(self) -> None:
         if self.ground is not None and self.ground not in GROUNDS:
@@ -192,7 +193,8 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
             continue
         cfg = ControllerConfig(cell.controller, policy=policy, student=student, sampler=sampler,
                                optimise=cell.optimise, naive_share=cell.naive_share, shares=cell.shares,
-                               ground=cell.plan_ground(), seed=args.seed, naive_gait=cell.naive_gait)
+                               ground=cell.plan_ground(), seed=args.seed, naive_gait=cell.naive_gait,
+                               com_height=cell.com_height)
         t0 = time.monotonic()
         seconds = args.seconds if getattr(args, "seconds_given", False) else cell.seconds or args.seconds
         traces = run_controllers([cfg], commands(args.episodes, args.seed, cell.vx, cell.scenario), seconds, args.seed,
@@ -202,7 +204,7 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
         student_txt = [str(x) for x in student] if isinstance(student, tuple) else str(student) if student else None
         summary.update({"cell": cell.name, "student": student_txt, "row": cell.row, "policy": str(policy),
                         "scenario": cell.scenario, "push_speed": cell.push_speed, "ground": cell.plan_ground(),
-                        "naive_gait": list(cell.naive_gait) if cell.naive_gait else None,
+                        "naive_gait": list(cell.naive_gait) if cell.naive_gait else None, "com_height": cell.com_height,
                         "shares": list(cell.shares) if cell.shares else None,
                         "sampler": cell.sampler, "optimise": list(cell.optimise), "vx": cell.vx,
                         "naive_share": cell.naive_share, "seconds": seconds, "git_commit": _commit(),

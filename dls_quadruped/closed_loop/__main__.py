@@ -172,6 +172,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--naive-gait", type=float, nargs=2, metavar=("FREQ", "DUTY"), default=None,
                    help="naive_warm_start: its trot's frequency [Hz] in (0, 3] and duty cycle in (0, 1) "
                         "(default 1.5 0.6, mpc.baseline.BaselineConfig)")
+    p.add_argument("--com-height", type=float, default=None,
+                   help="MPC controllers: CoM height reference above the ground [m] in [0.1, 0.6] "
+                        "(default ~0.324, mpc.srbd.com_height_reference)")
     p.add_argument("--kernel", default="cpp", choices=("cpp", "fast", "reference"))
     p.add_argument("--threads", type=positive_int, default=1, help="torch / MPC kernel threads")
     p.add_argument("--seed", type=int, default=0)
@@ -287,7 +290,7 @@ def main(argv: list[str] | None = None) -> dict:
                                     shares=args.shares if name == "rl_warm_start" else None, ground=ground,
                                     seed=args.seed,
                                     naive_gait=tuple(args.naive_gait) if args.naive_gait and name == "naive_warm_start"
-                                    else None) for name in args.controllers]
+                                    else None, com_height=args.com_height) for name in args.controllers]
     except ValueError as err:
         raise UserError(str(err)) from None
     heights = args.heights or STAIRS_HEIGHTS
@@ -309,7 +312,7 @@ def main(argv: list[str] | None = None) -> dict:
                      "push_speed": args.push_speed,
                      "samples": args.samples, "horizon": args.horizon, "dt": args.dt, "encoding": args.encoding,
                      "optimise": list(args.optimise), "naive_share": args.naive_share, "kernel": args.kernel,
-                     "naive_gait": args.naive_gait,
+                     "naive_gait": args.naive_gait, "com_height": args.com_height,
                      "sampler_seeds": args.sampler_seeds,
                      "threads": args.threads, "seed": args.seed, "policy": str(args.policy),
                      "student": [str(x) for x in students] if students else str(args.student),

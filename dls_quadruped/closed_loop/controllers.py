@@ -51,6 +51,7 @@ from dls_quadruped.mpc.inputs import (
     mpc_inputs,
 )
 from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
+from dls_quadruped.mpc.warm_start import check_shares
 
 NEEDS_STUDENT = ("rl_warm_start", "student")
 NEEDS_POLICY = ("rl_baseline",)
@@ -76,8 +77,8 @@ class ControllerConfig:
         horizon_cost_every: record the chosen sample's cost per horizon step (Fig. 28) at every k-th solve
             (an eager re-rollout, ~1.5 ms per solve).
         ground: MPC controllers: the ground the MPC plans on, one of ``mpc.inputs.GROUNDS`` (``terrain``: the env's map).
-        naive_gait: ``naive_warm_start`` only: its periodic trot's (frequency [Hz], duty cycle) instead of
-            ``BaselineConfig``'s (1.5 Hz, 0.6); frequency in (0, 3] (the latent action's clip), duty in (0, 1).
+        naive_gait: ``naive_warm_start`` only: its trot's (frequency [Hz], duty), else ``BaselineConfig``'s.
+        com_height: MPC controllers: the CoM height reference [m] above the ground, else ``BaselineConfig``'s.
     """
 
     name: str
@@ -91,6 +92,7 @@ class ControllerConfig:
     horizon_cost_every: int = 10
     ground: str = "flat"
     naive_gait: tuple[float, float] | None = None
+    com_height: float | None = None
 
     def __post_init__(self) -> None:
         CONTROLLER_REGISTRY.check(self.name)
@@ -114,8 +116,13 @@ class ControllerConfig:
             raise ValueError(f"ground must be one of {list(GROUNDS)}, got {self.ground!r}")
         if self.naive_gait is not None and self.name != "naive_warm_start":
             raise ValueError(f"naive_gait applies to naive_warm_start only, got it for {self.name!r}")
-        if self.naive_gait is not None and not (0.0 < self.naive_gait[0] <= 3.0 and 0.0 < self.naive_gait[1] < 1.0):
-            raise ValueError(f"naive_gait must be (frequency in (0, 3] Hz, duty in (0, 1)), got {self.naive_gait!r}")
+        self.baseline_config()  # checks the gait and the height reference
+
+    def baseline_config(self) -> BaselineConfig:
+        """The MPC's gait and references (``BaselineConfig``) with ``naive_gait`` and ``com_height`` applied."""
+        kw = {} if self.naive_gait is None else {"freq": float(self.naive_gait[0]), "duty": float(self.naive_gait[1])}
+        kw.update({} if self.com_height is None else {"com_height": float(self.com_height)})
+        return BaselineConfig(optimise=self.optimise, sampler=self.sampler, **kw)
 
     @property
     def students(self) -> tuple[Path, ...]:
@@ -137,20 +144,6 @@ class ControllerConfig:
     @property
     def uses_mpc(self) -> bool:
         return self.name in ("rl_warm_start", "naive_warm_start")
-
-
-def check_shares(shares: tuple[float, ...], students: int) -> None:
-    """Raise ``ValueError`` unless ``shares`` has one positive finite share per student, summing to 1."""
-    import math
-
-    values = tuple(shares)
-    if len(values) != students:
-        raise ValueError(f"shares: one per student ({students}), got {len(values)}: {list(values)}")
-    bad = [v for v in values if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0.0]
-    if bad:
-        raise ValueError(f"shares must be positive finite numbers, got {list(values)}")
-    if abs(sum(values) - 1.0) > 1e-6:
-        raise ValueError(f"shares must sum to 1, got {list(values)} (sum {sum(values):.6g})")
 
 
 @dataclass
@@ -270,8 +263,7 @@ class MPCController(Controller):
             raise ValueError(f"the MPC period {cfg.sampler.mpc_period} s must be a whole number of physics steps "
                              f"({env.physics_dt} s) dividing the policy step ({env.decimation} physics steps)")
         self.solves_per_step = env.decimation // self.mpc_decimation
-        gait = {} if cfg.naive_gait is None else {"freq": float(cfg.naive_gait[0]), "duty": float(cfg.naive_gait[1])}
-        self.baseline_cfg = BaselineConfig(optimise=cfg.optimise, sampler=cfg.sampler, **gait)
+        self.baseline_cfg = cfg.baseline_config()
         # the C++ kernel computes on the CPU; the torch kernels where the env's tensors are
         self.device = torch.device("cpu") if cfg.sampler.kernel == "cpp" else torch.device(env.device)
         if cfg.name == "naive_warm_start":

@@ -64,6 +64,12 @@ class BaselineConfig:
     def __post_init__(self) -> None:
         if not 0.0 <= self.anchor_share < 1.0:
             raise ValueError(f"BaselineConfig.anchor_share must be in [0, 1), got {self.anchor_share!r}")
+        if not (0.0 < self.freq <= 3.0 and 0.0 < self.duty < 1.0):  # 3 Hz: the latent action's clip of f
+            raise ValueError(f"the naive trot must have a frequency in (0, 3] Hz and a duty cycle in (0, 1), got "
+                             f"{self.freq!r} Hz and {self.duty!r}")
+        if not 0.1 <= self.com_height <= 0.6:
+            raise ValueError(f"com_height (the MPC's CoM height reference) must be in [0.1, 0.6] m, got "
+                             f"{self.com_height!r}")
         check_optimise(self.optimise)
 
     def forces_only(self) -> SamplerConfig:

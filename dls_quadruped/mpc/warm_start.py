@@ -190,3 +190,17 @@ def student_horizon(output: torch.Tensor, cfg: SamplerConfig, phase: torch.Tenso
     actions = torch.cat([f[:, None].expand(-1, n, 4), d[:, None].expand(-1, n, 4), p_h.flatten(-2),
                          F_h.flatten(-2)], dim=-1)
     return actions, contact
+
+
+def check_shares(shares: tuple[float, ...], students: int) -> None:
+    """Raise ``ValueError`` unless ``shares`` has one positive finite share per student, summing to 1."""
+    import math
+
+    values = tuple(shares)
+    if len(values) != students:
+        raise ValueError(f"shares: one per student ({students}), got {len(values)}: {list(values)}")
+    bad = [v for v in values if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0.0]
+    if bad:
+        raise ValueError(f"shares must be positive finite numbers, got {list(values)}")
+    if abs(sum(values) - 1.0) > 1e-6:
+        raise ValueError(f"shares must sum to 1, got {list(values)} (sum {sum(values):.6g})")

@@ -149,7 +149,8 @@ def test_bad_configurations_are_refused(tmp_path: Path, capsys) -> None:
         (["--episodes", "3"], "must be even"),
         (["--student", str(tmp_path / "none.pt")], "--student .* not found"),
         (["--encoding", "first-cubic"], "--encoding: must be p-F"),
-        (["--controllers", "naive_warm_start", "--naive-gait", "1.5", "1.0"], r"naive_gait must be \(frequency"),
+        (["--controllers", "naive_warm_start", "--naive-gait", "1.5", "1.0"], r"a duty cycle in \(0, 1\), got 1.5 Hz"),
+        (["--controllers", "naive_warm_start", "--com-height", "0.9"], r"com_height .* must be in \[0.1, 0.6\] m"),
         (["--controllers", "rl_warm_start", "--horizon", "5"], r"horizon = 10 \(MPC: 5\)"),
     ):
         with pytest.raises(SystemExit) as exc:
@@ -213,5 +214,7 @@ def test_naive_gait_sets_the_trot_the_naive_mpc_commands() -> None:
     assert torch.allclose(advances[(2.5, 0.5)], torch.full_like(advances[None], 0.05), atol=1e-6)
     with pytest.raises(ValueError, match="naive_gait applies to naive_warm_start only"):
         ControllerConfig("rl_baseline", policy=POLICY, naive_gait=(2.0, 0.6))
-    with pytest.raises(ValueError, match=r"naive_gait must be \(frequency in \(0, 3\] Hz, duty in \(0, 1\)\)"):
+    with pytest.raises(ValueError, match=r"frequency in \(0, 3\] Hz and a duty cycle in \(0, 1\), got 3.5 Hz"):
         ControllerConfig("naive_warm_start", naive_gait=(3.5, 0.6))
+    with pytest.raises(ValueError, match=r"com_height .* must be in \[0.1, 0.6\] m, got 0.05"):
+        ControllerConfig("naive_warm_start", com_height=0.05)
