@@ -1,4 +1,4 @@
-"""The 1.5 m/s question (issue 38 item 6): does an untuned gait explain why our naive MPC falls at 1.5 m/s?
+"""The 1.5 m/s question: does an untuned gait explain why our naive MPC falls at 1.5 m/s?
 
 Thesis Table 17: the naive MPC without gait optimisation survives 84.2 % of its episodes at a forward command of
 1.5 m/s; ours survives 0 % [0, 19] with the baseline's trot (1.5 Hz, duty 0.6, ``mpc.baseline.BaselineConfig``),

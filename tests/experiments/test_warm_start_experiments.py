@@ -157,3 +157,13 @@ def test_naive_gait_sweep_runs_a_cell_at_its_gait(tmp_path: Path) -> None:
     cell = json.loads((out / "cells" / "naive_f2.5_d0.5.json").read_text())
     assert cell["naive_gait"] == [2.5, 0.5] and cell["episodes"] == 2
     assert "| 2.5 | 0.5 |" in (out / "table.md").read_text()
+
+
+def test_naive_gait_sweep_help_and_bad_scale() -> None:
+    script = str(REPO / "experiments" / "naive_gait_sweep.py")
+    ok = subprocess.run([sys.executable, script, "--help"], cwd=REPO, capture_output=True, text=True, timeout=120,
+                        check=False)
+    assert ok.returncode == 0 and "gait" in ok.stdout and "--shard" in ok.stdout
+    bad = subprocess.run([sys.executable, script, "--scale", "huge"], cwd=REPO, capture_output=True, text=True,
+                         timeout=120, check=False)
+    assert bad.returncode == 2 and "invalid choice: 'huge'" in bad.stderr
