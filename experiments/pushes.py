@@ -33,6 +33,7 @@ import numpy as np
 
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.metrics import paired_difference
+from experiments.rl_common import student_file
 from experiments.warm_start_common import (
     REPO,
     Cell,
@@ -50,8 +51,6 @@ VALIDATION_OFFSET = 1_000_003
 """Validation episodes are seed + this (``eval --split validation``)."""
 DRAWS = 10_000
 POLICIES = REPO / "docs" / "policies"
-BASE_STUDENT = POLICIES / "base_student_first_spline_h10.pt"
-SPEED_STUDENT = POLICIES / "speed_student_first_spline_h10.pt"
 ARMS = ("base_alone", "base_warm", "naive", "base_speed_warm", "student_alone")
 PRIMARY = ("base_warm", "base_alone")
 SECONDARY = (("naive", "base_alone"), ("base_warm", "naive"), ("base_speed_warm", "base_warm"),
@@ -108,13 +107,15 @@ def calibrate(args) -> float | None:
     return chosen
 
 
-def arm_cells(push_speed: float) -> list[Cell]:
+def arm_cells(push_speed: float, variant: str = "thesis") -> list[Cell]:
+    """The five arms; ``variant`` picks the committed experts' students (``--variant``, rl_common.VARIANTS)."""
     common = {"scenario": "pushes", "push_speed": push_speed}
+    base, speed = (str(student_file(POLICIES, n, variant)) for n in ("base", "speed"))
     return [Cell("base_alone", "rl_baseline", **common),
-            Cell("base_warm", "rl_warm_start", student=str(BASE_STUDENT), **common),
+            Cell("base_warm", "rl_warm_start", student=base, **common),
             Cell("naive", "naive_warm_start", **common),
-            Cell("base_speed_warm", "rl_warm_start", students=(str(BASE_STUDENT), str(SPEED_STUDENT)), **common),
-            Cell("student_alone", "student", student=str(BASE_STUDENT), **common)]
+            Cell("base_speed_warm", "rl_warm_start", students=(base, speed), **common),
+            Cell("student_alone", "student", student=base, **common)]
 
 
 def push_speed_of(args) -> float:
@@ -145,7 +146,7 @@ def contrast(results: dict, a: str, b: str, key: str) -> dict:
 
 def report(args) -> dict:
     p = push_speed_of(args)
-    results = run_cells(arm_cells(p), args)
+    results = run_cells(arm_cells(p, args.variant), args)
     missing = [a for a in ARMS if a not in results or "skipped" in results[a]]
     if missing:
         raise SystemExit(f"pushes: arms not run yet: {missing}; run `python experiments/pushes.py run` first")
@@ -174,7 +175,7 @@ def report(args) -> dict:
                    f"{primary['ci95'][1]:+.3f}]: **{out['primary']['verdict']}**.")]
     (args.out / "report.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
-    write_config(args, arm_cells(p), {"results": results, "push_speed": p})
+    write_config(args, arm_cells(p, args.variant), {"results": results, "push_speed": p})
     return out
 
 
@@ -188,7 +189,7 @@ def main() -> None:
     if args.stage == "calibrate":
         calibrate(args)
     elif args.stage == "run":
-        run_cells(arm_cells(push_speed_of(args)), args)
+        run_cells(arm_cells(push_speed_of(args), args.variant), args)
     else:
         report(args)
 

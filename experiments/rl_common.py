@@ -1,8 +1,9 @@
 """Shared machinery of the RL-policy experiments (thesis 7.1: Figs. 17-23).
 
 Every figure runs one evaluation scenario (``dls_quadruped.eval.scenarios``) for each of the four
-experts, found by task name as ``docs/policies/<task>_actor.pt`` (``--policy-dir``); a missing
-policy is skipped with a printed note. Per policy, the scenario's own JSON + PNG go to
+experts, found by task name as ``docs/policies/<task>_actor.pt`` (``--policy-dir``; ``--variant recipe``:
+the experts retrained with the default recipe, ``<task>_recipe_actor.pt2``); a missing policy is skipped
+with a printed note. Per policy, the scenario's own JSON + PNG go to
 ``<out>/<task>/<scenario>.{json,png}`` (a result whose policy file has not changed, same sha256,
 scale and seed, is not evaluated again); the script then writes ``results.json`` (every policy's
 result without its per-episode lists), ``table.csv`` / ``table.md``, ``paired.md`` / ``paired.csv`` (each
@@ -29,6 +30,7 @@ import os
 import resource
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from dls_quadruped.cli import ArgumentParser
@@ -42,6 +44,35 @@ REPO = Path(__file__).resolve().parents[1]
 TASKS = ("base", "rough", "speed", "climb")
 """The four RL experts of thesis 7.1, in the thesis's order."""
 POLICY_DIR = REPO / "docs" / "policies"
+VARIANTS = {"thesis": ("{task}_actor.pt", "{task}_student_first_spline_h10.pt"),
+            "recipe": ("{task}_recipe_actor.pt2", "{task}_recipe_student_first_spline_h10.pt2")}
+"""Which committed experts and students (docs/policies/README.md): ``thesis`` = trained with Table 6's PPO
+settings (the files every experiment used first), ``recipe`` = retrained with the default recipe (docs/train.md)
+and the students distilled from those."""
+
+
+def expert_file(policy_dir: Path, task: str, variant: str = "thesis") -> Path:
+    """The committed expert of ``task`` in ``variant`` (see ``VARIANTS``)."""
+    return Path(policy_dir) / VARIANTS[variant][0].format(task=task)
+
+
+def student_file(policy_dir: Path, task: str, variant: str = "thesis") -> Path:
+    """The committed first-spline H = 10 student of ``task``'s expert in ``variant``."""
+    return Path(policy_dir) / VARIANTS[variant][1].format(task=task)
+
+
+@dataclass(frozen=True)
+class Policies:
+    """A folder of committed experts and students and the variant to take from it."""
+
+    folder: Path
+    variant: str = "thesis"
+
+    def expert(self, task: str) -> Path:
+        return expert_file(self.folder, task, self.variant)
+
+    def student(self, task: str) -> Path:
+        return student_file(self.folder, task, self.variant)
 THESIS_EPISODES = {"simple": 4096, "survival": 4096, "survival_sweep": 4096, "stairs": 512, "speed": 512, "omni": 128, "cot": 512, "gait": 512}
 MEDIUM_EPISODES = {"simple": 512, "survival": 288, "survival_sweep": 288, "stairs": 36, "speed": 48, "omni": 9, "cot": 24, "gait": 24}
 """Three times the small defaults (twice for simple): 1.5-3 min per policy and scenario at load ~3."""
@@ -57,6 +88,9 @@ def parse_args(description: str, name: str, tasks: tuple[str, ...] = TASKS, argv
     p.add_argument("--scale", choices=sorted(SCALES), default="small")
     p.add_argument("--out", type=Path, default=REPO / "results" / "experiments" / name)
     p.add_argument("--policy-dir", type=Path, default=POLICY_DIR, help="folder of <task>_actor.pt")
+    p.add_argument("--variant", choices=sorted(VARIANTS), default="thesis",
+                   help="thesis: the experts trained with Table 6 (<task>_actor.pt); recipe: those retrained with the "
+                        "default recipe (<task>_recipe_actor.pt2)")
     p.add_argument("--tasks", nargs="*", default=list(tasks), choices=TASKS, help="policies to compare")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--num-workers", type=int, default=-1)
@@ -88,7 +122,7 @@ def evaluate_policies(scenario: str, args: argparse.Namespace) -> tuple[dict[str
     length = SCALES[args.scale]["episode_length_s"]
     results, info = {}, {"policies": {}, "skipped": {}}
     for task in args.tasks:
-        path = args.policy_dir / f"{task}_actor.pt"
+        path = expert_file(args.policy_dir, task, getattr(args, "variant", "thesis"))
         if not path.is_file():
             note = f"{path} not found (not trained yet?): skipped"
             print(f"[{scenario}] {task}: {note}", flush=True)

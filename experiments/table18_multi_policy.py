@@ -45,6 +45,7 @@ import numpy as np
 
 from dls_quadruped.closed_loop.episodes import STAIRS_HEIGHTS
 from dls_quadruped.core.json_io import write_json
+from experiments.rl_common import Policies
 from experiments.table18_stairs import STAIRS_SECONDS, write_stairs
 from experiments.warm_start_common import (
     REPO,
@@ -80,40 +81,40 @@ def _label(ws: tuple[str, ...], tag: str = "") -> str:
     return " + ".join(ws) + (f" ({tag})" if tag else "")
 
 
-def _ws_cell(ws: tuple[str, ...], policy_dir: Path, suffix: str = "", tag: str = "", **kw) -> Cell:
-    students = tuple(str(policy_dir / f"{n}_student_first_spline_h10.pt") for n in ws)
+def _ws_cell(ws: tuple[str, ...], policies: Policies, suffix: str = "", tag: str = "", **kw) -> Cell:
+    students = tuple(str(policies.student(n)) for n in ws)
     return Cell(f"ws_{'+'.join(ws)}{f'_{tag}' if tag else ''}{suffix}", "rl_warm_start", students=students,
                 sampler=dict(ARBITRATION[tag]) if tag else {}, row={"Warm start": _label(ws, tag)}, **kw)
 
 
-def _alone_cell(name: str, policy_dir: Path, suffix: str = "", **kw) -> Cell:
-    return Cell(f"alone_{name}{suffix}", "rl_baseline", policy=str(policy_dir / f"{name}_actor.pt"),
+def _alone_cell(name: str, policies: Policies, suffix: str = "", **kw) -> Cell:
+    return Cell(f"alone_{name}{suffix}", "rl_baseline", policy=str(policies.expert(name)),
                 row={"Warm start": f"{name} alone"}, **kw)
 
 
-def stairs_cells(policy_dir: Path) -> list[Cell]:
+def stairs_cells(policies: Policies) -> list[Cell]:
     """Item 6: base's warm start and the naive one, each blind and aware, and base alone, on the stairs."""
     kw = {"scenario": "stairs", "seconds": STAIRS_SECONDS}
     out = []
     for tag, ground in STAIRS_GROUNDS:
-        out.append(_ws_cell(("base",), policy_dir, f"_stairs_{tag}", ground=ground, **kw))
+        out.append(_ws_cell(("base",), policies, f"_stairs_{tag}", ground=ground, **kw))
         out.append(Cell(f"naive_stairs_{tag}", "naive_warm_start", ground=ground, row={"Warm start": "naive"}, **kw))
-    out.append(_alone_cell("base", policy_dir, "_stairs", **kw))
+    out.append(_alone_cell("base", policies, "_stairs", **kw))
     return out
 
 
-def cells(policy_dir: Path) -> list[Cell]:
-    out = [_ws_cell(ws, policy_dir) for ws in WARM_STARTS] + [_alone_cell(n, policy_dir) for n in EXPERTS]
-    out += [_ws_cell(ws, policy_dir, "_survival", scenario="survival") for ws in WARM_STARTS]
-    out += [_alone_cell(n, policy_dir, "_survival", scenario="survival") for n in EXPERTS]
+def cells(policies: Policies) -> list[Cell]:
+    out = [_ws_cell(ws, policies) for ws in WARM_STARTS] + [_alone_cell(n, policies) for n in EXPERTS]
+    out += [_ws_cell(ws, policies, "_survival", scenario="survival") for ws in WARM_STARTS]
+    out += [_alone_cell(n, policies, "_survival", scenario="survival") for n in EXPERTS]
     for v in SPEEDS:
-        out += [_ws_cell(ws, policy_dir, f"_v{v:g}", vx=v) for ws in SPEED_WARM_STARTS]
-        out += [_alone_cell(n, policy_dir, f"_v{v:g}", vx=v) for n in ("base", "speed")]
+        out += [_ws_cell(ws, policies, f"_v{v:g}", vx=v) for ws in SPEED_WARM_STARTS]
+        out += [_alone_cell(n, policies, f"_v{v:g}", vx=v) for n in ("base", "speed")]
     for tag in ARBITRATION:
-        out += [_ws_cell(("base", "speed"), policy_dir, "", tag),
-                _ws_cell(("base", "speed"), policy_dir, "_survival", tag, scenario="survival")]
-        out += [_ws_cell(("base", "speed"), policy_dir, f"_v{v:g}", tag, vx=v) for v in SPEEDS]
-    return out + stairs_cells(policy_dir)
+        out += [_ws_cell(("base", "speed"), policies, "", tag),
+                _ws_cell(("base", "speed"), policies, "_survival", tag, scenario="survival")]
+        out += [_ws_cell(("base", "speed"), policies, f"_v{v:g}", tag, vx=v) for v in SPEEDS]
+    return out + stairs_cells(policies)
 
 
 def _deltas(results: dict, ws: tuple[str, ...], suffix: str, key: str, relative: bool, digits: int = 1,
@@ -284,7 +285,7 @@ def main() -> None:
     args = parse_args(__doc__, "table18_multi_policy", _flags)
     if args.stairs:
         args.seconds = args.seconds if args.seconds_given else STAIRS_SECONDS  # what the cells run (config.json)
-        todo = stairs_cells(args.policy_dir)
+        todo = stairs_cells(Policies(args.policy_dir, args.variant))
         results = run_cells(todo, args)
         write_stairs(args, results)
         write_json(results, args.out / "results_stairs.json", indent=1)
@@ -292,7 +293,7 @@ def main() -> None:
                                   "step_heights": list(STAIRS_HEIGHTS)})
         print((args.out / "stairs.md").read_text())
         return
-    todo = cells(args.policy_dir)
+    todo = cells(Policies(args.policy_dir, args.variant))
     results = run_cells(todo, args)
     write_stairs(args, results)
     from experiments.distill_common import write_table

@@ -50,7 +50,7 @@ from dls_quadruped.core.progress import progress
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.inputs import GROUNDS
 from experiments.distill_common import write_table
-from experiments.rl_common import pyplot, save  # noqa: F401 (the tables' plot helpers, shared with the 7.1 scripts)
+from experiments.rl_common import VARIANTS, expert_file, pyplot, save, student_file  # noqa: F401 (plot helpers shared)
 
 SCALES = {"small": {"episodes": 4, "seconds": 5.0}, "medium": {"episodes": 16, "seconds": 15.0},
           "thesis": {"episodes": 100, "seconds": 15.0}}
@@ -102,7 +102,12 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=REPO / "results" / "experiments" / name)
     p.add_argument("--students", type=Path, default=REPO / "results" / "experiments" / "students",
                    help="folder of students <p>-<F>_H<H>_dt<dt>/exported/student.pt2")
-    p.add_argument("--policy", type=Path, default=POLICY)
+    p.add_argument("--policy", type=Path, default=None,
+                   help=f"the expert of the rl_baseline cells (default: the variant's base expert, {POLICY.name})")
+    p.add_argument("--variant", choices=sorted(VARIANTS), default="thesis",
+                   help="thesis: the experts trained with Table 6 and their committed students (base_actor.pt, "
+                        "<expert>_student_first_spline_h10.pt); recipe: those retrained with the default recipe "
+                        "(base_recipe_actor.pt2, <expert>_recipe_student_first_spline_h10.pt2; docs/policies/README.md)")
     p.add_argument("--episodes", type=int, default=None, help="override the scale's episodes per cell (even)")
     p.add_argument("--seconds", type=float, default=None, help="override the scale's episode length [s]")
     p.add_argument("--threads", type=int, default=1, help="torch / MPC kernel threads")
@@ -121,6 +126,8 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     args.seconds_given = args.seconds is not None  # an explicit --seconds overrides a cell's own length too
     args.episodes = args.episodes or SCALES[args.scale]["episodes"]
     args.seconds = args.seconds or SCALES[args.scale]["seconds"]
+    args.policy = args.policy or expert_file(POLICY.parent, "base", args.variant)
+    args.committed_student = student_file(POLICY.parent, "base", args.variant)
     return args
 
 
@@ -135,11 +142,13 @@ def shard_arg(text: str) -> tuple[int, int]:
     return k, n
 
 
-def student_path(students: Path, p: str, F: str, horizon: int, dt: float) -> Path | None:
+def student_path(students: Path, p: str, F: str, horizon: int, dt: float,
+                 committed: Path = COMMITTED_STUDENT) -> Path | None:
     """The student for an encoding, or None. The thesis's default configuration (first-spline, H = 10,
-    dt = 0.02 s) uses the committed student (``docs/policies``, the demo's), so every table shares it."""
-    if (p, F, horizon, dt) == ("first", "spline", 10, 0.02) and COMMITTED_STUDENT.is_file():
-        return COMMITTED_STUDENT
+    dt = 0.02 s) uses the committed student (``docs/policies``, the demo's; ``committed``: the variant's), so
+    every table shares it."""
+    if (p, F, horizon, dt) == ("first", "spline", 10, 0.02) and committed.is_file():
+        return committed
     exported = students / f"{p}-{F}_H{horizon}_dt{dt:g}" / "exported"
     # student.pt: an older distillation run's TorchScript export
     return next((path for path in (exported / "student.pt2", exported / "student.pt") if path.is_file()), None)
@@ -179,7 +188,8 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
                 student = Path(cell.student) if Path(cell.student).is_file() else None
                 why = f"no student {cell.student}"
             else:
-                student = student_path(args.students, sampler.encoding_p, sampler.encoding_F, sampler.horizon, sampler.dt)
+                student = student_path(args.students, sampler.encoding_p, sampler.encoding_F, sampler.horizon, sampler.dt,
+                                       getattr(args, "committed_student", COMMITTED_STUDENT))
                 why = (f"no student {sampler.encoding_p}-{sampler.encoding_F}_H{sampler.horizon}_dt{sampler.dt:g} "
                        f"under {args.students}")
             if student is None:
@@ -311,6 +321,7 @@ def write_config(args: argparse.Namespace, cells: list[Cell], extra: dict | None
     write_json({"scale": args.scale, "episodes_per_cell": args.episodes, "seconds": args.seconds, "seed": args.seed,
                 "sampler_seeds": args.sampler_seeds, "cells_wall_s": round(wall, 1),
                 "threads": args.threads, "git_commit": commit, "cpu": cpu_model(), "policy": str(args.policy),
+                "variant": getattr(args, "variant", "thesis"), "committed_student": str(getattr(args, "committed_student", COMMITTED_STUDENT)),
                 "students": str(args.students), "cells": [c.name for c in cells], **(extra or {})},
                args.out / "config.json")
 

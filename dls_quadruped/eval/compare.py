@@ -20,6 +20,12 @@ one run is paired with a controller of another (e.g. a single and a multi-policy
 runs). Its metrics are the closed loop's per-episode ones (survival, RL reward, initial and rollout costs,
 velocity error, cost of transport); an MPC controller's sampler seeds are averaged within each episode and
 resampled independently in the interval (``eval.metrics.paired_difference``).
+
+A cell of an experiment script (``experiments/*``: ``OUT/results.json:CELL`` or ``OUT/cells/CELL.json``) is a
+closed-loop controller too; its seed is read from ``OUT/config.json``. So a rerun of a table with other policies
+(``--variant recipe``) is paired cell by cell with the committed run:
+
+    python -m dls_quadruped.eval.compare NEW/results.json:ws_base_survival OLD/results.json:ws_base_survival
 """
 
 from __future__ import annotations
@@ -101,6 +107,17 @@ def closed_loop_result(summary: dict, controller: str | None, name: str) -> dict
     return {"kind": "closed_loop", **settings, "controller": controller,
             "policy": f"{controller}" + (f" ({student})" if student else ""),
             "per_episode": controllers[controller].get("per_episode")}
+
+
+def cell_result(cell: dict, config: Path) -> dict:
+    """One cell of an experiment script as a comparable closed-loop result; its seed from the run's
+    ``config.json`` (None when the file is missing, so it pairs only with another cell that lacks one too)."""
+    seed = json.loads(config.read_text()).get("seed") if config.is_file() else None
+    who = cell.get("student") or cell.get("policy") or ""
+    return {"kind": "closed_loop", "scenario": cell.get("scenario"), "seed": seed, "episodes": cell.get("episodes"),
+            "seconds": cell.get("seconds"), "command": cell.get("vx"), "stairs_heights": cell.get("stairs_heights"),
+            "controller": cell.get("controller"), "policy": f"{cell.get('cell')}: {cell.get('controller')} ({who})",
+            "per_episode": cell.get("per_episode")}
 
 
 def check_paired(a: dict, b: dict, names: tuple[str, str]) -> None:
@@ -206,6 +223,10 @@ def _load(spec: str) -> dict:
         raise UserError(f"{path}: not JSON ({err})") from None
     if "controllers" in data and "settings" in data:
         return closed_loop_result(data, controller, str(path))
+    if "cell" in data and "per_episode" in data:  # OUT/cells/CELL.json
+        return cell_result(data, path.parent.parent / "config.json")
+    if controller is not None and isinstance(data.get(controller), dict) and "cell" in data[controller]:
+        return cell_result(data[controller], path.parent / "config.json")
     if controller is not None:
         raise UserError(f"{path} is not a closed-loop summary (no 'controllers' and 'settings'): ':{controller}' names a "
                         "controller of one; name an evaluation JSON without it")

@@ -144,3 +144,32 @@ def test_closed_loop_runs_of_other_episodes_or_names_are_refused(tmp_path):
         main([str(one), str(evaluation)])
     with pytest.raises(UserError, match="not a closed-loop summary"):
         main([str(one), f"{evaluation}:rl_baseline"])
+
+
+def experiment_run(folder, seed: int, cells: dict[str, dict], scenario: str = "survival") -> None:
+    """An experiment script's output: results.json {cell: summary}, cells/<cell>.json, config.json with the seed."""
+    (folder / "cells").mkdir(parents=True)
+    out = {}
+    for name, pe in cells.items():
+        out[name] = {"cell": name, "controller": "rl_warm_start", "scenario": scenario, "episodes": 4, "seconds": 15.0,
+                     "vx": None, "student": [f"{folder.name}.pt2"], "per_episode": pe}
+        (folder / "cells" / f"{name}.json").write_text(json.dumps(out[name]))
+    (folder / "results.json").write_text(json.dumps(out))
+    (folder / "config.json").write_text(json.dumps({"seed": seed}))
+
+
+def test_experiment_cells_of_two_runs_by_hand(tmp_path):
+    """A table rerun with other policies is paired cell by cell with the committed run, from results.json:CELL or
+    cells/CELL.json; a run of another seed is refused."""
+    new = {"survived": [[1, 1, 1, 0]] * 3, "initial_cost": [[10.0, 20.0, 30.0, 40.0]] * 3}
+    old = {"survived": [[0, 1, 0, 0]] * 3, "initial_cost": [[12.0, 20.0, 36.0, 40.0]] * 3}
+    experiment_run(tmp_path / "new", 0, {"ws_base_survival": new})
+    experiment_run(tmp_path / "old", 0, {"ws_base_survival": old})
+    experiment_run(tmp_path / "seed1", 1, {"ws_base_survival": old})
+    a = f"{tmp_path / 'new' / 'results.json'}:ws_base_survival"
+    rows = {r["metric"]: r for r in main([a, str(tmp_path / "old" / "cells" / "ws_base_survival.json")])}
+    assert rows["survival [share]"]["A - B"] == pytest.approx(2 / 4)          # episodes 0 and 2 survive only in A
+    assert rows["initial cost"]["A - B"] == pytest.approx((-2 + 0 - 6 + 0) / 4)
+    assert rows["initial cost"]["A"] == pytest.approx(25.0) and rows["initial cost"]["B"] == pytest.approx(27.0)
+    with pytest.raises(UserError, match="seed 0 vs 1"):
+        main([a, f"{tmp_path / 'seed1' / 'results.json'}:ws_base_survival"])

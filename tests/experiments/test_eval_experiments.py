@@ -101,3 +101,25 @@ def test_no_policy_at_all_still_writes_the_notes(tmp_path, capsys):
     out = run(fig17_simple_task, tmp_path, "empty")
     assert json.loads((out / "config.json").read_text())["policies"] == {}
     assert not list(out.glob("fig*.png")) and "base_actor.pt not found" in capsys.readouterr().out
+
+
+def test_recipe_variant_takes_the_retrained_experts(tiny, capsys, save_policy):
+    """``--variant recipe`` evaluates ``<task>_recipe_actor.pt2`` and records it; the thesis files are not used."""
+    save_policy(_Zero(), 259, tiny / "policies" / "base_recipe_actor.pt2")
+    out = tiny / "recipe"
+    fig17_simple_task.main(["--scale", "small", "--out", str(out), "--policy-dir", str(tiny / "policies"),
+                            "--num-workers", "0", "--variant", "recipe"])
+    assert "rough_recipe_actor.pt2 not found" in capsys.readouterr().out
+    cfg = json.loads((out / "config.json").read_text())
+    assert list(cfg["policies"]) == ["base"] and cfg["policies"]["base"]["path"].endswith("base_recipe_actor.pt2")
+
+
+def test_every_committed_variant_file_exists():
+    """The experiments' file names of each variant (rl_common.VARIANTS) match what docs/policies holds."""
+    policies = rl_common.Policies(rl_common.POLICY_DIR, "thesis")
+    for task in rl_common.TASKS:
+        assert policies.expert(task).is_file(), policies.expert(task)
+    for task in ("base", "rough", "speed"):
+        assert policies.student(task).is_file(), policies.student(task)
+        assert rl_common.Policies(rl_common.POLICY_DIR, "recipe").expert(task).is_file()
+    assert rl_common.Policies(rl_common.POLICY_DIR, "recipe").student("base").is_file()
