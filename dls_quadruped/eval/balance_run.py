@@ -116,7 +116,7 @@ def run_balance(
     yaw: float | torch.Tensor = 0.0,
     high_level_hz: float = 100.0,
     num_workers: int = 0,
-    balance_cfg: BalanceConfig = BalanceConfig(),
+    balance_cfg: BalanceConfig = BalanceConfig(),  # noqa: B008 -- frozen dataclass: an immutable default
     terrain: TerrainConfig | None = None,
     height_fn: TerrainHeightFn | None = None,
     origin_w: tuple[float, float] = (0.0, 0.0),
@@ -173,7 +173,7 @@ def summarise(run: BalanceRun, height: float, cycle_hz: float = 1.5) -> dict:
         # highest foot-centre lift above the ground within each gait cycle; the worst foot/cycle/robot
         lift = run.foot_pos_w[run.trotting][..., 2] - C.FOOT_RADIUS  # (T, B, 4)
         dt = float(run.time[1] - run.time[0])
-        per_cycle = max(1, int(round(1.0 / (cycle_hz * dt))))
+        per_cycle = max(1, round(1.0 / (cycle_hz * dt)))
         n = max(per_cycle, (lift.shape[0] // per_cycle) * per_cycle)
         windows = lift[:n].reshape(-1, per_cycle, *lift.shape[1:])
         out["trot_min_foot_lift"] = float(windows.max(axis=1).min())

@@ -85,7 +85,7 @@ def run_baseline(
     cmd_vel_h: tuple[float, float, float] = (0.5, 0.0, 0.0),
     seconds: float = 15.0,
     num_robots: int = 1,
-    cfg: BaselineConfig = BaselineConfig(),
+    cfg: BaselineConfig = BaselineConfig(),  # noqa: B008 -- frozen dataclass: an immutable default
     seed: int = 0,
     device: str = "cpu",
     terrain: TerrainConfig | None = None,

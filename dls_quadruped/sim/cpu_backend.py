@@ -26,7 +26,7 @@ import multiprocessing as mp
 import os
 import signal
 import time
-from typing import Any
+from typing import Any, Self
 
 import mujoco
 import numpy as np
@@ -64,7 +64,7 @@ class VecSim:
         cfg: backend configuration.
     """
 
-    def __init__(self, model: mujoco.MjModel, num_envs: int, cfg: SimConfig = SimConfig()):
+    def __init__(self, model: mujoco.MjModel, num_envs: int, cfg: SimConfig = SimConfig()):  # noqa: B008 -- frozen dataclass: an immutable default
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.model = model
@@ -383,7 +383,7 @@ class VecSim:
         self._conns, self._procs = [], []
         RUNNING.discard(self)
 
-    def __enter__(self) -> VecSim:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -392,5 +392,5 @@ class VecSim:
     def __del__(self) -> None:
         try:
             self.close()
-        except Exception:
+        except Exception:  # noqa: BLE001, S110 -- best-effort cleanup in a finalizer, which must not raise
             pass

@@ -119,7 +119,7 @@ def worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: S
     try:
         shard = Shard(model, buffers, cfg.control, nthread=1, regions=cfg.regions,
                       leg_dynamics=cfg.leg_dynamics)
-    except Exception as err:  # report construction errors to the parent instead of hanging it
+    except Exception as err:  # noqa: BLE001 -- report construction errors to the parent instead of hanging it
         _reply(conn, ("error", repr(err)))
         return
     if not _reply(conn, ("ok", None)):
@@ -134,7 +134,7 @@ def worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: S
             return
         try:
             answer = ("ok", execute(shard, cmd, arg))
-        except Exception as err:
+        except Exception as err:  # noqa: BLE001 -- any failure of a command goes back to the parent as its answer
             answer = ("error", f"{cmd}: {err!r}")
         if not _reply(conn, answer):
             return

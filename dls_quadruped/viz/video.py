@@ -33,7 +33,7 @@ def render_gif_row(runs: list, path: Path, robot: int = 0, fps: int = 25, second
         model = mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))
         data = mujoco.MjData(model)
         renderer = mujoco.Renderer(model, *size)
-    except Exception as err:  # no GL context (headless machine without EGL/OSMesa), or no Pillow
+    except Exception as err:  # noqa: BLE001 -- no GL context (headless machine without EGL/OSMesa), or no Pillow
         return f"no offscreen renderer available ({err!r}); wrote the plot only"
     option = mujoco.MjvOption()
     option.geomgroup[:] = 1  # the robot's primitives live in the collision group (3)
@@ -41,7 +41,7 @@ def render_gif_row(runs: list, path: Path, robot: int = 0, fps: int = 25, second
     camera.distance, camera.azimuth, camera.elevation = 1.6, 135.0, -20.0
     length = min(len(r.time) for r in runs)
     dt = float(runs[0].time[1] - runs[0].time[0])
-    stride = max(1, int(round(1.0 / (fps * dt))))
+    stride = max(1, round(1.0 / (fps * dt)))
     start = max(0, length - int(seconds / dt))
     frames = []
     for k in range(start, length, stride):

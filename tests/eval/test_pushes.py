@@ -7,7 +7,11 @@ import pytest
 import torch
 
 from dls_quadruped.eval.pushes import PUSH_INTERVAL_S, pushes_task
-from dls_quadruped.eval.velocity_tracking import TaskEvalOptions, flat_task, simple_commands
+from dls_quadruped.eval.velocity_tracking import (
+    TaskEvalOptions,
+    flat_task,
+    simple_commands,
+)
 
 OPTS = TaskEvalOptions(episodes=4, seed=0, num_workers=0, episode_length_s=6.0)
 

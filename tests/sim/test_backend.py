@@ -114,7 +114,7 @@ def test_reset_only_touches_selected_robots(model):
 
 def test_bad_references_raise_clear_errors(model):
     with VecSim(model, 2, SimConfig(num_workers=0)) as sim:
-        ok = dict(freq=torch.ones(2, 4), duty=torch.full((2, 4), 0.6), p_td_w=torch.zeros(2, 4, 3), F_w=torch.zeros(2, 4, 3))
+        ok = {"freq": torch.ones(2, 4), "duty": torch.full((2, 4), 0.6), "p_td_w": torch.zeros(2, 4, 3), "F_w": torch.zeros(2, 4, 3)}
         with pytest.raises(ValueError, match=r"freq must have shape \(2, 4\)"):
             sim.set_references(**{**ok, "freq": torch.ones(2, 3)})
         bad = ok["F_w"].clone()
