@@ -42,7 +42,8 @@ from dls_quadruped.eval.metrics import paired_difference
 
 PAIRED_METRICS = {"survived": "survival [share]", "reward": "mean reward per step", "length_s": "episode length [s]",
                   "cot": "cost of transport", "reached_top": "stairs: reached the top [share]",
-                  "climbed_fraction": "stairs: climbed fraction"}
+                  "climbed_fraction": "stairs: climbed fraction",
+                  "speed_ratio": "speed: achieved / commanded v_x (0 if fell)"}
 """Per-episode values compared between two evaluations, when the scenario records them."""
 
 CLOSED_LOOP_METRICS = {"survived": "survival [share]", "rl_reward": "RL reward per step", "initial_cost": "initial cost",
@@ -67,6 +68,12 @@ def per_episode_values(result: dict, key: str) -> np.ndarray | None:
 
         flight = result["steps_per_flight"] * np.array(pe["step_height"], dtype=float)
         return reached_top(np.array(pe["climbed_fraction"], dtype=float), flight).astype(float)
+    if key == "speed_ratio":  # speed sweep: tracking and survival in one number
+        if "achieved_v_x" not in pe or "command_v_x" not in pe or "fell" not in pe:
+            return None
+        achieved = np.array([np.nan if v is None else v for v in pe["achieved_v_x"]], dtype=float)
+        ratio = achieved / np.array(pe["command_v_x"], dtype=float)
+        return np.where(np.array(pe["fell"], dtype=bool), 0.0, ratio)
     return None if key not in pe else np.array([np.nan if v is None else v for v in pe[key]], dtype=float)
 
 

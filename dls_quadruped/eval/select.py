@@ -33,7 +33,8 @@ from dls_quadruped.eval.compare import PAIRED_METRICS, per_episode_values
 from dls_quadruped.eval.scenario import EvalOptions, split_seed
 from dls_quadruped.eval.scenarios import SCENARIOS
 
-DEFAULT_METRIC = {"survival": "survived", "survival_sweep": "survived", "stairs": "climbed_fraction"}
+DEFAULT_METRIC = {"survival": "survived", "survival_sweep": "survived", "stairs": "climbed_fraction",
+                  "speed": "speed_ratio"}
 """The per-episode metric a scenario is selected on when ``--metric`` is not given (else ``reward``)."""
 
 _CHECKPOINT = re.compile(r"model_(\d+)\.pt")

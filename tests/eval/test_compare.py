@@ -59,6 +59,20 @@ def test_stairs_reached_the_top_and_climbed_fraction_by_hand():
     assert {r["metric"]: r for r in compare(short, b)}["stairs: reached the top [share]"]["A"] == pytest.approx(0.75)
 
 
+def test_speed_ratio_by_hand():
+    """The speed sweep's selection metric: achieved / commanded forward speed per episode, 0 where the robot fell."""
+    def speed_result(policy, achieved, fell):
+        return {"scenario": "speed", "seed": 0, "episodes": 4, "episode_length_s": 15.0, "policy": policy,
+                "per_episode": {"command_v_x": [0.5, 1.0, 2.0, 2.0], "achieved_v_x": achieved, "fell": fell,
+                                "length_s": [15.0, 15.0, 15.0, 4.0]}}
+
+    a = speed_result("new.pt", [0.5, 0.9, 1.5, None], [False, False, False, True])   # ratios 1, 0.9, 0.75, 0
+    b = speed_result("old.pt", [0.45, 1.0, 1.0, 1.9], [False, False, False, False])  # 0.9, 1, 0.5, 0.95
+    row = {r["metric"]: r for r in compare(a, b)}["speed: achieved / commanded v_x (0 if fell)"]
+    assert row["A"] == pytest.approx(2.65 / 4) and row["B"] == pytest.approx(3.35 / 4)
+    assert row["A - B"] == pytest.approx((0.1 - 0.1 + 0.25 - 0.95) / 4)
+
+
 @pytest.mark.parametrize(("over", "named"), [({"seed": 1}, "seed"), ({"scenario": "forward"}, "scenario"),
                                              ({"episodes": 8}, "episodes")])
 def test_other_episodes_are_refused_naming_what_differs(over, named):
