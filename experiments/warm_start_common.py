@@ -42,7 +42,7 @@ import numpy as np
 import torch
 
 from dls_quadruped.cli import ArgumentParser
-from dls_quadruped.closed_loop.controllers import ControllerConfig
+from dls_quadruped.closed_loop.controllers import MPC_CONTROLLERS, ControllerConfig
 from dls_quadruped.closed_loop.episodes import commands, run_controllers
 from dls_quadruped.closed_loop.metrics import summarize
 from dls_quadruped.core.json_io import write_json
@@ -108,6 +108,9 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
                    help="thesis: the experts trained with Table 6 and their committed students (base_actor.pt, "
                         "<expert>_student_first_spline_h10.pt); recipe: those retrained with the default recipe "
                         "(base_recipe_actor.pt2, <expert>_recipe_student_first_spline_h10.pt2; docs/policies/README.md)")
+    p.add_argument("--com-height", type=float, default=None,
+                   help="the MPC's CoM height reference [m] for every MPC cell without its own (default ~0.324, "
+                        "mpc.srbd.com_height_reference; experiments/walking_height.py measures an expert's)")
     p.add_argument("--episodes", type=int, default=None, help="override the scale's episodes per cell (even)")
     p.add_argument("--seconds", type=float, default=None, help="override the scale's episode length [s]")
     p.add_argument("--threads", type=int, default=1, help="torch / MPC kernel threads")
@@ -126,6 +129,8 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     args.seconds_given = args.seconds is not None  # an explicit --seconds overrides a cell's own length too
     args.episodes = args.episodes or SCALES[args.scale]["episodes"]
     args.seconds = args.seconds or SCALES[args.scale]["seconds"]
+    if args.com_height is not None and not 0.1 <= args.com_height <= 0.6:
+        p.error(f"--com-height must be in [0.1, 0.6] m, got {args.com_height:g}")
     args.policy = args.policy or expert_file(POLICY.parent, "base", args.variant)
     args.committed_student = student_file(POLICY.parent, "base", args.variant)
     return args
@@ -140,6 +145,14 @@ def shard_arg(text: str) -> tuple[int, int]:
     if not 0 <= k < n:
         raise argparse.ArgumentTypeError(f"K/N needs 0 <= K < N, got {text!r}")
     return k, n
+
+
+def cell_com_height(cell: Cell, args: argparse.Namespace) -> float | None:
+    """The MPC's CoM height reference of a cell: its own, else ``--com-height`` for the MPC controllers (None: the
+    default, ``mpc.srbd.com_height_reference``)."""
+    if cell.com_height is not None or cell.controller not in MPC_CONTROLLERS:
+        return cell.com_height
+    return getattr(args, "com_height", None)
 
 
 def student_path(students: Path, p: str, F: str, horizon: int, dt: float,
@@ -170,8 +183,13 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
         bar.update(1)
         bar.set_postfix_str(cell.name, refresh=False)
         path = args.out / "cells" / f"{cell.name}.json"
+        com_height = cell_com_height(cell, args)
         if path.is_file():
-            out[cell.name] = json.loads(path.read_text())
+            cached = json.loads(path.read_text())
+            if cached.get("com_height") != com_height and "skipped" not in cached:
+                raise SystemExit(f"{path} was run with the MPC's CoM height reference {cached.get('com_height')} "
+                                 f"(None: the default), this run asks for {com_height}: use another --out")
+            out[cell.name] = cached
             continue
         sampler = SamplerConfig(**cell.sampler)
         student = None
@@ -204,7 +222,7 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
         cfg = ControllerConfig(cell.controller, policy=policy, student=student, sampler=sampler,
                                optimise=cell.optimise, naive_share=cell.naive_share, shares=cell.shares,
                                ground=cell.plan_ground(), seed=args.seed, naive_gait=cell.naive_gait,
-                               com_height=cell.com_height)
+                               com_height=com_height)
         t0 = time.monotonic()
         seconds = args.seconds if getattr(args, "seconds_given", False) else cell.seconds or args.seconds
         traces = run_controllers([cfg], commands(args.episodes, args.seed, cell.vx, cell.scenario), seconds, args.seed,
@@ -214,7 +232,7 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
         student_txt = [str(x) for x in student] if isinstance(student, tuple) else str(student) if student else None
         summary.update({"cell": cell.name, "student": student_txt, "row": cell.row, "policy": str(policy),
                         "scenario": cell.scenario, "push_speed": cell.push_speed, "ground": cell.plan_ground(),
-                        "naive_gait": list(cell.naive_gait) if cell.naive_gait else None, "com_height": cell.com_height,
+                        "naive_gait": list(cell.naive_gait) if cell.naive_gait else None, "com_height": com_height,
                         "shares": list(cell.shares) if cell.shares else None,
                         "sampler": cell.sampler, "optimise": list(cell.optimise), "vx": cell.vx,
                         "naive_share": cell.naive_share, "seconds": seconds, "git_commit": _commit(),
@@ -321,7 +339,8 @@ def write_config(args: argparse.Namespace, cells: list[Cell], extra: dict | None
     write_json({"scale": args.scale, "episodes_per_cell": args.episodes, "seconds": args.seconds, "seed": args.seed,
                 "sampler_seeds": args.sampler_seeds, "cells_wall_s": round(wall, 1),
                 "threads": args.threads, "git_commit": commit, "cpu": cpu_model(), "policy": str(args.policy),
-                "variant": getattr(args, "variant", "thesis"), "committed_student": str(getattr(args, "committed_student", COMMITTED_STUDENT)),
+                "variant": getattr(args, "variant", "thesis"), "com_height": getattr(args, "com_height", None),
+                "committed_student": str(getattr(args, "committed_student", COMMITTED_STUDENT)),
                 "students": str(args.students), "cells": [c.name for c in cells], **(extra or {})},
                args.out / "config.json")
 

@@ -55,6 +55,8 @@ from dls_quadruped.mpc.warm_start import check_shares
 
 NEEDS_STUDENT = ("rl_warm_start", "student")
 NEEDS_POLICY = ("rl_baseline",)
+MPC_CONTROLLERS = ("rl_warm_start", "naive_warm_start")
+"""The controllers that run the sampling MPC (its settings and sampler seeds apply to them)."""
 
 
 @dataclass(frozen=True)
@@ -143,7 +145,7 @@ class ControllerConfig:
 
     @property
     def uses_mpc(self) -> bool:
-        return self.name in ("rl_warm_start", "naive_warm_start")
+        return self.name in MPC_CONTROLLERS
 
 
 @dataclass

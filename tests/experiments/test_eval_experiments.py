@@ -123,3 +123,20 @@ def test_every_committed_variant_file_exists():
         assert policies.student(task).is_file(), policies.student(task)
         assert rl_common.Policies(rl_common.POLICY_DIR, "recipe").expert(task).is_file()
     assert rl_common.Policies(rl_common.POLICY_DIR, "recipe").student("base").is_file()
+
+
+def test_walking_height_of_a_standing_policy(tmp_path, save_policy):
+    """experiments/walking_height.py on a zero-action policy (the controller holds the robot near its nominal
+    stance): the CoM height is the base's height plus the CoM offset, within a few cm of the MPC's default."""
+    from experiments import walking_height
+
+    save_policy(_Zero(), 259, tmp_path / "base_recipe_actor.pt2")
+    out = walking_height.main(["--policy-dir", str(tmp_path), "--tasks", "base", "speed", "--robots", "2",
+                               "--seconds", "0.4", "--settle", "0.2", "--out", str(tmp_path / "out")])
+    base = out["experts"]["base"]
+    assert "speed" not in out["experts"] and base["robots_standing"] == 2
+    assert abs(base["com_height_m"] - out["mpc_default_com_height_m"]) < 0.08
+    assert out["validation_seed"] == 1_000_003
+    assert json.loads((tmp_path / "out" / "walking_height.json").read_text())["experts"]["base"] == base
+    with pytest.raises(SystemExit):
+        walking_height.main(["--seconds", "1", "--settle", "1"])

@@ -167,3 +167,31 @@ def test_naive_gait_sweep_help_and_bad_scale() -> None:
     bad = subprocess.run([sys.executable, script, "--scale", "huge"], cwd=REPO, capture_output=True, text=True,
                          timeout=120, check=False)
     assert bad.returncode == 2 and "invalid choice: 'huge'" in bad.stderr
+
+
+def test_com_height_applies_to_mpc_cells_and_a_cache_of_another_height_is_refused(tmp_path: Path) -> None:
+    """``--com-height`` is the reference of every MPC cell without its own; the expert alone has none; a cached cell
+    run with another reference is not reused silently."""
+    import argparse
+
+    sys.path.insert(0, str(REPO))
+    from experiments.warm_start_common import Cell, cell_com_height, run_cells
+
+    args = argparse.Namespace(com_height=0.40, out=tmp_path, only=None, threads=1)
+    assert cell_com_height(Cell("a", "rl_warm_start"), args) == 0.40
+    assert cell_com_height(Cell("b", "naive_warm_start"), args) == 0.40
+    assert cell_com_height(Cell("c", "naive_warm_start", com_height=0.30), args) == 0.30  # the cell's own wins
+    assert cell_com_height(Cell("d", "rl_baseline"), args) is None
+    assert cell_com_height(Cell("a", "rl_warm_start"), argparse.Namespace()) is None  # scripts without the flag
+    (tmp_path / "cells").mkdir()
+    (tmp_path / "cells" / "a.json").write_text(json.dumps({"cell": "a", "com_height": None}))
+    with pytest.raises(SystemExit, match="CoM height reference None.*asks for 0.4: use another --out"):
+        run_cells([Cell("a", "rl_warm_start")], args)
+    args.com_height = None
+    assert run_cells([Cell("a", "rl_warm_start")], args)["a"]["com_height"] is None  # same height: the cache
+
+
+def test_com_height_out_of_range_is_a_usage_error() -> None:
+    bad = subprocess.run([sys.executable, str(REPO / "experiments" / "table14_warm_start_encodings.py"),
+                          "--com-height", "0.9"], cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
+    assert bad.returncode == 2 and "--com-height must be in [0.1, 0.6] m, got 0.9" in bad.stderr
