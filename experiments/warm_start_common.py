@@ -42,7 +42,7 @@ import numpy as np
 import torch
 
 from dls_quadruped.cli import ArgumentParser
-from dls_quadruped.closed_loop.controllers import MPC_CONTROLLERS, ControllerConfig
+from dls_quadruped.closed_loop.controllers import ControllerConfig
 from dls_quadruped.closed_loop.episodes import commands, run_controllers
 from dls_quadruped.closed_loop.metrics import summarize
 from dls_quadruped.core.json_io import write_json
@@ -109,8 +109,9 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
                         "<expert>_student_first_spline_h10.pt); recipe: those retrained with the default recipe "
                         "(base_recipe_actor.pt2, <expert>_recipe_student_first_spline_h10.pt2; docs/policies/README.md)")
     p.add_argument("--com-height", type=float, default=None,
-                   help="the MPC's CoM height reference [m] for every MPC cell without its own (default ~0.324, "
-                        "mpc.srbd.com_height_reference; experiments/walking_height.py measures an expert's)")
+                   help="the CoM height reference [m] of every cell without its own: the MPC's, and every controller's "
+                        "initial-cost metric (default ~0.324, mpc.srbd.com_height_reference; "
+                        "experiments/walking_height.py measures an expert's)")
     p.add_argument("--episodes", type=int, default=None, help="override the scale's episodes per cell (even)")
     p.add_argument("--seconds", type=float, default=None, help="override the scale's episode length [s]")
     p.add_argument("--threads", type=int, default=1, help="torch / MPC kernel threads")
@@ -148,11 +149,10 @@ def shard_arg(text: str) -> tuple[int, int]:
 
 
 def cell_com_height(cell: Cell, args: argparse.Namespace) -> float | None:
-    """The MPC's CoM height reference of a cell: its own, else ``--com-height`` for the MPC controllers (None: the
-    default, ``mpc.srbd.com_height_reference``)."""
-    if cell.com_height is not None or cell.controller not in MPC_CONTROLLERS:
-        return cell.com_height
-    return getattr(args, "com_height", None)
+    """The CoM height reference of a cell: its own, else ``--com-height`` (None: the default,
+    ``mpc.srbd.com_height_reference``). It is the MPC's reference and every controller's initial-cost reference,
+    so the cells of one run are scored against one height."""
+    return cell.com_height if cell.com_height is not None else getattr(args, "com_height", None)
 
 
 def student_path(students: Path, p: str, F: str, horizon: int, dt: float,

@@ -173,8 +173,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="naive_warm_start: its trot's frequency [Hz] in (0, 3] and duty cycle in (0, 1) "
                         "(default 1.5 0.6, mpc.baseline.BaselineConfig)")
     p.add_argument("--com-height", type=float, default=None,
-                   help="MPC controllers: CoM height reference above the ground [m] in [0.1, 0.6] "
-                        "(default ~0.324, mpc.srbd.com_height_reference)")
+                   help="CoM height reference above the ground [m] in [0.1, 0.6] of the MPC controllers and of every "
+                        "controller's initial cost (default ~0.324, mpc.srbd.com_height_reference)")
     p.add_argument("--kernel", default="cpp", choices=("cpp", "fast", "reference"))
     p.add_argument("--threads", type=positive_int, default=1, help="torch / MPC kernel threads")
     p.add_argument("--seed", type=int, default=0)

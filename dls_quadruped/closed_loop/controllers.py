@@ -80,7 +80,8 @@ class ControllerConfig:
             (an eager re-rollout, ~1.5 ms per solve).
         ground: MPC controllers: the ground the MPC plans on, one of ``mpc.inputs.GROUNDS`` (``terrain``: the env's map).
         naive_gait: ``naive_warm_start`` only: its trot's (frequency [Hz], duty), else ``BaselineConfig``'s.
-        com_height: MPC controllers: the CoM height reference [m] above the ground, else ``BaselineConfig``'s.
+        com_height: the CoM height reference [m] above the ground of an MPC controller's cost and of every
+            controller's initial-cost metric, else ``BaselineConfig``'s.
     """
 
     name: str

@@ -110,7 +110,8 @@ class ClosedLoopTraces:
 class InitialCostProbe:
     """The MPC's state cost of the current state (thesis 7.3.1 "initial cost"), for any controller:
     the same references as the MPC controllers (CoM height reference, commanded velocity and yaw rate,
-    flat attitude; the foothold reference does not enter the state cost)."""
+    flat attitude; the foothold reference does not enter the state cost). The closed loop gives it the controller's
+    own ``baseline_config()``, so a controller run with ``com_height`` is scored against that height."""
 
     def __init__(self, sampler: SamplerConfig, baseline: BaselineConfig | None = None, ground: str = "flat",
                  height_fn=None):
@@ -207,7 +208,8 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     n = env.num_envs
     sampler = controller.cfg.sampler
     ground = controller.cfg.ground  # every controller's cost on the ground its MPC plans on
-    probe = InitialCostProbe(sampler, ground=ground, height_fn=env.scene.terrain.height_at if ground == "terrain" else None)
+    probe = InitialCostProbe(sampler, controller.cfg.baseline_config(), ground=ground,  # its height reference too
+                             height_fn=env.scene.terrain.height_at if ground == "terrain" else None)
     solves = getattr(controller, "solves_per_step", 0)
     t_probe = [0.0]
 

@@ -19,6 +19,7 @@ from dls_quadruped.closed_loop.metrics import summarize
 from dls_quadruped.closed_loop.runner import run_closed_loop
 from dls_quadruped.control.latent_action import LatentAction, normalise
 from dls_quadruped.mpc.config import SamplerConfig
+from dls_quadruped.mpc.srbd import com_height_reference
 
 STUDENT = Path("docs/policies/base_student_first_spline_h10.pt")
 POLICY = Path("docs/policies/base_actor.pt")
@@ -218,3 +219,20 @@ def test_naive_gait_sets_the_trot_the_naive_mpc_commands() -> None:
         ControllerConfig("naive_warm_start", naive_gait=(3.5, 0.6))
     with pytest.raises(ValueError, match=r"com_height .* must be in \[0.1, 0.6\] m, got 0.05"):
         ControllerConfig("naive_warm_start", com_height=0.05)
+
+
+def test_com_height_is_the_initial_cost_reference_of_any_controller() -> None:
+    """The initial cost is scored against the controller's own CoM height reference: the expert alone plays the same
+    steps either way, so its height term moves from q_z (z_c - 0.3238)^2 to q_z (z_c - 0.40)^2 (z_c by hand)."""
+    terms = {}
+    for height in (None, 0.40):
+        env = make_env(commands(2, 0, None), 0.1, seed=0, num_workers=0)
+        try:
+            ctrl = make_controller(ControllerConfig("rl_baseline", policy=POLICY, com_height=height), env)
+            terms[height] = run_closed_loop(env, ctrl, num_steps=3).initial_cost_terms[:3, :, 0]  # (3, 2) z terms
+        finally:
+            env.close()
+    q_z = SMALL.weights.q_diag()[2]
+    z_c = com_height_reference() + np.sqrt(terms[None] / q_z)  # the robots stand above the default reference
+    np.testing.assert_allclose(terms[0.40], q_z * (z_c - 0.40) ** 2, rtol=1e-4, atol=1e-6)
+    assert (terms[0.40] != terms[None]).all()

@@ -170,8 +170,8 @@ def test_naive_gait_sweep_help_and_bad_scale() -> None:
 
 
 def test_com_height_applies_to_mpc_cells_and_a_cache_of_another_height_is_refused(tmp_path: Path) -> None:
-    """``--com-height`` is the reference of every MPC cell without its own; the expert alone has none; a cached cell
-    run with another reference is not reused silently."""
+    """``--com-height`` is the reference of every cell without its own (the MPC's and every controller's initial
+    cost); a cached cell run with another reference is not reused silently."""
     import argparse
 
     sys.path.insert(0, str(REPO))
@@ -181,7 +181,7 @@ def test_com_height_applies_to_mpc_cells_and_a_cache_of_another_height_is_refuse
     assert cell_com_height(Cell("a", "rl_warm_start"), args) == 0.40
     assert cell_com_height(Cell("b", "naive_warm_start"), args) == 0.40
     assert cell_com_height(Cell("c", "naive_warm_start", com_height=0.30), args) == 0.30  # the cell's own wins
-    assert cell_com_height(Cell("d", "rl_baseline"), args) is None
+    assert cell_com_height(Cell("d", "rl_baseline"), args) == 0.40  # its initial cost is scored at that height
     assert cell_com_height(Cell("a", "rl_warm_start"), argparse.Namespace()) is None  # scripts without the flag
     (tmp_path / "cells").mkdir()
     (tmp_path / "cells" / "a.json").write_text(json.dumps({"cell": "a", "com_height": None}))
