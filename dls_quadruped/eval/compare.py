@@ -117,14 +117,16 @@ def closed_loop_result(summary: dict, controller: str | None, name: str) -> dict
 
 
 def cell_result(cell: dict, config: Path) -> dict:
-    """One cell of an experiment script as a comparable closed-loop result; its seed from the run's
-    ``config.json`` (None when the file is missing, so it pairs only with another cell that lacks one too)."""
-    seed = json.loads(config.read_text()).get("seed") if config.is_file() else None
+    """One cell of an experiment script as a comparable closed-loop result. Its seed (and, for cells written before
+    a cell recorded them, its episode length) come from the run's ``config.json``; without the file the seed is
+    None, so it pairs only with another cell that lacks one too."""
+    cfg = json.loads(config.read_text()) if config.is_file() else {}
+    scenario = cell.get("scenario") or "simple"  # cells written before the field existed ran the simple task
     who = cell.get("student") or cell.get("policy") or ""
-    return {"kind": "closed_loop", "scenario": cell.get("scenario"), "seed": seed, "episodes": cell.get("episodes"),
-            "seconds": cell.get("seconds"), "command": cell.get("vx"), "stairs_heights": cell.get("stairs_heights"),
-            "controller": cell.get("controller"), "policy": f"{cell.get('cell')}: {cell.get('controller')} ({who})",
-            "per_episode": cell.get("per_episode")}
+    return {"kind": "closed_loop", "scenario": scenario, "seed": cfg.get("seed"), "episodes": cell.get("episodes"),
+            "seconds": cell.get("seconds") or cfg.get("seconds"), "command": cell.get("vx"),
+            "stairs_heights": cell.get("stairs_heights"), "controller": cell.get("controller"),
+            "policy": f"{cell.get('cell')}: {cell.get('controller')} ({who})", "per_episode": cell.get("per_episode")}
 
 
 def check_paired(a: dict, b: dict, names: tuple[str, str]) -> None:

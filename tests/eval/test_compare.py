@@ -187,3 +187,12 @@ def test_experiment_cells_of_two_runs_by_hand(tmp_path):
     assert rows["initial cost"]["A"] == pytest.approx(25.0) and rows["initial cost"]["B"] == pytest.approx(27.0)
     with pytest.raises(UserError, match="seed 0 vs 1"):
         main([a, f"{tmp_path / 'seed1' / 'results.json'}:ws_base_survival"])
+    # a cell written before cells recorded their scenario and length: the simple task, the run's --seconds
+    experiment_run(tmp_path / "simple_new", 0, {"ws": new}, scenario="simple")
+    (tmp_path / "old_run" / "cells").mkdir(parents=True)
+    old_cell = {"cell": "ws", "controller": "rl_warm_start", "episodes": 4, "vx": None, "per_episode": old}
+    (tmp_path / "old_run" / "results.json").write_text(json.dumps({"ws": old_cell}))
+    (tmp_path / "old_run" / "config.json").write_text(json.dumps({"seed": 0, "seconds": 15.0}))
+    rows = {r["metric"]: r for r in main([f"{tmp_path / 'simple_new' / 'results.json'}:ws",
+                                          f"{tmp_path / 'old_run' / 'results.json'}:ws"])}
+    assert rows["survival [share]"]["A - B"] == pytest.approx(2 / 4)
