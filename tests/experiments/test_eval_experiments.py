@@ -143,3 +143,15 @@ def test_walking_height_of_a_standing_policy(tmp_path, save_policy):
     assert json.loads((tmp_path / "out" / "walking_height.json").read_text())["experts"]["base"] == base
     with pytest.raises(SystemExit):
         walking_height.main(["--seconds", "1", "--settle", "1"])
+
+
+def test_walking_height_help_and_a_bad_variant():
+    import subprocess
+    import sys
+
+    script = str(rl_common.REPO / "experiments" / "walking_height.py")
+    ok = subprocess.run([sys.executable, script, "--help"], capture_output=True, text=True, timeout=120, check=False)
+    assert ok.returncode == 0 and "--com-height" in ok.stdout and "validation" in ok.stdout
+    bad = subprocess.run([sys.executable, script, "--variant", "bogus"], capture_output=True, text=True, timeout=120,
+                         check=False)
+    assert bad.returncode == 2 and "invalid choice: 'bogus'" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
