@@ -63,14 +63,17 @@ steps (1.2 s) then includes pushes, and resets from the robots that random actio
 
 
 def env_steps(task: str, num_envs: int, device: torch.device, backend: str, steps: int, warmup: int,
-              capture: bool | None = None) -> dict:
+              capture: bool | None = None, compile: bool | None = None) -> dict:
     """Robot steps per second of ``task`` with ``num_envs`` robots (random actions, resets included);
-    ``capture``: the Warp backends' graph replay on or off (None: the backend's default)."""
+    ``capture``: the Warp backends' graph replay on or off, ``compile``: ``scene.compile`` (None: the backend's
+    default for either)."""
     from dls_quadruped.envs.config import load_task
     from dls_quadruped.envs.env import LocomotionEnv
 
-    cfg = load_task(task, overrides={"scene": {"backend": backend, "num_workers": 0 if backend != "cpu" else -1},
-                                     "events": {"push": BENCH_PUSH}})
+    scene = {"backend": backend, "num_workers": 0 if backend != "cpu" else -1}
+    if compile is not None:
+        scene["compile"] = compile
+    cfg = load_task(task, overrides={"scene": scene, "events": {"push": BENCH_PUSH}})
     env = LocomotionEnv(cfg, num_envs=num_envs, device=str(device), seed=0, verbose=False)
     if capture is not None:
         env.scene.sim.capture = capture
@@ -91,7 +94,7 @@ def env_steps(task: str, num_envs: int, device: torch.device, backend: str, step
     finally:
         env.close()
     return {"task": task, "num_envs": num_envs, "steps": steps, "wall_s": wall, "steps_per_s": num_envs * steps / wall,
-            "resets": int(resets), "capture": capture, **({"capture_errors": capture_errors} if capture_errors else {})}
+            "resets": int(resets), "capture": capture, "compile": compile, **({"capture_errors": capture_errors} if capture_errors else {})}
 
 
 def mpc_solve(samples: int, horizon: int, device: torch.device, kernel: str, solves: int) -> dict:

@@ -5,16 +5,20 @@ cut short still leaves what it measured, and gives each section a share of ``--b
 
 1. ``versions`` -- GPU, driver, CUDA, Warp, MuJoCo Warp, MuJoCo, torch, Python, CPU;
 2. ``compile`` -- seconds to build the first backend and run its first steps (Warp compiles MuJoCo Warp's
-   kernels on a fresh machine), flat and rough scene;
+   kernels on a fresh machine), flat scene;
 3. ``trajectories`` -- the committed ``cpu``-backend reference runs (``bench/reference_runs.py``: standing, a trot,
    a push with mass/friction/force changes, robots on rough tiles) replayed on the backend, max deviations;
 4. ``syncs`` -- host synchronisations inside ``LocomotionEnv.step`` by call site (torch's CUDA sync debug mode,
    plus Warp array reads), random actions so robots fall and reset, pushes every ~0.3 s;
-5. ``env`` -- env steps/s (robot steps per wall second) for base at 4 096 and 16 384 and rough at 4 096 robots,
-   with the physics phases replayed from captured graphs and launched kernel by kernel;
-6. ``gpu_busy`` -- the fraction of a few env steps' wall time in which the GPU ran kernels (torch profiler);
-7. ``mpc`` -- the sampling MPC's solve at M = 10 000 and 100 000 (``bench/device.py``);
-8. ``train`` -- PPO on base at ``--train-envs`` robots for the time left; the policy, checkpoint and learning
+5. ``launches`` -- Warp launches and torch operators per env step, compiled and eager (4 robots);
+6. ``env`` -- env steps/s (robot steps per wall second) for base: 4 096 robots with the torch work compiled
+   (``scene.compile``, the CUDA default) and eager side by side, 16 384 compiled, 4 096 launched kernel by kernel
+   instead of replayed from captured graphs;
+7. ``gpu_busy`` -- the fraction of a few env steps' wall time in which the GPU ran kernels (torch profiler);
+8. ``mpc`` -- the sampling MPC's solve at M = 10 000 and 100 000 (``bench/device.py``);
+9. ``rough`` -- the rough scene: first build (the terrain-culling collision kernels compile here) and env
+   steps/s at 4 096 robots; after the base rows because a fresh machine spends minutes compiling it;
+10. ``train`` -- PPO on base at ``--train-envs`` robots for the time left; the policy, checkpoint and learning
    curve are copied into ``<out>``.
 
 Without CUDA the same script runs on ``warp-cpu`` at small sizes (what the tests do).
@@ -42,7 +46,7 @@ from dls_quadruped.bench.gpu_probes import gpu_busy, launches, sync_device, sync
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
 
-SECTIONS = ("versions", "compile", "trajectories", "syncs", "launches", "env", "gpu_busy", "mpc", "train")
+SECTIONS = ("versions", "compile", "trajectories", "syncs", "launches", "env", "gpu_busy", "mpc", "rough", "train")
 
 
 class Report:
@@ -91,8 +95,8 @@ def versions(device: torch.device) -> dict:
     return out
 
 
-def compile_times(backend: str, device: torch.device) -> dict:
-    """First backend build and first steps, flat and rough (kernels compile here on a fresh machine)."""
+def compile_times(backend: str, device: torch.device, scenes: tuple[str, ...] = ("flat", "rough")) -> dict:
+    """First backend build and first steps of each of ``scenes`` (kernels compile here on a fresh machine)."""
     import mujoco
 
     from dls_quadruped.bench.reference_runs import ROUGH_TERRAIN
@@ -101,9 +105,11 @@ def compile_times(backend: str, device: torch.device) -> dict:
     from dls_quadruped.sim.registry import make_backend
     from dls_quadruped.sim.terrain import build_scene
 
+    models = {"flat": lambda: mujoco.MjModel.from_xml_path(str(C.SCENE_PATH)),
+              "rough": lambda: build_scene(ROUGH_TERRAIN)[0]}
     out = {}
-    for name, model in (("flat", mujoco.MjModel.from_xml_path(str(C.SCENE_PATH))),
-                        ("rough", build_scene(ROUGH_TERRAIN)[0])):
+    for name in scenes:
+        model = models[name]()
         tic = time.perf_counter()
         with make_backend(backend, model, 4, SimConfig(num_workers=0, nthread=1)) as sim:
             built = time.perf_counter() - tic
@@ -135,30 +141,39 @@ def trajectories(backend: str) -> dict:
     return out
 
 
-def env_throughput(backend: str, device: torch.device, rows: list[tuple[str, int]], steps: int, report: Report,
-                   reserve_s: float) -> list[dict]:
-    """Env steps/s per (task, N), captured and uncaptured; stops early when the budget runs low."""
+def env_throughput(backend: str, device: torch.device, rows: list[tuple[str, int, bool, bool | None]], steps: int,
+                   report: Report, reserve_s: float, section: str = "env", warmup: int = 3) -> list[dict]:
+    """Env steps/s per (task, N, captured, compiled) row, in the order given (the most telling first); stops early
+    when the budget runs low. ``compiled`` None: ``scene.compile``'s default (on for CUDA)."""
     from dls_quadruped.bench.device import _out_of_memory
 
     out = []
-    for task, n in rows:
-        for captured in (True, False):
-            if report.left() < reserve_s:
-                out.append({"task": task, "num_envs": n, "captured": captured, "skipped": "budget"})
-                continue
-            try:
-                row = env_steps(task, n, device, backend, steps, warmup=3, capture=captured)
-                out.append({**row, "captured": captured})
-            except Exception as err:  # noqa: BLE001 - recorded in the row; the next size still runs
-                if not _out_of_memory(err):
-                    out.append({"task": task, "num_envs": n, "captured": captured,
-                                "error": f"{type(err).__name__}: {str(err)[:300]}"})
-                else:
-                    out.append({"task": task, "num_envs": n, "captured": captured, "error": "out of memory"})
-            if device.type == "cuda":
-                torch.cuda.empty_cache()
-            report.put("env", {"rows": out})
+    for task, n, captured, compiled in rows:
+        key = {"task": task, "num_envs": n, "captured": captured, "compiled": compiled}
+        if report.left() < reserve_s:
+            out.append({**key, "skipped": "budget"})
+            continue
+        try:
+            row = env_steps(task, n, device, backend, steps, warmup=warmup, capture=captured, compile=compiled)
+            out.append({**row, **key})
+        except Exception as err:  # noqa: BLE001 - recorded in the row; the next size still runs
+            out.append({**key, "error": "out of memory" if _out_of_memory(err)
+                        else f"{type(err).__name__}: {str(err)[:300]}"})
+        if device.type == "cuda":
+            torch.cuda.empty_cache()
+        report.put(section, {"rows": out})
     return out
+
+
+def mpc_rows(device: torch.device, sizes: tuple[int, ...], solves: int, report: Report) -> dict:
+    """The MPC's solve per M, the report rewritten after each (the first CUDA compile of a size can take minutes:
+    on the H100 the M = 10 000 row had not finished 200 s after the section began, 2026-11-27)."""
+    rows = []
+    for m in sizes:
+        print(f"[gpu_check] mpc: M = {m} (compiles on first use) at {report.elapsed():.0f} s", flush=True)
+        rows.append(mpc_solve(m, 10, device, "fast", solves))
+        report.put("mpc", {"rows": rows, "partial": m != sizes[-1]})
+    return {"rows": rows}
 
 
 def train(device: torch.device, backend: str, num_envs: int, seconds: float, out: Path, iterations: int = 100000) -> dict:
@@ -225,20 +240,29 @@ def main(argv: list[str] | None = None) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     report = Report(args.out / "report.json", args.budget_s)
     report.data.update({"device": str(device), "backend": backend})
-    big = [("base", 4096), ("base", 16384), ("rough", 4096)] if gpu else [("base", 4), ("rough", 4)]
+    # compiled (the CUDA default) and eager side by side at 4 096 first, then the other sizes, then launched
+    big = ([("base", 4096, True, None), ("base", 4096, True, False), ("base", 16384, True, None),
+            ("base", 4096, False, None)] if gpu else [("base", 4, True, None), ("base", 4, True, False)])
+    rough_n = 4096 if gpu else 4
     steps = args.env_steps or (60 if gpu else 3)
+    # a compiled step recompiles for the first few reset batch sizes (then marks them dynamic): on the H100 three
+    # warm-up steps left those recompiles in the timed window (22 000 steps/s at 4 096 robots vs 52 400 after 40)
+    warmup = 40 if gpu else 3
     plan = [
         ("versions", lambda: versions(device)),
-        ("compile", lambda: compile_times(backend, device)),
+        ("compile", lambda: compile_times(backend, device, ("flat",))),
         ("trajectories", lambda: trajectories(backend)),
         ("syncs", lambda: syncs(backend, device, 256 if gpu else 4, 40 if gpu else 4)),
         ("launches", lambda: {"compiled": launches(backend, device, 4, 12, compile=True),
                               "eager": launches(backend, device, 4, 12, compile=False)}),
         ("env", lambda: {"rows": env_throughput(backend, device, big, steps, report,
-                                                 reserve_s=0.35 * args.budget_s)}),
+                                                 reserve_s=0.35 * args.budget_s, warmup=warmup)}),
         ("gpu_busy", lambda: gpu_busy(backend, device, 4096, 5)),
-        ("mpc", lambda: {"rows": [mpc_solve(m, 10, device, "fast", 20 if gpu else 2)
-                                  for m in ((10000, 100000) if gpu else (500,))]}),
+        ("mpc", lambda: mpc_rows(device, (10000, 100000) if gpu else (500,), 20 if gpu else 2, report)),
+        ("rough", lambda: {"compile": compile_times(backend, device, ("rough",))["rough"],
+                           "rows": env_throughput(backend, device, [("rough", rough_n, True, None)], steps, report,
+                                                  reserve_s=0.2 * args.budget_s, section="rough",
+                                                  warmup=warmup)}),
         ("train", lambda: train(device, backend, args.train_envs or (4096 if gpu else 8),
                                 report.left() - 100 if gpu else 900.0, args.out, 100000 if gpu else 1)),
     ]

@@ -110,6 +110,11 @@ class _Probe:
         probe = self
 
         def wrapper(*args, **kwargs):
+            if torch.compiler.is_compiling():
+                # dynamo traces this wrapper while compiling a function that calls the entry point: what it
+                # traces runs inside the compiled graph, not as a host read or upload, and frame walking
+                # (sys._getframe) cannot be traced. A graph break runs its eager part here again, counted.
+                return original(*args, **kwargs)
             if getattr(probe.local, "depth", 0) == 0 and counts(args, kwargs):
                 probe.record(kind)
             probe.local.depth = getattr(probe.local, "depth", 0) + 1

@@ -11,6 +11,8 @@ with resets (short episodes, a non-finite action), command resampling and pushes
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -146,3 +148,22 @@ def test_probe_catches_planted_reads_and_uploads():
                      ("dls_quadruped/envs/managers/base.py:__call__", "__bool__"): 3,
                      ("dls_quadruped/envs/managers/base.py:__call__", "upload"): 3}
     assert "item" not in torch.Tensor.__dict__ and torch.Tensor.item is torch._C.TensorBase.item  # unwrapped
+
+
+def test_probe_lets_torch_compile_trace_through_it():
+    """A function compiled while the probe is active (a recompile inside ``env.step`` on a GPU: a new reset batch
+    size) traces through the wrapped entry points instead of failing on the probe's frame walk (it did on the
+    H100, 2026-11-27). What the compiled graph does at run time is still counted: with the ``eager`` backend its
+    generated code calls ``torch.tensor`` (the wrapper) on every call, a real upload."""
+    @torch.compile(backend="eager", fullgraph=True, dynamic=False)
+    def shifted(x):
+        return x + torch.tensor([1.0, 2.0])  # an upload of a Python list, traced into the graph
+
+    plain = torch.tensor
+    with sync_probe(package=Path(__file__).parent) as report:  # this folder: the test's own calls count
+        assert torch.tensor is not plain  # wrapped while the probe is active
+        out = shifted(torch.zeros(2))
+        torch.as_tensor([3.0])  # eager, outside the compiled function: counted
+    assert out.tolist() == [1.0, 2.0]
+    assert sorted((s.function, s.kind, n) for s, n in report.counts.items()) == [
+        ("shifted", "upload", 1), ("test_probe_lets_torch_compile_trace_through_it", "upload", 1)]
