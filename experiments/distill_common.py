@@ -96,6 +96,7 @@ class Run:
     row: dict = field(default_factory=dict)  # table columns (encoding, batch, ...)
     data_from: str | None = None  # train on this earlier run's datasets instead of collecting
     group: str | None = None  # runs of one group (same schedule, H and dt) collect and train together
+    collect: dict | None = None  # task overrides of the collection env (Table 11's narrow collection)
 
 
 def merge(base: dict, over: dict) -> dict:
@@ -105,7 +106,8 @@ def merge(base: dict, over: dict) -> dict:
     return out
 
 
-def parse_args(description: str, name: str) -> argparse.Namespace:
+def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
+    """The experiments' shared options; ``extra(parser)`` adds a script's own."""
     p = ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)  # one-line errors
     p.add_argument("--scale", choices=sorted(SCALES), default="small")
     p.add_argument("--out", type=Path, default=REPO / "results" / "experiments" / name)
@@ -115,6 +117,8 @@ def parse_args(description: str, name: str) -> argparse.Namespace:
     p.add_argument("--train-only", action="store_true",
                    help="train the selected runs and stop (no evaluation or table): split a long script over "
                         "processes with --only, then run it once without either flag")
+    if extra is not None:
+        extra(p)
     return p.parse_args()
 
 
@@ -205,7 +209,10 @@ def _train_runs(runs: list[Run], args: argparse.Namespace) -> dict[str, dict]:
             continue
         batches.append([x for x in todo if x.group == r.group and not x.data_from] if r.group and not r.data_from
                        else [r])
-    env = None
+    for b in batches:
+        if len({repr(x.collect) for x in b}) > 1:
+            raise ValueError(f"runs {[x.name for x in b]} share a collection env but differ in Run.collect")
+    env, env_collect = None, None
     try:
         for k, members in enumerate(batches):
             cfgs = [run_config(r, args) for r in members]
@@ -215,10 +222,11 @@ def _train_runs(runs: list[Run], args: argparse.Namespace) -> dict[str, dict]:
                     shutil.rmtree(d)  # an unfinished run starts over (its datasets were for it alone)
                 d.mkdir(parents=True)
             robots = len(members) * len(seeds) * scale["collect"]["num_envs"]
-            if env is None or env.num_envs != robots:
+            if env is None or env.num_envs != robots or members[0].collect != env_collect:
                 if env is not None:
                     env.close()
-                env = LocomotionEnv(distill_task(TASK, None), num_envs=robots, verbose=False)
+                env = LocomotionEnv(distill_task(TASK, None, members[0].collect), num_envs=robots, verbose=False)
+                env_collect = members[0].collect
             t0 = time.monotonic()
             src = members[0].data_from
             shared = _datasets(args.out / "runs" / src, seeds) if src else None
@@ -325,8 +333,9 @@ def net_encoding(cfg: dict):
     return EncodingConfig(e["p"], e["F"], e["horizon"], e["constrained_fit"])
 
 
-def evaluate(trained: dict[str, dict], args: argparse.Namespace) -> dict:
-    """SP and test MSE of every seed and snapshot of every run, all in batched envs on the same episodes.
+def evaluate(trained: dict[str, dict], args: argparse.Namespace, overrides: dict | None = None) -> dict:
+    """SP and test MSE of every seed and snapshot of every run, all in batched envs on the same episodes;
+    ``overrides``: task sections changed in the evaluation env (Table 11's noise and pushes), the test set too.
 
     Returns:
         {"sp": {run: [sp_over_seeds + survival per snapshot]}, "mse": {run: [mse_over_seeds per
@@ -360,7 +369,7 @@ def evaluate(trained: dict[str, dict], args: argparse.Namespace) -> dict:
         keys = torch.arange(per).repeat(len(slots))
         if b == 0:
             keys[per:2 * per] += TEST_KEY
-        env = LocomotionEnv(distill_task(TASK, None), num_envs=len(slots) * per, verbose=False)
+        env = LocomotionEnv(distill_task(TASK, None, overrides), num_envs=len(slots) * per, verbose=False)
         try:
             t1 = time.monotonic()
             print(f"[{args.out.name}] evaluation {b + 1}/{len(batches)}: {len(slots)} policies x {per} episodes of "

@@ -145,11 +145,15 @@ def check_expert(expert, path: str | Path, obs_dim: int, num_actions: int) -> No
         raise UserError(f"expert {path} outputs {tuple(out.shape[1:])} actions per robot; the task needs {num_actions}")
 
 
-def distill_task(task: str, num_workers: int | None):
-    """The expert's task without curricula (fixed, full reward weights), 15 s episodes."""
+def distill_task(task: str, num_workers: int | None, overrides: dict | None = None):
+    """The expert's task without curricula (fixed, full reward weights), 15 s episodes; ``overrides``: task
+    sections changed on top (e.g. an experiment's narrower commands or added noise)."""
     from dls_quadruped.envs.sections import replace_sections
 
-    cfg = load_task(task, overrides={"scene": {"num_workers": num_workers}} if num_workers is not None else None)
+    over = dict(overrides or {})
+    if num_workers is not None:
+        over["scene"] = {**over.get("scene", {}), "num_workers": num_workers}
+    cfg = load_task(task, overrides=over or None)
     return replace_sections(cfg, {"curriculum": {}}, source="<distill: no curriculum>")
 
 

@@ -20,6 +20,7 @@ from experiments import (
     table11_naive_vs_dagger,
     table12_batch_size,
     table13_encodings,
+    table11_sweep,
 )
 
 TINY_SCALE = {"seeds": 2, "train": {"epochs": 2, "datapoints_per_epoch": 30, "dataset_cap": 1000},
@@ -115,3 +116,35 @@ def test_table12_and_table13_rows(tiny, monkeypatch):
     assert metrics["trained_with"] == ["10_spline-spline_dt0.02_H10", "12_first-spline_dt0.02_H10"]  # one group
     assert len(table13_encodings.runs()) == 36
     assert [r.row["Dim."] for r in table13_encodings.runs()][:6] == [108, 96, 100, 88, 76, 64]
+
+
+def test_table11_sweep_pairs_naive_with_dagger_under_each_collection_and_evaluation(tiny, monkeypatch):
+    """The narrow collection's env and the disturbed evaluation's env get their task overrides (and only those);
+    each naive row carries naive - DAgger for both evaluations."""
+    seen = []
+    real = distill_common.distill_task
+
+    def spy(task, num_workers, overrides=None):
+        seen.append(overrides)
+        return real(task, num_workers, overrides)
+
+    monkeypatch.setattr(distill_common, "distill_task", spy)
+    monkeypatch.setattr(table11_sweep, "SIZES", (60,))
+    monkeypatch.setattr(table11_sweep, "EPOCHS", 2)
+    out = tiny / "t11s"
+    monkeypatch.setattr(sys, "argv", [table11_sweep.__file__, "--scale", "small", "--out", str(out), "--sizes", "60",
+                                      "--only", "naive_narrow_60", "dagger_narrow_60"])
+    table11_sweep.main()
+    narrow, disturbed = table11_sweep.COLLECTIONS["narrow"], table11_sweep.EVALUATIONS["disturbed"]
+    assert seen == [narrow, None, disturbed]  # one narrow collection env (both runs), then the two evaluations
+    cfg = real(str(distill_common.TASK), None, narrow)
+    assert cfg.data["commands"]["base_velocity"]["resampling_time_s"] == [1000.0, 1000.0]
+    rows = read_csv(out / "table.csv")
+    assert [(r["collection"], r["algorithm"], r["datapoints"]) for r in rows] == [("narrow", "naive", "60"),
+                                                                                 ("narrow", "dagger", "60")]
+    assert rows[0]["SP naive - DAgger, plain"].endswith("]") and rows[0]["SP naive - DAgger, disturbed"].endswith("]")
+    assert rows[1]["SP naive - DAgger, plain"] == ""
+    res = json.loads((out / "results.json").read_text())
+    assert set(res["sp_difference_naive_minus_dagger"]) == {"naive_narrow_60 plain", "naive_narrow_60 disturbed"}
+    assert json.loads((out / "config.json").read_text())["runs"]["dagger_narrow_60"]["resolved"]["train"][
+        "datapoints_per_epoch"] == 30
