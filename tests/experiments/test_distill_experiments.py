@@ -18,9 +18,9 @@ from experiments import (
     distill_common,
     fig24_selector,
     table11_naive_vs_dagger,
+    table11_sweep,
     table12_batch_size,
     table13_encodings,
-    table11_sweep,
 )
 
 TINY_SCALE = {"seeds": 2, "train": {"epochs": 2, "datapoints_per_epoch": 30, "dataset_cap": 1000},
