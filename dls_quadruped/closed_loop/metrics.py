@@ -69,6 +69,16 @@ def per_episode_median(x: np.ndarray) -> np.ndarray:
     return out
 
 
+def per_episode_mean(x: np.ndarray) -> np.ndarray:
+    """(T, E) per-step values (NaN after the episode's end) -> (E,) mean of each episode's finite values (NaN for
+    none). Means add up where medians do not: the terms' means sum to the total's."""
+    flat = np.asarray(x, dtype=float).reshape(-1, x.shape[-1])
+    ok = np.isfinite(flat)
+    count = ok.sum(0)
+    total = np.where(ok, flat, 0.0).sum(0)
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
 def _units(values: np.ndarray, replicas: int) -> np.ndarray:
     """(E x S,) env values -> (S, E): env s E + e is episode e with sampler seed s."""
     return np.asarray(values, dtype=float).reshape(replicas, -1)
@@ -97,6 +107,11 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
         "cost_of_transport": cost_of_transport(traces, settle_s),
         "survived": survived_env,
     }
+    # the initial cost term by term as per-episode means (they add up to ``initial_cost_mean``): paired
+    # differences of two controllers show which terms carry a gap (docs/experiments/warm_start.md)
+    per_ep["initial_cost_mean"] = per_episode_mean(traces.initial_cost)
+    for i, name in enumerate(STATE_TERMS):
+        per_ep[f"initial_term_{name}"] = per_episode_mean(traces.initial_cost_terms[..., i])
     stairs = (traces.terrain or {}).get("stairs")
     if stairs is not None:
         fraction, top = stairs_episodes(traces)
@@ -128,6 +143,8 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
     for key, v in units.items():
         if key in ("survived", "reached_top"):  # rates: ``survival`` and ``stairs`` hold them with their intervals
             continue
+        if key.startswith("initial_term_") or key == "initial_cost_mean":
+            continue  # per-episode values for paired differences; ``initial_cost_terms`` summarises the terms
         out[key] = M.episode_summary(v)
         if key in pooled:
             out[key]["pooled"] = M.median_iqr(pooled[key])

@@ -109,3 +109,23 @@ def test_state_only_rollout_cost_and_sampler_replicas() -> None:
     assert s["survival"]["ci95_episodes"] == list(wilson_interval(1.5, 2))  # 75 % of 2 independent episodes
     with pytest.raises(ValueError, match="replicas must divide"):
         summarize(tr, replicas=3)
+
+
+def test_initial_cost_terms_per_episode_add_up_to_the_total() -> None:
+    """Per-episode means of each term (NaN after a fall left out) sum to the total's mean, by hand: episode 0
+    z = (1 + 3) / 2 = 2, vx = (2 + 2) / 2 = 2, total (3 + 5) / 2 = 4; episode 1 ends after its first step."""
+    t, e = 2, 2
+    terms = np.zeros((t, e, 9))
+    terms[:, 0, 0] = [1.0, 3.0]  # z
+    terms[:, 0, 1] = [2.0, 2.0]  # vx
+    terms[0, 1, 0], terms[1, 1] = 7.0, np.nan
+    tr = _traces(np.ones((t, e)), np.ones((t, e)), np.ones((t, e)), fell=np.array([False, True]))
+    tr.initial_cost_terms = terms
+    tr.initial_cost = terms.sum(-1)
+    s = summarize(tr, settle_s=0.0)
+    pe = s["per_episode"]
+    assert pe["initial_term_z"][0] == [2.0, 7.0] and pe["initial_term_vx"][0] == [2.0, 0.0]
+    assert pe["initial_cost_mean"][0] == [4.0, 7.0]
+    total = sum(np.array(pe[f"initial_term_{n}"]) for n in ("z", "vx", "vy", "vz", "roll", "pitch", "roll_rate",
+                                                             "pitch_rate", "yaw_rate"))
+    np.testing.assert_allclose(total, pe["initial_cost_mean"])

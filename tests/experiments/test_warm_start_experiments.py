@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
@@ -195,3 +196,79 @@ def test_com_height_out_of_range_is_a_usage_error() -> None:
     bad = subprocess.run([sys.executable, str(REPO / "experiments" / "table14_warm_start_encodings.py"),
                           "--com-height", "0.9"], cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
     assert bad.returncode == 2 and "--com-height must be in [0.1, 0.6] m, got 0.9" in bad.stderr
+
+
+def _cell_summary(controller: str, per_episode: dict, replicas: int, com_height=None) -> dict:
+    """A cached cell as ``run_cells`` writes it, from (S, E) per-episode values (what ``summarize`` keeps)."""
+    from dls_quadruped.eval.metrics import episode_summary
+
+    e = len(per_episode["survived"][0])
+    rate = float(np.mean(per_episode["survived"]))
+    out = {"controller": controller, "episodes": e, "replicas": replicas, "com_height": com_height,
+           "survival": {"rate": rate, "ci95": [rate, rate], "n": e * replicas},
+           "per_episode": {k: np.asarray(v).tolist() for k, v in per_episode.items()}}
+    for k, v in per_episode.items():
+        if k != "survived":
+            out[k] = episode_summary(np.asarray(v, dtype=float))
+    return out
+
+
+@pytest.mark.slow  # ~30 s of bootstraps (120 paired differences)
+def test_cost_gap_merges_three_students_and_splits_the_gap_by_term(tmp_path: Path, monkeypatch) -> None:
+    """Issue 38 item 4's script on cached cells built by hand: students k = 0, 1, 2 exceed the naive warm start's
+    height term by 10 (k + 1) on every episode and match it elsewhere, so the merged RL - naive height term is
+    +20 (each student's own: +10, +20, +30, with zero-width intervals); the merged interval resamples the
+    students, and 3 draws of student 0 (or of student 2) have probability 1/27 > 2.5 %, so it is [+10, +30] by
+    hand; the other terms are 0 and the total's mean gap equals the height term's."""
+    sys.path.insert(0, str(REPO))
+    from dls_quadruped.mpc.cost import STATE_TERMS
+    from experiments import cost_gap
+
+    rng = np.random.default_rng(0)
+    e, s = 6, 2
+    students, out = tmp_path / "students", tmp_path / "gap"
+    (out / "cells").mkdir(parents=True)
+    for p, F in cost_gap.ENCODINGS:
+        enc = f"{p}-{F}"
+        # the same values for every sampler seed: paired_difference resamples the seeds of two cells independently
+        base = {f"initial_term_{t}": np.repeat(rng.uniform(1, 5, (1, e)), s, axis=0) for t in STATE_TERMS}
+        common = {"rl_reward": rng.uniform(2, 2.3, (s, e)), "rl_return": rng.uniform(1000, 1700, (s, e)),
+                  "initial_cost": rng.uniform(20, 60, (s, e)), "rollout_cost": rng.uniform(100, 300, (s, e)),
+                  "survived": np.ones((s, e))}
+
+        def write(name, terms, controller, common=common):
+            pe = {**common, **terms, "initial_cost_mean": sum(terms.values())}
+            (out / "cells" / f"{name}.json").write_text(json.dumps(_cell_summary(controller, pe, s)))
+
+        write(f"naive_warm_start_{enc}", base, "naive_warm_start")
+        for k in range(3):
+            f = students / f"{enc}_H10_dt0.02_seed{k}" / "exported" / "student.pt2"
+            f.parent.mkdir(parents=True)
+            f.write_bytes(b"")
+            write(f"rl_warm_start_{enc}_seed{k}", {**base, "initial_term_z": base["initial_term_z"] + 10 * (k + 1)},
+                  "rl_warm_start")
+    monkeypatch.setattr(sys, "argv", ["cost_gap.py", "--seed-students", str(students), "--out", str(out),
+                                      "--episodes", str(e), "--sampler-seeds", str(s)])
+    cost_gap.main()
+    gap = json.loads((out / "gap.json").read_text())["gap"]
+    rows = {(r["p, F"], r["quantity"].strip()): r for r in gap}
+    for p, F in cost_gap.ENCODINGS:
+        z = rows[(f"{p}, {F}", "term z")]
+        assert z["RL - naive (3 students)"] == "+20.00 [+10.00, +30.00]"
+        assert [z[f"student {k} - naive"] for k in range(3)] == ["+10.00 [+10.00, +10.00]", "+20.00 [+20.00, +20.00]",
+                                                                 "+30.00 [+30.00, +30.00]"]
+        vx = rows[(f"{p}, {F}", "term vx")]["RL - naive (3 students)"]
+        assert vx.replace("-", "+") == "+0.00 [+0.00, +0.00]"  # round-off may print -0.00
+        assert rows[(f"{p}, {F}", "initial cost (mean per episode)")]["RL - naive (3 students)"] == "+20.0 [+10.0, +30.0]"
+    results = json.loads((out / "results.json").read_text())
+    assert results["rl_warm_start_first-spline"]["training_seeds"] == 3
+    assert (out / "cost_gap.png").stat().st_size > 0 and "3 students merged" in (out / "table.md").read_text()
+
+
+def test_cost_gap_without_students_names_the_missing_file(tmp_path: Path) -> None:
+    sys.path.insert(0, str(REPO))
+    from dls_quadruped.cli import UserError
+    from experiments import cost_gap
+
+    with pytest.raises(UserError, match=r"no student .*first-spline_H10_dt0.02_seed0/exported/student.pt2 \(and 5 more\)"):
+        cost_gap.cells(tmp_path)

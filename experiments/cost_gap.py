@@ -1,0 +1,169 @@
+"""The RL - naive initial-cost gap of Table 14, taken apart (issue 38 item 4).
+
+Table 14 ran one student per encoding, while Table 15 showed students of one setting differ by up to 1.3x in
+initial cost. Here the first-spline and discrete-discrete rows each take **three students** (training seeds,
+``--seed-students``: ``<enc>_H10_dt0.02_seed<k>/exported/student.pt2``, made by ``make distill ... --seed k``
+at the medium distillation scale), every student with the sampler seeds on the same scheduled episodes as the
+naive warm start of its encoding. Per encoding:
+
+* the RL row merges its students (``merge_training_seeds``: intervals over students and episodes);
+* paired RL - naive differences of the initial cost as a per-episode **mean**, and of each of its terms (z,
+  vx, vy, vz, roll, pitch, roll, pitch and yaw rates; the terms' means add up to the total's), of the state-only
+  rollout cost, the reward per step and the **return per episode** (the headline where survival differs);
+* each student's own RL - naive initial cost, to show how far students of one setting differ.
+
+``--com-height`` scores every controller against one height reference (the MPC's and the probe's): run once
+at the default and once at the height the expert walks (0.357 m for the first base expert) to see how much of
+the gap is the reference.
+
+    python experiments/cost_gap.py --scale medium --seed-students runs/students_seeds
+    python experiments/cost_gap.py --scale medium --seed-students runs/students_seeds --com-height 0.357 \\
+        --out results/experiments/cost_gap_h0.357
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from dls_quadruped.cli import UserError, run_cli
+from dls_quadruped.core.json_io import write_json
+from dls_quadruped.mpc.cost import STATE_TERMS
+from experiments.distill_common import write_table
+from experiments.warm_start_common import (
+    Cell,
+    finish,
+    med,
+    merge_training_seeds,
+    paired,
+    parse_args,
+    pyplot,
+    run_cells,
+    save,
+    survival,
+)
+
+ENCODINGS = (("first", "spline"), ("discrete", "discrete"))
+SEEDS = 3
+
+
+def cells(students: Path) -> tuple[list[Cell], dict[str, list[str]]]:
+    """(cells to run, {merged RL row: its students' cells}); the student files must exist."""
+    out, rows = [], {}
+    missing = []
+    for p, F in ENCODINGS:
+        enc = f"{p}-{F}"
+        sampler = {"encoding_p": p, "encoding_F": F}
+        names = []
+        for k in range(SEEDS):
+            path = students / f"{enc}_H10_dt0.02_seed{k}" / "exported" / "student.pt2"
+            if not path.is_file():
+                missing.append(str(path))
+            names.append(f"rl_warm_start_{enc}_seed{k}")
+            out.append(Cell(names[-1], "rl_warm_start", sampler, student=str(path),
+                            row={"Controller": f"rl_warm_start, student {k}", "p": p, "F": F}))
+        rows[f"rl_warm_start_{enc}"] = names
+        out.append(Cell(f"naive_warm_start_{enc}", "naive_warm_start", sampler,
+                        row={"Controller": "naive_warm_start", "p": p, "F": F}))
+    if missing:
+        raise UserError(f"--seed-students {students}: no student {missing[0]} (and {len(missing) - 1} more); "
+                        "distil them first (the module docstring)")
+    return out, rows
+
+
+def gap_rows(results: dict, rows: dict[str, list[str]]) -> list[dict]:
+    """One row per encoding and quantity: RL (students merged) - naive, paired on the same episodes."""
+    out = []
+    for p, F in ENCODINGS:
+        enc = f"{p}-{F}"
+        rl, naive = f"rl_warm_start_{enc}", f"naive_warm_start_{enc}"
+        if rl not in results or naive not in results or "skipped" in results[rl] or "skipped" in results[naive]:
+            continue
+        quantities = [("initial cost (mean per episode)", "initial_cost_mean", 1)]
+        quantities += [(f"  term {t}", f"initial_term_{t}", 2) for t in STATE_TERMS]
+        quantities += [("rollout cost, state (median per episode)", "rollout_cost", 1),
+                        ("reward per step", "rl_reward", 3), ("return per episode", "rl_return", 1),
+                        ("survived", "survived", 2)]
+        for label, key, digits in quantities:
+            row = {"p, F": f"{p}, {F}", "quantity": label,
+                   "RL - naive (3 students)": paired(results, rl, naive, key, digits)}
+            for k, name in enumerate(rows[rl]):
+                row[f"student {k} - naive"] = paired(results, name, naive, key, digits)
+            out.append(row)
+    return out
+
+
+def cell_rows(todo: list[Cell], results: dict, rows: dict[str, list[str]]) -> list[dict]:
+    out = []
+    for name in [*rows, *(c.name for c in todo)]:
+        s = results.get(name)
+        if not s:
+            continue
+        label = {"Controller": "rl_warm_start, 3 students merged", "cell": name} if name in rows else \
+            {"Controller": next(c.row["Controller"] for c in todo if c.name == name), "cell": name}
+        if "skipped" in s:
+            out.append({**label, "RL reward": f"skipped: {s['skipped']}"})
+            continue
+        out.append({**label, "RL reward": med(s["rl_reward"], 3), "RL return": med(s.get("rl_return"), 0),
+                    "Initial cost": med(s["initial_cost"]), "Rollout cost (state)": med(s.get("rollout_cost")),
+                    "Survival": survival(s)})
+    return out
+
+
+def figure(results: dict, path: Path) -> None:
+    """Per encoding: the RL - naive difference of each initial-cost term (paired means, 95 % intervals)."""
+    import numpy as np
+
+    from dls_quadruped.eval.metrics import paired_difference
+
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(9, 4))
+    terms = list(STATE_TERMS)
+    for j, (p, F) in enumerate(ENCODINGS):
+        rl, naive = results.get(f"rl_warm_start_{p}-{F}", {}), results.get(f"naive_warm_start_{p}-{F}", {})
+        if "per_episode" not in rl or "per_episode" not in naive:
+            continue
+        for i, t in enumerate(terms):
+            key = f"initial_term_{t}"
+            if key not in rl["per_episode"] or key not in naive["per_episode"]:
+                continue
+            d = paired_difference(np.array(rl["per_episode"][key]), np.array(naive["per_episode"][key]))
+            ax.errorbar(i + 0.2 * (j - 0.5), d["mean"], yerr=[[d["mean"] - d["ci95"][0]], [d["ci95"][1] - d["mean"]]],
+                        fmt="o", color=f"C{j}", capsize=3, label=f"{p}-{F}" if i == 0 else None)
+    ax.axhline(0, color="k", lw=0.8)
+    ax.set_xticks(range(len(terms)), terms, rotation=30)
+    ax.set_ylabel("RL - naive, initial cost term (mean per episode)")
+    ax.set_title("Initial-cost gap by term (3 students x sampler seeds, paired episodes)", fontsize=9)
+    ax.legend(fontsize=8)
+    save(fig, path)
+
+
+def _flags(p) -> None:
+    p.add_argument("--seed-students", type=Path, required=True,
+                   help="folder of <p>-<F>_H10_dt0.02_seed<k>/exported/student.pt2, k = 0, 1, 2")
+
+
+def main() -> None:
+    args = parse_args(__doc__, "cost_gap", _flags)
+    todo, rows = cells(args.seed_students)
+    results = run_cells(todo, args)
+    for row, names in rows.items():
+        seeds = [results[n] for n in names if n in results]
+        if len(seeds) == len(names):
+            results[row] = merge_training_seeds(seeds)
+    write_gap = gap_rows(results, rows)
+    gap_cols = ["p, F", "quantity", "RL - naive (3 students)", *(f"student {k} - naive" for k in range(SEEDS))]
+    write_table(write_gap, gap_cols, args.out / "gap", "RL - naive warm start, paired on the same episodes "
+                f"(mean [95 % CI]; height reference {args.com_height or 'default'})")
+    write_json({"gap": write_gap}, args.out / "gap.json", indent=1)
+    cols = ["Controller", "cell", "RL reward", "RL return", "Initial cost", "Rollout cost (state)", "Survival"]
+    finish(args, todo, results, cell_rows(todo, results, rows), cols,
+           "Table 14's first-spline and discrete-discrete rows, 3 students each (M = 10 000, H = 10, dt = 0.02 s, "
+           "F only)", figure, "cost_gap.png")
+    print((args.out / "gap.md").read_text())
+
+
+if __name__ == "__main__":
+    run_cli(main)
