@@ -49,8 +49,9 @@ ENCODINGS = (("first", "spline"), ("discrete", "discrete"))
 SEEDS = 3
 
 
-def cells(students: Path) -> tuple[list[Cell], dict[str, list[str]]]:
-    """(cells to run, {merged RL row: its students' cells}); the student files must exist."""
+def cells(students: Path, only: list[str] | None = None) -> tuple[list[Cell], dict[str, list[str]]]:
+    """(cells to run, {merged RL row: its students' cells}); the students of the cells selected (``only``: those
+    named, None: all) must exist."""
     out, rows = [], {}
     missing = []
     for p, F in ENCODINGS:
@@ -59,9 +60,9 @@ def cells(students: Path) -> tuple[list[Cell], dict[str, list[str]]]:
         names = []
         for k in range(SEEDS):
             path = students / f"{enc}_H10_dt0.02_seed{k}" / "exported" / "student.pt2"
-            if not path.is_file():
-                missing.append(str(path))
             names.append(f"rl_warm_start_{enc}_seed{k}")
+            if not path.is_file() and (not only or names[-1] in only):
+                missing.append(str(path))
             out.append(Cell(names[-1], "rl_warm_start", sampler, student=str(path),
                             row={"Controller": f"rl_warm_start, student {k}", "p": p, "F": F}))
         rows[f"rl_warm_start_{enc}"] = names
@@ -147,7 +148,7 @@ def _flags(p) -> None:
 
 def main() -> None:
     args = parse_args(__doc__, "cost_gap", _flags)
-    todo, rows = cells(args.seed_students)
+    todo, rows = cells(args.seed_students, args.only)
     results = run_cells(todo, args)
     for row, names in rows.items():
         seeds = [results[n] for n in names if n in results]
