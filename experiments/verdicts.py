@@ -149,6 +149,19 @@ def sp_gap(folder: str, a: str, b: str, snapshot: int = -1) -> Interval:
     return Interval(v, lo, hi, _fmt(v, lo, hi, 1))
 
 
+def sweep_gap(evaluation: str, a: str, b: str, folder: str = "table11_sweep_medium") -> Interval:
+    """SP(a) - SP(b) in points from ``experiments/table11_sweep.py``'s results (one untrained student, the
+    returns of each evaluation, ``plain`` or ``disturbed``, under its own key)."""
+    from dls_quadruped.learning.distill_metrics import sp_difference
+
+    res = _json(folder)[evaluation]["returns"]
+    (r_0,) = res["untrained"].values()
+    d = sp_difference(np.asarray(res[a][-1]), np.asarray(res[b][-1]), np.asarray(res["expert"]), np.asarray(r_0),
+                      np.asarray(r_0))
+    v, (lo, hi) = 100 * d["difference"], (100 * x for x in d["ci95"])
+    return Interval(v, lo, hi, _fmt(v, lo, hi, 1))
+
+
 def survival_gap(folder: str, scenario: str) -> Interval:
     """Climb minus rough survival on the same episodes (the 7.1 figures pair every expert with base only)."""
     from dls_quadruped.eval.compare import per_episode_values
@@ -281,6 +294,17 @@ ROWS = [
                      schedule="Table 7", **{"Encoding (p, F)": "discrete, discrete"}),
         D + "#table-11-naive-imitation-vs-dagger", -1, -30.42, 5.0,
         why="the small scale has the gap (−27.3 [−47.3, −7.3]), the medium scale none"),
+    Row("4 · Table 11 sweep", "the same, with 15 000 datapoints and the rough task's noise and pushes (plan "
+        "written before the run)", "−43.68 points (f-s)", "naive − DAgger SP, first-spline, disturbed",
+        lambda: sweep_gap("disturbed", "naive_today_15k", "dagger_today_15k"), D + "#table-11-settled-where-does-"
+        "the-gap-appear-plan-written-2026-11-27-1945-utc-before-the-first-result", -1, -43.68, 5.0,
+        note="plain evaluation: −13.2 [−24.0, −3.9]; the gap shrinks with data (50 000 today, plain: −2.5 [−6.5, "
+             "+0.3])"),
+    Row("4 · Table 11 sweep", "the same, 50 000 datapoints, one command per episode, plain evaluation",
+        "−43.68 points (f-s)", "naive − DAgger SP, first-spline, narrow, plain",
+        lambda: sweep_gap("plain", "naive_narrow_50k", "dagger_narrow_50k"), D + "#table-11-settled-where-does-"
+        "the-gap-appear-plan-written-2026-11-27-1945-utc-before-the-first-result", -1, -43.68, 5.0,
+        note="disturbed: −31.6 [−48.2, −16.1], containing the thesis's size"),
     Row("5 · Table 12", "SP falls as the batch grows", "−3.64 (512), −8.93 (1024)", "SP 512 − SP 64 [points]",
         lambda: sp_gap("table12_batch_size_medium", "batch_512", "batch_64"), D + "#table-12-mini-batch-size", -1),
     Row("5 · Fig. 24", "selector α = 0.6 is best", "best", "indicator − α 0.6, SP epoch 10 [points]",
