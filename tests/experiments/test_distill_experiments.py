@@ -118,6 +118,21 @@ def test_table12_and_table13_rows(tiny, monkeypatch):
     assert [r.row["Dim."] for r in table13_encodings.runs()][:6] == [108, 96, 100, 88, 76, 64]
 
 
+def test_table11_sweep_grid_is_the_plans():
+    """The grid written in docs/experiments/distillation.md before the first run: 4 sizes x 2 collections x
+    {naive, DAgger}, 10 epochs of a tenth of the data, first-spline H = 5 dt = 0.02 s, batch 64; only the narrow
+    collection overrides the task (one command per episode of 15 s)."""
+    runs = table11_sweep.runs(table11_sweep.SIZES)
+    assert len(runs) == 16 and len({r.name for r in runs}) == 16
+    r = next(r for r in runs if r.name == "naive_narrow_400k")
+    assert r.overrides["train"] == {"batch_size": 64, "epochs": 10, "datapoints_per_epoch": 40_000}
+    assert r.overrides["encoding"] == {"p": "first", "F": "spline", "horizon": 5, "dt": 0.02}
+    assert r.collect["commands"]["base_velocity"]["resampling_time_s"][0] > 15.0
+    assert all(x.collect is None for x in runs if x.row["collection"] == "today")
+    assert table11_sweep.EVALUATIONS["disturbed"]["observations"]["policy"]["noise_scale"] == 1.0
+
+
+@pytest.mark.slow  # ~10 s: two tiny distillations and two evaluations
 def test_table11_sweep_pairs_naive_with_dagger_under_each_collection_and_evaluation(tiny, monkeypatch):
     """The narrow collection's env and the disturbed evaluation's env get their task overrides (and only those);
     each naive row carries naive - DAgger for both evaluations."""
