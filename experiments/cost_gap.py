@@ -1,4 +1,4 @@
-"""The RL - naive initial-cost gap of Table 14, taken apart (issue 38 item 4).
+"""The RL - naive initial-cost gap of Table 14, taken apart.
 
 Table 14 ran one student per encoding, while Table 15 showed students of one setting differ by up to 1.3x in
 initial cost. Here the first-spline and discrete-discrete rows each take **three students** (training seeds,

@@ -1,4 +1,4 @@
-"""Table 11 settled (issue 38 item 3): where, if anywhere, does the thesis's naive-vs-DAgger gap appear?
+"""Table 11 settled: where, if anywhere, does the thesis's naive-vs-DAgger gap appear?
 
 The thesis (Table 11) reports SP 55.6 % for naive imitation against 99.3 % for DAgger (first-spline); our
 Table 11 runs found the two close. This sweep varies what could make naive imitation fail, every cell with 3

@@ -166,8 +166,8 @@ def env_throughput(backend: str, device: torch.device, rows: list[tuple[str, int
 
 
 def mpc_rows(device: torch.device, sizes: tuple[int, ...], solves: int, report: Report) -> dict:
-    """The MPC's solve per M, the report rewritten after each (the first CUDA compile of a size can take minutes:
-    on the H100 the M = 10 000 row had not finished 200 s after the section began, 2026-11-27)."""
+    """The MPC's solve per M, the report rewritten after each (the first CUDA compile of a size can take minutes,
+    docs/gpu.md)."""
     rows = []
     for m in sizes:
         print(f"[gpu_check] mpc: M = {m} (compiles on first use) at {report.elapsed():.0f} s", flush=True)
@@ -245,8 +245,8 @@ def main(argv: list[str] | None = None) -> None:
             ("base", 4096, False, None)] if gpu else [("base", 4, True, None), ("base", 4, True, False)])
     rough_n = 4096 if gpu else 4
     steps = args.env_steps or (60 if gpu else 3)
-    # a compiled step recompiles for the first few reset batch sizes (then marks them dynamic): on the H100 three
-    # warm-up steps left those recompiles in the timed window (22 000 steps/s at 4 096 robots vs 52 400 after 40)
+    # a compiled step recompiles for the first few reset batch sizes (then marks them dynamic): enough warm-up
+    # steps keep those recompiles out of the timed window (docs/gpu.md)
     warmup = 40 if gpu else 3
     plan = [
         ("versions", lambda: versions(device)),

@@ -163,3 +163,12 @@ def test_table11_sweep_pairs_naive_with_dagger_under_each_collection_and_evaluat
     assert set(res["sp_difference_naive_minus_dagger"]) == {"naive_narrow_60 plain", "naive_narrow_60 disturbed"}
     assert json.loads((out / "config.json").read_text())["runs"]["dagger_narrow_60"]["resolved"]["train"][
         "datapoints_per_epoch"] == 30
+
+
+@pytest.mark.parametrize("argv, code", [(["--help"], 0), (["--sizes", "7"], 2)])
+def test_table11_sweep_help_and_a_bad_size(monkeypatch, capsys, argv, code):
+    monkeypatch.setattr(sys, "argv", ["table11_sweep.py", *argv])
+    with pytest.raises(SystemExit) as err:
+        table11_sweep.main()
+    assert err.value.code == code
+    assert ("--sizes" in capsys.readouterr().out) if code == 0 else ("invalid choice: 7" in capsys.readouterr().err)

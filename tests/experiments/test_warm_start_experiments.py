@@ -215,7 +215,7 @@ def _cell_summary(controller: str, per_episode: dict, replicas: int, com_height=
 
 @pytest.mark.slow  # ~30 s of bootstraps (120 paired differences)
 def test_cost_gap_merges_three_students_and_splits_the_gap_by_term(tmp_path: Path, monkeypatch) -> None:
-    """Issue 38 item 4's script on cached cells built by hand: students k = 0, 1, 2 exceed the naive warm start's
+    """cost_gap.py on cached cells built by hand: students k = 0, 1, 2 exceed the naive warm start's
     height term by 10 (k + 1) on every episode and match it elsewhere, so the merged RL - naive height term is
     +20 (each student's own: +10, +20, +30, with zero-width intervals); the merged interval resamples the
     students, and 3 draws of student 0 (or of student 2) have probability 1/27 > 2.5 %, so it is [+10, +30] by
@@ -272,3 +272,16 @@ def test_cost_gap_without_students_names_the_missing_file(tmp_path: Path) -> Non
 
     with pytest.raises(UserError, match=r"no student .*first-spline_H10_dt0.02_seed0/exported/student.pt2 \(and 5 more\)"):
         cost_gap.cells(tmp_path)
+
+
+@pytest.mark.parametrize("argv, code, text", [(["--help"], 0, "--seed-students"),
+                                              (["--scale", "huge"], 2, "invalid choice: 'huge'")])
+def test_cost_gap_help_and_a_bad_scale(monkeypatch, capsys, argv, code, text):
+    sys.path.insert(0, str(REPO))
+    from experiments import cost_gap
+
+    monkeypatch.setattr(sys, "argv", ["cost_gap.py", *argv])
+    with pytest.raises(SystemExit) as err:
+        cost_gap.main()
+    out = capsys.readouterr()
+    assert err.value.code == code and text in (out.out + out.err)
