@@ -66,11 +66,14 @@ GPU_CHECK_ARGS ?=
 gpu-check:
 	$(if $(wildcard $(STAMP)),$(PY),$(PYTHON)) -m dls_quadruped.bench.gpu_check --out $(OUT)/gpu_check $(GPU_CHECK_ARGS)
 
+# TEST_WORKERS pytest-xdist workers (one per core; 0: one process); a test file stays on one worker, so the
+# module-scoped fixtures are built once
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 test-all: $(STAMP)
-	$(PY) -m pytest -m "slow or not slow"
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile -m "slow or not slow"
 
 lint: $(STAMP)
 	$(PY) -m ruff check dls_quadruped tests

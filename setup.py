@@ -24,8 +24,10 @@ setup(
         "array-api-compat>=1.11",
     ],
     extras_require={
-        # onnxruntime: the tests run the exported ONNX policies and compare them with the TorchScript ones
-        "dev": ["pytest>=8", "ruff>=0.5", "onnx>=1.16", "onnxscript>=0.1", "onnxruntime>=1.18"],
+        # onnxruntime: the tests run the exported ONNX policies and compare them with the TorchScript ones;
+        # pytest-xdist: `make test` runs the suite on two workers (one per core of the 2-core CI machine, 1.7x)
+        "dev": ["pytest>=8", "pytest-xdist>=3.5", "ruff>=0.5", "onnx>=1.16", "onnxscript>=0.1",
+                "onnxruntime>=1.18"],
         # the MuJoCo Warp simulator backends (scene.backend: cuda / warp-cpu, sim/warp_backend.py, docs/gpu.md);
         # optional: it pulls warp-lang (~100 MB) and compiles kernels on first use, the CPU backend needs none of it.
         # Pinned: the backend uses MuJoCo Warp's two-phase step, its CSR mass matrix and batched model fields,

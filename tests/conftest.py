@@ -296,3 +296,12 @@ def printed_curriculum():
         return {k: float(v) for k, v in re.findall(r"'(\w+)': ([-\d.e]+)", line.split("curriculum", 1)[1])}
 
     return parse
+
+
+def pytest_configure(config):
+    """Under pytest-xdist (``make test`` runs two workers) each worker keeps torch to one thread: two workers of
+    two threads each would oversubscribe a 2-core machine."""
+    import os
+
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        torch.set_num_threads(1)

@@ -381,6 +381,8 @@ def _is_checked_path(span: str, page: Path = REPO / "docs" / "x.md") -> bool:
         return False
     if RANGE.search(span) or re.search(r"-v[0-9]+$", span):  # experiments/table14-17: several scripts; a gym id
         return False
+    if span.startswith(".git/"):  # git's own files (.git/info/exclude) are the clone's, not the repository's
+        return False
     first = span.split("/")[0]
     return any((base / first).is_dir() for base in (REPO, REPO / "dls_quadruped", page.parent))
 
@@ -429,6 +431,7 @@ def test_the_reader_finds_commands_flags_and_paths():
     assert not _is_checked_path("results/demo/summary.json") and not _is_checked_path("/proc/cpuinfo")
     assert not _is_checked_path("Loss/train_mse") and not _is_checked_path("dls_quadruped/Base-v0")
     assert not _is_checked_path("experiments/table14-17") and _is_checked_path("bench/tracking.py")
+    assert not _is_checked_path(".git/info/exclude") and _is_checked_path(".ci/run")
     lines = ["make train CHECKPOINT_COPY=docs/p.pt", "python -m m --out-dir d/e --out=f/g"]
     assert page_outputs(Page(REPO / "x.md", code_lines=lines)) == {"docs/p.pt", "d/e", "f/g"}
 
