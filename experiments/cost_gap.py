@@ -10,7 +10,9 @@ naive warm start of its encoding. Per encoding:
 * paired RL - naive differences of the initial cost as Table 14 reports it (per-episode median) and as a
   per-episode **mean**, and of each of its terms (z,
   vx, vy, vz, roll, pitch, roll, pitch and yaw rates; the terms' means add up to the total's), of the state-only
-  rollout cost, the reward per step and the **return per episode** (the headline where survival differs);
+  rollout cost and of its terms (the chosen sample's reference rollout on every 10th solve,
+  ``MPCResult.state_terms``; their means add up to ``rollout_terms_mean``), the reward per step and the **return
+  per episode** (the headline where survival differs);
 * each student's own RL - naive initial cost, to show how far students of one setting differ.
 
 ``--com-height`` scores every controller against one height reference (the MPC's and the probe's): run once
@@ -87,7 +89,9 @@ def gap_rows(results: dict, rows: dict[str, list[str]]) -> list[dict]:
                       ("initial cost (mean per episode)", "initial_cost_mean", 1)]
         quantities += [(f"  term {t}", f"initial_term_{t}", 2) for t in STATE_TERMS]
         quantities += [("rollout cost, state (median per episode)", "rollout_cost", 1),
-                        ("reward per step", "rl_reward", 3), ("return per episode", "rl_return", 1),
+                       ("rollout cost, state (mean per episode, recorded solves)", "rollout_terms_mean", 1)]
+        quantities += [(f"  rollout term {t}", f"rollout_term_{t}", 1) for t in STATE_TERMS]
+        quantities += [("reward per step", "rl_reward", 3), ("return per episode", "rl_return", 1),
                         ("survived", "survived", 2)]
         for label, key, digits in quantities:
             row = {"p, F": f"{p}, {F}", "quantity": label,
@@ -116,30 +120,34 @@ def cell_rows(todo: list[Cell], results: dict, rows: dict[str, list[str]]) -> li
 
 
 def figure(results: dict, path: Path) -> None:
-    """Per encoding: the RL - naive difference of each initial-cost term (paired means, 95 % intervals)."""
+    """Per encoding: the RL - naive difference of each initial-cost term and each state rollout-cost term (paired
+    means, 95 % intervals); the rollout panel only where the cells recorded the rollout terms."""
     import numpy as np
 
     from dls_quadruped.eval.metrics import paired_difference
 
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(9, 4))
+    fig, axes = plt.subplots(1, 2, figsize=(14, 4))
     terms = list(STATE_TERMS)
-    for j, (p, F) in enumerate(ENCODINGS):
-        rl, naive = results.get(f"rl_warm_start_{p}-{F}", {}), results.get(f"naive_warm_start_{p}-{F}", {})
-        if "per_episode" not in rl or "per_episode" not in naive:
-            continue
-        for i, t in enumerate(terms):
-            key = f"initial_term_{t}"
-            if key not in rl["per_episode"] or key not in naive["per_episode"]:
+    for ax, prefix, what in ((axes[0], "initial_term_", "initial cost"), (axes[1], "rollout_term_", "state rollout cost")):
+        for j, (p, F) in enumerate(ENCODINGS):
+            rl, naive = results.get(f"rl_warm_start_{p}-{F}", {}), results.get(f"naive_warm_start_{p}-{F}", {})
+            if "per_episode" not in rl or "per_episode" not in naive:
                 continue
-            d = paired_difference(np.array(rl["per_episode"][key]), np.array(naive["per_episode"][key]))
-            ax.errorbar(i + 0.2 * (j - 0.5), d["mean"], yerr=[[d["mean"] - d["ci95"][0]], [d["ci95"][1] - d["mean"]]],
-                        fmt="o", color=f"C{j}", capsize=3, label=f"{p}-{F}" if i == 0 else None)
-    ax.axhline(0, color="k", lw=0.8)
-    ax.set_xticks(range(len(terms)), terms, rotation=30)
-    ax.set_ylabel("RL - naive, initial cost term (mean per episode)")
-    ax.set_title("Initial-cost gap by term (3 students x sampler seeds, paired episodes)", fontsize=9)
-    ax.legend(fontsize=8)
+            for i, t in enumerate(terms):
+                key = prefix + t
+                if key not in rl["per_episode"] or key not in naive["per_episode"]:
+                    continue
+                d = paired_difference(np.array(rl["per_episode"][key]), np.array(naive["per_episode"][key]))
+                ax.errorbar(i + 0.2 * (j - 0.5), d["mean"], yerr=[[d["mean"] - d["ci95"][0]],
+                                                                    [d["ci95"][1] - d["mean"]]],
+                            fmt="o", color=f"C{j}", capsize=3, label=f"{p}-{F}" if i == 0 else None)
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_xticks(range(len(terms)), terms, rotation=30)
+        ax.set_ylabel(f"RL - naive, {what} term (mean per episode)")
+        ax.set_title(f"{what.capitalize()} gap by term (3 students x sampler seeds, paired episodes)", fontsize=9)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
     save(fig, path)
 
 

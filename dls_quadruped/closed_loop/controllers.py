@@ -151,14 +151,16 @@ class ControllerConfig:
 
 @dataclass
 class SolveRecord:
-    """One batched MPC solve (B robots). step_costs, step_input_costs: (B, N); the rest (B,).
-    best_cost is the full J of the chosen sample; input_cost its foothold-deviation part."""
+    """One batched MPC solve (B robots). step_costs, step_input_costs: (B, N); state_terms: (B, 9); the rest (B,).
+    best_cost is the full J of the chosen sample; input_cost its foothold-deviation part; state_terms its state
+    part by term (``MPCResult.state_terms``, NaN on a solve without ``record_step_costs``)."""
 
     best_cost: torch.Tensor
     input_cost: torch.Tensor
     initial_cost: torch.Tensor
     step_costs: torch.Tensor
     step_input_costs: torch.Tensor
+    state_terms: torch.Tensor
     warm_start_index: torch.Tensor
     fallback: torch.Tensor
     student_fallback: torch.Tensor
@@ -376,7 +378,8 @@ class MPCController(Controller):
             self.records.append(SolveRecord(
                 best_cost=result.best_cost.cpu(), input_cost=result.best_input_cost.cpu(),
                 initial_cost=result.initial_cost.cpu(), step_costs=result.step_costs.cpu(),
-                step_input_costs=result.step_input_costs.cpu(), warm_start_index=result.warm_start_index.cpu(),
+                step_input_costs=result.step_input_costs.cpu(), state_terms=result.state_terms.cpu(),
+                warm_start_index=result.warm_start_index.cpu(),
                 fallback=result.fallback.cpu(), student_fallback=~torch.stack(self._student_ok).all(dim=0).cpu()))
         return None
 

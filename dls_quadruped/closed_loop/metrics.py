@@ -15,6 +15,11 @@ seed s (``replicas``); per-episode values are (S, E) arrays.
 Rollout cost: ``rollout_cost`` is the state-only cost of the chosen sample, the comparison figure
 (``mpc/cost.py``: the input term is zero for a naive warm start by construction); ``rollout_cost_full``
 is the J the sampler minimised. The initial cost is a state cost by definition (no input at x_0).
+
+By term (for paired differences only, under ``per_episode``): ``initial_term_<name>`` and
+``initial_cost_mean`` are per-episode means of the initial cost's terms and total (means add up, medians do
+not); ``rollout_term_<name>`` and ``rollout_terms_mean`` the same for the chosen sample's state rollout cost,
+over the solves that record it (every ``horizon_cost_every``-th, from the reference rollout).
 """
 
 from __future__ import annotations
@@ -122,6 +127,14 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
                        "rollout_cost": per_episode_median(traces.rollout_state_cost),
                        "rollout_cost_full": per_episode_median(traces.rollout_cost),
                        "mpc_initial_cost": per_episode_median(traces.mpc_initial_cost)})
+        terms = traces.rollout_state_terms
+        if terms is not None and np.isfinite(terms).any():
+            # the chosen sample's state cost by term, per-episode means over the solves that record them (every
+            # ``horizon_cost_every``-th); ``rollout_terms_mean`` is their sum, the same solves' state cost
+            finite = np.where(np.isfinite(terms).all(-1, keepdims=True), terms, np.nan)
+            per_ep["rollout_terms_mean"] = per_episode_mean(finite.sum(-1))
+            for i, name in enumerate(STATE_TERMS):
+                per_ep[f"rollout_term_{name}"] = per_episode_mean(finite[..., i])
     units = {k: _units(v, replicas) for k, v in per_ep.items()}
     out = {
         "controller": traces.controller,
@@ -143,7 +156,7 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
     for key, v in units.items():
         if key in ("survived", "reached_top"):  # rates: ``survival`` and ``stairs`` hold them with their intervals
             continue
-        if key.startswith("initial_term_") or key == "initial_cost_mean":
+        if key.startswith(("initial_term_", "rollout_term")) or key == "initial_cost_mean":
             continue  # per-episode values for paired differences; ``initial_cost_terms`` summarises the terms
         out[key] = M.episode_summary(v)
         if key in pooled:

@@ -26,7 +26,7 @@ from dls_quadruped.envs.recorder import EpisodeRecord, record
 from dls_quadruped.eval.rollout import base_velocity
 from dls_quadruped.mpc.baseline import BaselineConfig
 from dls_quadruped.mpc.config import SamplerConfig
-from dls_quadruped.mpc.cost import initial_cost, state_cost_terms
+from dls_quadruped.mpc.cost import STATE_TERMS, initial_cost, state_cost_terms
 from dls_quadruped.mpc.inputs import (
     GROUNDS,
     ground_inputs,
@@ -54,6 +54,9 @@ class ClosedLoopTraces:
             rollout_cost is the full J of the chosen sample.
         rollout_input_cost: (T, S, E) its input (foothold-deviation) part; ``rollout_state_cost`` = J - it.
         step_costs: (T, S, E, N) cost of the chosen sample per horizon step; step_input_costs: its input part.
+        rollout_state_terms: (T, S, E, 9) the chosen sample's state cost summed over the horizon, by term
+            (``STATE_TERMS`` order), on the solves that record step costs (every ``horizon_cost_every``-th),
+            NaN elsewhere; None where not recorded.
         winner: (T, S, E) warm-start group of the chosen sample (-1: fallback or no MPC).
         fell: (E,) ended by a non-time-out termination; length: (E,) policy steps it lasted.
         qpos: (T, R, 19) generalized positions of the first R robots (for the video).
@@ -90,6 +93,7 @@ class ClosedLoopTraces:
     replicas: int = 1
     terrain: dict | None = None
     ground_z: np.ndarray | None = None
+    rollout_state_terms: np.ndarray | None = None
 
     @property
     def rollout_state_cost(self) -> np.ndarray:
@@ -176,7 +180,8 @@ PROBES = {
 """What the runner reads after every step, (E, ...) per robot (kept where the state is the episode's)."""
 
 
-SOLVE_FIELDS = ("best_cost", "input_cost", "initial_cost", "step_costs", "step_input_costs", "warm_start_index",
+SOLVE_FIELDS = ("best_cost", "input_cost", "initial_cost", "step_costs", "step_input_costs", "state_terms",
+                "warm_start_index",
                 "fallback", "student_fallback")
 """The ``SolveRecord`` fields recorded per step and solve."""
 
@@ -251,6 +256,7 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
         mpc_initial_cost=_per_solve(rec, "initial_cost", solves, n),
         step_costs=_per_solve(rec, "step_costs", solves, n, horizon),
         step_input_costs=_per_solve(rec, "step_input_costs", solves, n, horizon),
+        rollout_state_terms=_per_solve(rec, "state_terms", solves, n, (len(STATE_TERMS),)),
         winner=_per_solve(rec, "warm_start_index", solves, n, fill=-1, dtype=np.int16),
         fell=rec.fell, length=rec.length, qpos=qpos, mpc_fallbacks=fallbacks["fallback"],
         student_fallbacks=fallbacks["student_fallback"], step_dt=float(env.step_dt), timing=timing,

@@ -131,8 +131,18 @@ def rollout_step_costs(
 ) -> torch.Tensor:
     """(B, M, N) cost of each horizon step k: state cost of x_{k+1} plus input cost of u_k (thesis Fig. 28).
     NaN where the rollout diverged. Arguments as :func:`rollout_cost_reference`."""
+    return rollout_step_costs_and_terms(x0, contact, foot_target_w, force_w, refs, model, weights, dt)[0]
+
+
+def rollout_step_costs_and_terms(
+    x0: torch.Tensor, contact: torch.Tensor, foot_target_w: torch.Tensor, force_w: torch.Tensor,
+    refs: Refs, model: SRBDModel, weights: CostWeights, dt: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(:func:`rollout_step_costs` (B, M, N), (B, M, 9) the state part summed over the horizon and split by term
+    in ``STATE_TERMS`` order) from one reference rollout: which terms a rollout's cost is made of."""
     traj = rollout_reference(x0, contact, foot_target_w, force_w, model, dt)  # (B, M, N+1, 24)
     x_ref = refs.state_vector()[:, None, None, :]
     u = torch.cat([foot_target_w.flatten(-2), force_w.flatten(-2)], dim=-1)  # (B, M, N, 24)
     u_ref = refs.input_vector()[:, None, None, :]
-    return state_cost(traj[:, :, 1:], x_ref, weights) + input_cost(u, u_ref, weights)
+    step = state_cost(traj[:, :, 1:], x_ref, weights) + input_cost(u, u_ref, weights)
+    return step, state_cost_terms(traj[:, :, 1:], x_ref, weights).sum(-2)

@@ -26,10 +26,11 @@ from dls_quadruped.core.device import checked_device
 from dls_quadruped.mpc import arbitration, cpp_kernel, solve_glue, warm_start
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import (
+    STATE_TERMS,
     Refs,
     initial_cost,
     input_step_costs,
-    rollout_step_costs,
+    rollout_step_costs_and_terms,
 )
 from dls_quadruped.mpc.encodings import encoded_dim
 from dls_quadruped.mpc.kernel import KernelInputs
@@ -297,16 +298,19 @@ class SamplingMPC:
         b = best_index.shape[0]
         step_input = input_step_costs(dec["foot_target_w"], dec["force_w"], inp.refs, self.cfg.weights)[:, 0]  # (B, N)
         if self.record_step_costs:
-            step_costs = rollout_step_costs(inp.x0, dec["contact"], dec["foot_target_w"], dec["force_w"], inp.refs,
-                                            self.model, self.cfg.weights, self.cfg.dt)[:, 0]
+            step_costs, state_terms = rollout_step_costs_and_terms(
+                inp.x0, dec["contact"], dec["foot_target_w"], dec["force_w"], inp.refs, self.model, self.cfg.weights,
+                self.cfg.dt)
+            step_costs, state_terms = step_costs[:, 0], state_terms[:, 0]
         else:  # an eager reference rollout costs ~1.5 ms per solve: off unless asked for
             step_costs = torch.full((b, self.cfg.horizon), float("nan"), device=best_index.device)
+            state_terms = torch.full((b, len(STATE_TERMS)), float("nan"), device=best_index.device)
         return MPCResult(
             f=first["f"], d=first["d"], contact=first["contact"][:, 0], foot_target_w=first["foot_target_w"][:, 0],
             force_w=first["force_w"][:, 0], p_h=first["p_h"][:, 0], F_h=first["F_h"][:, 0],
             best_cost=best_cost, best_input_cost=step_input.sum(-1), initial_cost=init_cost, best_index=best_index,
             warm_start_index=inp.group[best_index], best_encoded=best[:, 0], contact_horizon=first["contact"],
-            step_costs=step_costs, step_input_costs=step_input,
+            step_costs=step_costs, step_input_costs=step_input, state_terms=state_terms,
             fallback=torch.zeros(b, dtype=torch.bool, device=best_index.device),
         )
 
@@ -332,6 +336,7 @@ class SamplingMPC:
             initial_cost=torch.where(bad, inf, result.initial_cost),
             best_index=torch.where(bad, minus, result.best_index),
             step_costs=torch.where(bad[:, None], float("inf"), result.step_costs),
+            state_terms=torch.where(bad[:, None], float("inf"), result.state_terms),
             warm_start_index=torch.where(bad, minus, result.warm_start_index),
             fallback=bad.clone(),
             reason=f"{why}: returned {source} for them",

@@ -37,6 +37,10 @@ class MPCResult:
             round-off, NaN where it diverged; thesis Fig. 28) when ``SamplingMPC.record_step_costs`` is on,
             else NaN; +inf for a fallback robot.
         step_input_costs: (B, N) the input part of ``step_costs`` (always filled; +inf for a fallback robot).
+        state_terms: (B, 9) the winner's state cost summed over the horizon, split by term (``cost.STATE_TERMS``
+            order: z, vx, vy, vz, roll, pitch, roll, pitch and yaw rates; from the same reference rollout as
+            ``step_costs``, so they add up to its state part) when ``record_step_costs`` is on, else NaN; +inf
+            for a fallback robot.
         fallback: (B,) bool, True where an input (state, phase, base_xy_w, base_yaw, terrain_z_w, a
             reference) or the solution was not finite and the previous solution (or the first warm
             start if there was none) was returned unchanged. False always means a finite action.
@@ -59,6 +63,7 @@ class MPCResult:
     contact_horizon: torch.Tensor
     step_costs: torch.Tensor
     step_input_costs: torch.Tensor
+    state_terms: torch.Tensor
     fallback: torch.Tensor
     reason: str = ""
 

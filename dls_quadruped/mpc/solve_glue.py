@@ -38,7 +38,7 @@ import torch
 from dls_quadruped.core.torch_cache import constant_cache
 from dls_quadruped.mpc import cpp_kernel
 from dls_quadruped.mpc.config import SamplerConfig
-from dls_quadruped.mpc.cost import Refs
+from dls_quadruped.mpc.cost import STATE_TERMS, Refs
 from dls_quadruped.mpc.encodings import (
     F_SCALARS,
     P_SCALARS,
@@ -302,5 +302,6 @@ def _decode_winner(lib: ctypes.CDLL, w: Workspace, best: torch.Tensor, inp, best
         p_h=p_h0, F_h=F_h0, best_cost=best_cost, best_input_cost=step_input.sum(-1), initial_cost=init_cost,
         best_index=best_index, warm_start_index=ws_index, best_encoded=best, contact_horizon=contact,
         step_costs=step_costs, step_input_costs=step_input, fallback=torch.zeros(b, dtype=torch.bool),
+        state_terms=torch.full((b, len(STATE_TERMS)), float("nan")),
     )
     return result, num_bad

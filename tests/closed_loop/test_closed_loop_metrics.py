@@ -129,3 +129,25 @@ def test_initial_cost_terms_per_episode_add_up_to_the_total() -> None:
     total = sum(np.array(pe[f"initial_term_{n}"]) for n in ("z", "vx", "vy", "vz", "roll", "pitch", "roll_rate",
                                                              "pitch_rate", "yaw_rate"))
     np.testing.assert_allclose(total, pe["initial_cost_mean"])
+
+
+def test_rollout_cost_terms_per_episode_over_the_recorded_solves() -> None:
+    """The chosen sample's state rollout cost by term, recorded on some solves only (NaN on the others, +inf on a
+    fallback): per-episode means over the recorded finite solves, by hand. Episode 0: solves 0 and 2 recorded,
+    z = (1 + 3) / 2 = 2, vz = (4 + 0) / 2 = 2, total 4; episode 1: solve 0 a fallback (+inf), solve 2 z = 5."""
+    t, e = 4, 2
+    tr = _traces(np.ones((t, e)), np.ones((t, e)), np.ones((t, e)), fell=np.array([False, False]))
+    tr.rollout_cost = np.full((t, 1, e), 50.0, np.float32)
+    tr.rollout_input_cost = np.zeros_like(tr.rollout_cost)
+    terms = np.full((t, 1, e, 9), np.nan)
+    terms[[0, 2], 0, 0] = 0.0
+    terms[0, 0, 0, 0], terms[2, 0, 0, 0], terms[0, 0, 0, 3] = 1.0, 3.0, 4.0
+    terms[0, 0, 1] = np.inf
+    terms[2, 0, 1] = 0.0
+    terms[2, 0, 1, 0] = 5.0
+    tr.rollout_state_terms = terms
+    pe = summarize(tr, settle_s=0.0)["per_episode"]
+    assert pe["rollout_term_z"][0] == [2.0, 5.0] and pe["rollout_term_vz"][0] == [2.0, 0.0]
+    assert pe["rollout_terms_mean"][0] == [4.0, 5.0]
+    tr.rollout_state_terms = None  # traces without terms (older runs): no rollout_term keys
+    assert not any(k.startswith("rollout_term") for k in summarize(tr, settle_s=0.0)["per_episode"])

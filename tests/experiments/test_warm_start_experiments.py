@@ -219,7 +219,8 @@ def test_cost_gap_merges_three_students_and_splits_the_gap_by_term(tmp_path: Pat
     height term by 10 (k + 1) on every episode and match it elsewhere, so the merged RL - naive height term is
     +20 (each student's own: +10, +20, +30, with zero-width intervals); the merged interval resamples the
     students, and 3 draws of student 0 (or of student 2) have probability 1/27 > 2.5 %, so it is [+10, +30] by
-    hand; the other terms are 0 and the total's mean gap equals the height term's."""
+    hand; the other terms are 0 and the total's mean gap equals the height term's. The state rollout cost's
+    v_x term likewise: students exceed naive's by 5 (k + 1), so +10 [+5, +15]."""
     sys.path.insert(0, str(REPO))
     from dls_quadruped.mpc.cost import STATE_TERMS
     from experiments import cost_gap
@@ -231,13 +232,15 @@ def test_cost_gap_merges_three_students_and_splits_the_gap_by_term(tmp_path: Pat
     for p, F in cost_gap.ENCODINGS:
         enc = f"{p}-{F}"
         # the same values for every sampler seed: paired_difference resamples the seeds of two cells independently
-        base = {f"initial_term_{t}": np.repeat(rng.uniform(1, 5, (1, e)), s, axis=0) for t in STATE_TERMS}
+        base = {f"{kind}_term_{t}": np.repeat(rng.uniform(1, 5, (1, e)), s, axis=0)
+                for t in STATE_TERMS for kind in ("initial", "rollout")}
         common = {"rl_reward": rng.uniform(2, 2.3, (s, e)), "rl_return": rng.uniform(1000, 1700, (s, e)),
                   "initial_cost": rng.uniform(20, 60, (s, e)), "rollout_cost": rng.uniform(100, 300, (s, e)),
                   "survived": np.ones((s, e))}
 
         def write(name, terms, controller, common=common):
-            pe = {**common, **terms, "initial_cost_mean": sum(terms.values())}
+            pe = {**common, **terms, "initial_cost_mean": sum(v for k, v in terms.items() if k.startswith("initial")),
+                  "rollout_terms_mean": sum(v for k, v in terms.items() if k.startswith("rollout"))}
             (out / "cells" / f"{name}.json").write_text(json.dumps(_cell_summary(controller, pe, s)))
 
         write(f"naive_warm_start_{enc}", base, "naive_warm_start")
@@ -245,7 +248,8 @@ def test_cost_gap_merges_three_students_and_splits_the_gap_by_term(tmp_path: Pat
             f = students / f"{enc}_H10_dt0.02_seed{k}" / "exported" / "student.pt2"
             f.parent.mkdir(parents=True)
             f.write_bytes(b"")
-            write(f"rl_warm_start_{enc}_seed{k}", {**base, "initial_term_z": base["initial_term_z"] + 10 * (k + 1)},
+            write(f"rl_warm_start_{enc}_seed{k}", {**base, "initial_term_z": base["initial_term_z"] + 10 * (k + 1),
+                                                   "rollout_term_vx": base["rollout_term_vx"] + 5 * (k + 1)},
                   "rl_warm_start")
     monkeypatch.setattr(sys, "argv", ["cost_gap.py", "--seed-students", str(students), "--out", str(out),
                                       "--episodes", str(e), "--sampler-seeds", str(s)])
@@ -260,6 +264,10 @@ def test_cost_gap_merges_three_students_and_splits_the_gap_by_term(tmp_path: Pat
         vx = rows[(f"{p}, {F}", "term vx")]["RL - naive (3 students)"]
         assert vx.replace("-", "+") == "+0.00 [+0.00, +0.00]"  # round-off may print -0.00
         assert rows[(f"{p}, {F}", "initial cost (mean per episode)")]["RL - naive (3 students)"] == "+20.0 [+10.0, +30.0]"
+        assert rows[(f"{p}, {F}", "rollout term vx")]["RL - naive (3 students)"] == "+10.0 [+5.0, +15.0]"
+        assert rows[(f"{p}, {F}", "rollout term z")]["RL - naive (3 students)"].replace("-", "+") == "+0.0 [+0.0, +0.0]"
+        key = "rollout cost, state (mean per episode, recorded solves)"
+        assert rows[(f"{p}, {F}", key)]["RL - naive (3 students)"] == "+10.0 [+5.0, +15.0]"
     results = json.loads((out / "results.json").read_text())
     assert results["rl_warm_start_first-spline"]["training_seeds"] == 3
     assert (out / "cost_gap.png").stat().st_size > 0 and "3 students merged" in (out / "table.md").read_text()

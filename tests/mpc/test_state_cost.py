@@ -59,3 +59,35 @@ def test_same_states_same_state_cost_whatever_the_footholds(kernel, standing):
     # per horizon step: the input part is the foothold term of that step, the rest is the state's
     torch.testing.assert_close(b.step_input_costs, torch.full((2, cfg.horizon), expected / cfg.horizon))
     torch.testing.assert_close(b.step_costs - b.step_input_costs, a.step_costs - a.step_input_costs)
+
+
+@pytest.mark.parametrize("kernel", ["reference", "cpp"])
+def test_rollout_state_terms_are_the_ballistic_fall_worked_out_by_hand(kernel, standing):
+    """Duty 0: the CoM falls freely from rest, so with explicit Euler (``srbd.srbd_step``) and t_k = k dt,
+    v_z,k = -g k dt and z_k - z_0 = -g dt^2 k (k - 1) / 2, v_x stays 0 against the 0.5 m/s command, the
+    attitude and rates stay 0: the terms are Q_z sum (g dt^2 k (k-1) / 2)^2, Q_vx N 0.25, Q_vz sum (g k dt)^2
+    and 0 for the rest, and they add up to the state cost the kernel (C++ or torch) minimised."""
+    if kernel == "cpp" and cpp_kernel.load() is None:
+        pytest.skip("no C++ compiler for the MPC kernel")
+    from dls_quadruped.mpc.cost import STATE_TERMS
+
+    cfg = SamplerConfig(num_samples=8, horizon=6, kernel=kernel, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0, sigma_F=0.0)
+    state, refs = standing(2)
+    mpc = SamplingMPC(cfg, seed=0)
+    mpc.record_step_costs = True
+    base_xy = state.com_pos_w[:, :2] - torch.tensor(robot_srbd_model().com_offset_b[:2])
+    res = mpc.solve(state, refs, [_horizon(cfg, DP)], phase=PHASE, base_xy_w=base_xy, base_yaw=torch.zeros(2))
+    g, dt, w = robot_srbd_model().gravity, cfg.dt, cfg.weights
+    k = torch.arange(1, cfg.horizon + 1, dtype=torch.float64)
+    expected = dict.fromkeys(STATE_TERMS, 0.0)
+    expected["z"] = w.z * float(((g * dt**2 * k * (k - 1) / 2) ** 2).sum())
+    expected["vx"] = w.vx * cfg.horizon * 0.5**2
+    expected["vz"] = w.vz * float(((g * k * dt) ** 2).sum())
+    got = dict(zip(STATE_TERMS, res.state_terms[0].tolist(), strict=True))
+    for name, value in expected.items():
+        assert got[name] == pytest.approx(value, rel=1e-4, abs=1e-3), name
+    assert expected["z"] > 10 and expected["vz"] > 10  # the fall is costly: the hand values are not trivial
+    torch.testing.assert_close(res.state_terms.sum(-1), res.best_state_cost, rtol=1e-4, atol=1e-3)
+    mpc.record_step_costs = False  # the fast path records no terms
+    again = mpc.solve(state, refs, [_horizon(cfg, DP)], phase=PHASE, base_xy_w=base_xy, base_yaw=torch.zeros(2))
+    assert torch.isnan(again.state_terms).all()
