@@ -31,50 +31,40 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from dls_quadruped.cli import UserError, run_cli
+from dls_quadruped.cli import run_cli
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.mpc.cost import STATE_TERMS
 from experiments.distill_common import write_table
 from experiments.warm_start_common import (
+    SEED_STUDENTS,
     Cell,
     finish,
     med,
-    merge_training_seeds,
+    merge_seed_rows,
     paired,
     parse_args,
     pyplot,
     run_cells,
     save,
+    seed_student_cells,
     survival,
 )
 
 ENCODINGS = (("first", "spline"), ("discrete", "discrete"))
-SEEDS = 3
+SEEDS = SEED_STUDENTS
 
 
 def cells(students: Path, only: list[str] | None = None) -> tuple[list[Cell], dict[str, list[str]]]:
     """(cells to run, {merged RL row: its students' cells}); the students of the cells selected (``only``: those
     named, None: all) must exist."""
-    out, rows = [], {}
-    missing = []
+    base = []
     for p, F in ENCODINGS:
-        enc = f"{p}-{F}"
         sampler = {"encoding_p": p, "encoding_F": F}
-        names = []
-        for k in range(SEEDS):
-            path = students / f"{enc}_H10_dt0.02_seed{k}" / "exported" / "student.pt2"
-            names.append(f"rl_warm_start_{enc}_seed{k}")
-            if not path.is_file() and (not only or names[-1] in only):
-                missing.append(str(path))
-            out.append(Cell(names[-1], "rl_warm_start", sampler, student=str(path),
-                            row={"Controller": f"rl_warm_start, student {k}", "p": p, "F": F}))
-        rows[f"rl_warm_start_{enc}"] = names
-        out.append(Cell(f"naive_warm_start_{enc}", "naive_warm_start", sampler,
-                        row={"Controller": "naive_warm_start", "p": p, "F": F}))
-    if missing:
-        raise UserError(f"--seed-students {students}: no student {missing[0]} (and {len(missing) - 1} more); "
-                        "distil them first (the module docstring)")
-    return out, rows
+        base += [Cell(f"rl_warm_start_{p}-{F}", "rl_warm_start", sampler,
+                      row={"Controller": "rl_warm_start", "p": p, "F": F}),
+                 Cell(f"naive_warm_start_{p}-{F}", "naive_warm_start", sampler,
+                      row={"Controller": "naive_warm_start", "p": p, "F": F})]
+    return seed_student_cells(base, students, only, SEEDS)
 
 
 def gap_rows(results: dict, rows: dict[str, list[str]]) -> list[dict]:
@@ -160,10 +150,7 @@ def main() -> None:
     args = parse_args(__doc__, "cost_gap", _flags)
     todo, rows = cells(args.seed_students, args.only)
     results = run_cells(todo, args)
-    for row, names in rows.items():
-        seeds = [results[n] for n in names if n in results]
-        if len(seeds) == len(names):
-            results[row] = merge_training_seeds(seeds)
+    merge_seed_rows(results, rows)
     write_gap = gap_rows(results, rows)
     gap_cols = ["p, F", "quantity", "RL - naive (3 students)", *(f"student {k} - naive" for k in range(SEEDS))]
     write_table(write_gap, gap_cols, args.out / "gap", "RL - naive warm start, paired on the same episodes "

@@ -3,6 +3,13 @@ H = 10, dt = 0.02 s, forces only, simple task; Δ: the change against M = 10 000
 sum_e (x_e - x_e^10000) / sum_e x_e^10000 over per-episode medians (seed-averaged), with its 95 % interval.
 
     python experiments/table16_samples.py --scale small
+
+``--seed-students DIR``: the RL rows from three students (training seeds, as ``cost_gap.py``), each with the
+sampler seeds, merged per row; e.g. only the headline cells, M = 4 000 and 10 000:
+
+    python experiments/table16_samples.py --scale medium --seed-students runs/students_seeds \
+        --out results/experiments/table16_seeds --only rl_warm_start_M4000_seed{0,1,2} \
+        rl_warm_start_M10000_seed{0,1,2} naive_warm_start_M4000 naive_warm_start_M10000
 """
 
 from __future__ import annotations
@@ -16,11 +23,13 @@ from experiments.warm_start_common import (
     Cell,
     finish,
     med,
+    merge_seed_rows,
     paired,
     parse_args,
     pyplot,
     run_cells,
     save,
+    seed_student_cells,
     survival,
     tabulate,
 )
@@ -61,10 +70,19 @@ def figure(results: dict, path: Path) -> None:
     save(fig, path)
 
 
+def _flags(p) -> None:
+    p.add_argument("--seed-students", type=Path, default=None,
+                   help="students as seeds: every RL warm-start cell runs once per training seed k = 0, 1, 2 with "
+                        "<dir>/first-spline_H10_dt0.02_seed<k>/exported/student.pt2 and its row merges them "
+                        "(default: the one committed student)")
+
+
 def main() -> None:
-    args = parse_args(__doc__, "table16_samples")
-    todo = cells()
+    args = parse_args(__doc__, "table16_samples", _flags)
+    rows_of = cells()
+    todo, seeded = seed_student_cells(rows_of, args.seed_students, args.only) if args.seed_students else (rows_of, {})
     results = run_cells(todo, args)
+    merge_seed_rows(results, seeded)
 
     def columns(c: Cell, s: dict) -> dict:
         ref = f"{c.controller}_M10000"
@@ -83,8 +101,9 @@ def main() -> None:
 
     cols = ["Controller", "M", "RL reward", "Δ reward", "Initial cost", "Δ initial", "Rollout cost (state)", "Δ rollout",
             "Rollout J (full)", "Survival", "thesis RL reward", "thesis initial", "thesis rollout"]
-    finish(args, todo, results, tabulate(todo, results, columns, thesis), cols,
-           "Table 16 (first-spline, H = 10, dt = 0.02 s, F only; Δ vs M = 10 000)", figure, "fig29.png")
+    students = "; RL rows: 3 students x the sampler seeds" if seeded else ""
+    finish(args, todo, results, tabulate(rows_of, results, columns, thesis), cols,
+           f"Table 16 (first-spline, H = 10, dt = 0.02 s, F only; Δ vs M = 10 000{students})", figure, "fig29.png")
 
 
 if __name__ == "__main__":

@@ -3,6 +3,13 @@ and naive warm starts at forward speeds 0.1, 0.5 and 1.5 m/s (v_y = omega_z = 0,
 H = 10, dt = 0.02 s, M = 10 000; RL reward, initial cost and survival; the RL baseline beside them.
 
     python experiments/table17_gait_optimisation.py --scale small
+
+``--seed-students DIR``: the RL warm-start rows from three students (training seeds, as ``cost_gap.py``), each with
+the sampler seeds, merged per row; e.g. only the 1.5 m/s headline cells:
+
+    python experiments/table17_gait_optimisation.py --scale medium --seed-students runs/students_seeds \
+        --out results/experiments/table17_seeds --only rl_warm_start_no_v1.5_seed{0,1,2} \
+        rl_warm_start_full_v1.5_seed{0,1,2} rl_baseline_v1.5
 """
 
 from __future__ import annotations
@@ -16,10 +23,12 @@ from experiments.warm_start_common import (
     Cell,
     finish,
     med,
+    merge_seed_rows,
     parse_args,
     pyplot,
     run_cells,
     save,
+    seed_student_cells,
     survival,
 )
 
@@ -77,10 +86,18 @@ def figure(results: dict, path: Path) -> None:
     save(fig, path)
 
 
+def _flags(p) -> None:
+    p.add_argument("--seed-students", type=Path, default=None,
+                   help="students as seeds: every RL warm-start cell runs once per training seed k = 0, 1, 2 with "
+                        "<dir>/first-spline_H10_dt0.02_seed<k>/exported/student.pt2 and its row merges them "
+                        "(default: the one committed student)")
+
+
 def main() -> None:
-    args = parse_args(__doc__, "table17_gait_optimisation")
-    todo = cells()
+    args = parse_args(__doc__, "table17_gait_optimisation", _flags)
+    todo, seeded = seed_student_cells(cells(), args.seed_students, args.only) if args.seed_students else (cells(), {})
     results = run_cells(todo, args)
+    merge_seed_rows(results, seeded)
     rows = []
     for ctrl, gait in [(c, g) for c in ("rl_warm_start", "naive_warm_start") for g in GAIT] + [("rl_baseline", "-")]:
         row = {"Controller": ctrl, "Gait opt.": gait}
@@ -95,8 +112,9 @@ def main() -> None:
             row[f"Surv {v:g}"] = f"{survival(s)} ({th[2][i]} %)"
         rows.append(row)
     cols = ["Controller", "Gait opt."] + [f"{k} {v:g}" for k in ("RLR", "IC", "Surv") for v in SPEEDS]
-    finish(args, todo, results, rows, cols, "Table 17 (ours (thesis); RLR/IC medians; first-spline, M = 10 000)",
-           figure, "fig30.png")
+    students = "; RL warm-start rows: 3 students x the sampler seeds" if seeded else ""
+    finish(args, todo, results, rows, cols,
+           f"Table 17 (ours (thesis); RLR/IC medians; first-spline, M = 10 000{students})", figure, "fig30.png")
 
 
 if __name__ == "__main__":

@@ -195,10 +195,11 @@ def gap(folder: str, a: str, b: str | tuple[str, str], key: str = "initial_cost"
 
 
 def relative_gap_difference(folder: str, a: tuple[str, str], b: tuple[str, str], key: str = "initial_cost",
-                            draws: int = 2000, seed: int = 0) -> Interval:
+                            draws: int = 2000, seed: int = 0, paired_seeds: tuple[bool, bool] = (False, False)) -> Interval:
     """(Δ_a - Δ_b) in points of %, Δ = sum_e (x_e - ref_e) / sum_e ref_e (Table 16's Δ) of two (cell, reference)
     pairs on the same episodes; the interval resamples the episodes jointly for the four cells and each cell's
-    seeds on its own (the two-level bootstrap of ``paired_difference``)."""
+    seeds on its own (the two-level bootstrap of ``paired_difference``), or, for a pair marked in
+    ``paired_seeds`` (rows merged from the same students), its two cells' seeds together."""
     cells = [_per_episode(folder, c, key) for c in (*a, *b)]
     rng = np.random.default_rng(seed)
     e = cells[0].shape[1]
@@ -208,11 +209,15 @@ def relative_gap_difference(folder: str, a: tuple[str, str], b: tuple[str, str],
         xm, rm = np.nanmean(x, axis=-2), np.nanmean(ref, axis=-2)
         return np.nansum(xm - rm, axis=-1) / np.nansum(rm, axis=-1)
 
-    def boot(x):
-        return x[rng.integers(0, x.shape[0], size=(draws, x.shape[0], 1)), cols]
+    def boot(x, ref, joint):
+        rows = rng.integers(0, x.shape[0], size=(draws, x.shape[0], 1))
+        if joint and x.shape[0] != ref.shape[0]:
+            raise ValueError(f"paired seeds need the same seeds in both cells, got {x.shape[0]} and {ref.shape[0]}")
+        ref_rows = rows if joint else rng.integers(0, ref.shape[0], size=(draws, ref.shape[0], 1))
+        return x[rows, cols], ref[ref_rows, cols]
 
     v = 100 * (rel(cells[0], cells[1]) - rel(cells[2], cells[3]))
-    bs = 100 * (rel(*(boot(c) for c in cells[:2])) - rel(*(boot(c) for c in cells[2:])))
+    bs = 100 * (rel(*boot(*cells[:2], paired_seeds[0])) - rel(*boot(*cells[2:], paired_seeds[1])))
     lo, hi = np.percentile(bs[np.isfinite(bs)], [2.5, 97.5])
     return Interval(float(v), float(lo), float(hi), _fmt(float(v), float(lo), float(hi), 1, " points"))
 

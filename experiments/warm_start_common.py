@@ -30,7 +30,7 @@ import argparse
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -253,6 +253,53 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
     return out
 
 
+SEED_STUDENTS = 3
+"""Training seeds per setting under ``--seed-students`` (students as seeds)."""
+
+
+def seed_student_path(students: Path, sampler: dict, k: int) -> Path:
+    """``<students>/<p>-<F>_H<H>_dt<dt>_seed<k>/exported/student.pt2``: training seed k's student of the setting
+    of ``sampler`` (SamplerConfig overrides), as ``make distill ... --seed k`` writes it (cost_gap.py's docstring)."""
+    cfg = SamplerConfig(**sampler)
+    return students / f"{cfg.encoding_p}-{cfg.encoding_F}_H{cfg.horizon}_dt{cfg.dt:g}_seed{k}" / "exported" / "student.pt2"
+
+
+def seed_student_cells(cells: list[Cell], students: Path, only: list[str] | None = None,
+                       seeds: int = SEED_STUDENTS) -> tuple[list[Cell], dict[str, list[str]]]:
+    """Students as seeds: every ``rl_warm_start`` cell of one student becomes one cell per training seed,
+    ``<name>_seed<k>`` (:func:`seed_student_path`), the others stay. Returns (cells to run, {row cell: its seeds'
+    cells}), to merge with :func:`merge_seed_rows` after :func:`run_cells`. The students of the cells selected
+    (``only``: those named; None: all) must exist."""
+    from dls_quadruped.cli import UserError
+
+    out, rows, missing = [], {}, []
+    for c in cells:
+        if c.controller != "rl_warm_start" or c.students or c.student:
+            out.append(c)
+            continue
+        rows[c.name] = []
+        for k in range(seeds):
+            path = seed_student_path(students, c.sampler, k)
+            name = f"{c.name}_seed{k}"
+            row = {**c.row, "Controller": f"{c.row['Controller']}, student {k}"} if "Controller" in c.row else c.row
+            out.append(replace(c, name=name, student=str(path), row=row))
+            rows[c.name].append(name)
+            if not path.is_file() and (not only or name in only):
+                missing.append(str(path))
+    if missing:
+        raise UserError(f"--seed-students {students}: no student {missing[0]} (and {len(missing) - 1} more); "
+                        "distil them first (experiments/cost_gap.py's docstring)")
+    return out, rows
+
+
+def merge_seed_rows(results: dict[str, dict], rows: dict[str, list[str]]) -> None:
+    """Add each row of :func:`seed_student_cells` whose seeds all ran to ``results``, merged
+    (:func:`merge_training_seeds`)."""
+    for row, names in rows.items():
+        if all(n in results for n in names):
+            results[row] = merge_training_seeds([results[n] for n in names])
+
+
 def merge_training_seeds(summaries: list[dict]) -> dict:
     """One table row from the cells of T training seeds (T students of one setting, each run with S sampler
     seeds on the same E episodes): per episode, each student's mean over its sampler seeds, giving (T, E)
@@ -277,7 +324,8 @@ def merge_training_seeds(summaries: list[dict]) -> dict:
            "replicas": sum(s.get("replicas", 1) for s in summaries),
            "survival": {"rate": rate, "ci95": list(wilson_interval(rate * e, e))},
            "per_episode": {k: v.tolist() for k, v in per_episode.items()},
-           "seeds": [s.get("cell") for s in summaries]}
+           "seeds": [s.get("cell") for s in summaries],
+           "students": [s.get("student") for s in summaries]}  # the same students in two rows: paired by student
     for key, v in per_episode.items():
         if key != "survived":
             out[key] = episode_summary(v)
@@ -299,13 +347,15 @@ def med(m: dict | None, digits: int = 1) -> str:
 
 def paired(results: dict, a: str, b: str, key: str, digits: int = 1, relative: bool = False) -> str:
     """Paired difference of cells ``a`` - ``b`` on the same episodes: 'mean [95 % CI]' (or the relative
-    difference sum d / sum b in %), '-' if either cell is missing or was skipped."""
+    difference sum d / sum b in %), '-' if either cell is missing or was skipped. Two rows merged from the same
+    students (:func:`merge_training_seeds`' ``students``) are paired by student too."""
     from dls_quadruped.eval.metrics import paired_difference
 
     sa, sb = results.get(a) or {}, results.get(b) or {}
     if "per_episode" not in sa or "per_episode" not in sb or key not in sa["per_episode"] or key not in sb["per_episode"]:
         return "-"
-    d = paired_difference(np.array(sa["per_episode"][key]), np.array(sb["per_episode"][key]))
+    same = sa.get("students") is not None and sa.get("students") == sb.get("students")
+    d = paired_difference(np.array(sa["per_episode"][key]), np.array(sb["per_episode"][key]), paired_seeds=same)
     if relative:
         return f"{100 * d['relative']:+.1f} % [{100 * d['relative_ci95'][0]:+.1f}, {100 * d['relative_ci95'][1]:+.1f}]"
     return f"{d['mean']:+.{digits}f} [{d['ci95'][0]:+.{digits}f}, {d['ci95'][1]:+.{digits}f}]"

@@ -175,22 +175,27 @@ def episode_summary(values: np.ndarray, seed: int = 0) -> dict:
             "mean": float(flat.mean()), "mean_ci95": bootstrap_ci(v, np.nanmean, seed=seed), "n": int(flat.size)}
 
 
-def paired_difference(a: np.ndarray, b: np.ndarray, draws: int = 2000, seed: int = 0) -> dict:
+def paired_difference(a: np.ndarray, b: np.ndarray, draws: int = 2000, seed: int = 0,
+                      paired_seeds: bool = False) -> dict:
     """Paired difference of two controllers (or policies) evaluated on the same E episodes.
 
     Args:
         a, b: per-episode values, (E,) or (S, E) with S seeds each (S may differ between a and b, e.g. an
             RL policy has no sampler seed). Episode e of ``a`` and of ``b`` must be the same episode.
+        paired_seeds: row s of ``a`` and of ``b`` are the same unit (e.g. the same student at two settings):
+            the seeds are resampled together, like the episodes (a and b must then have the same S).
 
     Returns:
         {"mean": mean over episodes of d_e = mean_s a_se - mean_s b_se, "ci95": its 95 % interval (two-level
-        bootstrap: episodes resampled together for a and b, seeds independently), "relative": sum_e d_e /
+        bootstrap: episodes resampled together for a and b, seeds independently unless ``paired_seeds``), "relative": sum_e d_e /
         sum_e b_e (e.g. Table 16's delta), "relative_ci95", "episodes": episodes where both are finite}.
         Episodes where either side has no finite value are left out of both.
     """
     a, b = _as_units(a), _as_units(b)
     if a.shape[1] != b.shape[1]:
         raise ValueError(f"a and b must cover the same episodes, got {a.shape[1]} and {b.shape[1]}")
+    if paired_seeds and a.shape[0] != b.shape[0]:
+        raise ValueError(f"paired_seeds needs the same seeds in a and b, got {a.shape[0]} and {b.shape[0]}")
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # an episode without values: NaN, left out below
         keep = np.isfinite(np.nanmean(a, 0)) & np.isfinite(np.nanmean(b, 0))
@@ -212,6 +217,8 @@ def paired_difference(a: np.ndarray, b: np.ndarray, draws: int = 2000, seed: int
     cols = rng.integers(0, e, size=(draws, 1, e))
     ra = rng.integers(0, a.shape[0], size=(draws, a.shape[0], 1)) if a.shape[0] > 1 else np.zeros((draws, 1, 1), int)
     rb = rng.integers(0, b.shape[0], size=(draws, b.shape[0], 1)) if b.shape[0] > 1 else np.zeros((draws, 1, 1), int)
+    if paired_seeds:
+        rb = ra
     bm, br = stats(a[ra, cols], b[rb, cols])
 
     def ci(x: np.ndarray) -> list[float]:

@@ -44,3 +44,17 @@ def test_bootstrap_ci_of_identical_values_is_a_point_and_grows_with_spread():
     agree = M.bootstrap_ci(np.array([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0]]), np.nanmean)
     disagree = M.bootstrap_ci(np.array([[0.0, 1.0, 2.0], [2.0, 3.0, 4.0]]), np.nanmean)
     assert agree[1] - agree[0] < disagree[1] - disagree[0]
+
+
+def test_paired_seeds_resample_the_same_student_in_both_rows():
+    """Rows are students whose level differs (10, 20, 30) and a = b + 1 for each student on every episode: paired
+    by student the difference is exactly +1 in every resample; resampled independently the students' levels
+    leak in (a draw of student 0 for a against student 2 for b gives 11 - 30)."""
+    b = np.array([[10.0, 11.0, 12.0, 13.0], [20.0, 21.0, 22.0, 23.0], [30.0, 31.0, 32.0, 33.0]])
+    a = b + 1.0
+    joint = M.paired_difference(a, b, paired_seeds=True)
+    assert joint["mean"] == pytest.approx(1.0) and joint["ci95"] == pytest.approx([1.0, 1.0])
+    apart = M.paired_difference(a, b)
+    assert apart["mean"] == pytest.approx(1.0) and apart["ci95"][0] < -3.0 and apart["ci95"][1] > 5.0
+    with pytest.raises(ValueError, match="same seeds"):
+        M.paired_difference(a, b[:2], paired_seeds=True)

@@ -293,3 +293,48 @@ def test_cost_gap_help_and_a_bad_scale(monkeypatch, capsys, argv, code, text):
         cost_gap.main()
     out = capsys.readouterr()
     assert err.value.code == code and text in (out.out + out.err)
+
+
+def test_table16_students_as_seeds_merge_each_rl_row(tmp_path: Path, monkeypatch) -> None:
+    """table16_samples.py --seed-students on cached cells built by hand: each student's M = 4 000 cell costs
+    exactly 1.1x its M = 10 000 cell on every episode, so the merged RL row's Δ initial is +10.0 % with a
+    zero-width interval; a missing student of a selected cell is named before anything runs."""
+    sys.path.insert(0, str(REPO))
+    from dls_quadruped.cli import UserError
+    from experiments import table16_samples as t16
+    from experiments.warm_start_common import seed_student_cells
+
+    rng = np.random.default_rng(1)
+    e, s = 4, 2
+    students, out = tmp_path / "students", tmp_path / "t16"
+    (out / "cells").mkdir(parents=True)
+    todo, rows = seed_student_cells(t16.cells(), students, only=["naive_warm_start_M4000"])  # no student needed
+    assert rows["rl_warm_start_M4000"] == [f"rl_warm_start_M4000_seed{k}" for k in range(3)]
+    assert "naive_warm_start_M4000" in {c.name for c in todo} and "rl_warm_start_M4000" not in {c.name for c in todo}
+    with pytest.raises(UserError, match="first-spline_H10_dt0.02_seed0/exported/student.pt2"):
+        seed_student_cells(t16.cells(), students, only=["rl_warm_start_M4000_seed0"])
+
+    def write(name, controller, ic):
+        pe = {"rl_reward": np.full((s, e), 2.2), "initial_cost": ic, "rollout_cost": 10 * ic,
+              "survived": np.ones((s, e))}
+        (out / "cells" / f"{name}.json").write_text(json.dumps(_cell_summary(controller, pe, s)))
+
+    for k in range(3):
+        f = students / f"first-spline_H10_dt0.02_seed{k}" / "exported" / "student.pt2"
+        f.parent.mkdir(parents=True)
+        f.write_bytes(b"")
+        ic = np.repeat(rng.uniform(40, 60, (1, e)), s, axis=0)  # equal across sampler seeds
+        write(f"rl_warm_start_M10000_seed{k}", "rl_warm_start", ic)
+        write(f"rl_warm_start_M4000_seed{k}", "rl_warm_start", 1.1 * ic)
+    for m in (4000, 10000):
+        write(f"naive_warm_start_M{m}", "naive_warm_start", rng.uniform(15, 25, (s, e)))
+    only = [f"rl_warm_start_M{m}_seed{k}" for m in (4000, 10000) for k in range(3)]
+    only += ["naive_warm_start_M4000", "naive_warm_start_M10000"]
+    monkeypatch.setattr(sys, "argv", ["table16_samples.py", "--seed-students", str(students), "--out", str(out),
+                                      "--episodes", str(e), "--sampler-seeds", str(s), "--only", *only])
+    t16.main()
+    results = json.loads((out / "results.json").read_text())
+    assert results["rl_warm_start_M4000"]["training_seeds"] == 3
+    assert np.asarray(results["rl_warm_start_M4000"]["per_episode"]["initial_cost"]).shape == (3, e)
+    table = (out / "table.md").read_text()
+    assert "3 students x the sampler seeds" in table and "+10.0 % [+10.0, +10.0]" in table
