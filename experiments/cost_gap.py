@@ -85,7 +85,8 @@ def gap_rows(results: dict, rows: dict[str, list[str]]) -> list[dict]:
                         ("survived", "survived", 2)]
         for label, key, digits in quantities:
             row = {"p, F": f"{p}, {F}", "quantity": label,
-                   "RL - naive (3 students)": paired(results, rl, naive, key, digits)}
+                   "RL - naive (3 students)": paired(results, rl, naive, key, digits),
+                   "median of the episodes' differences": paired(results, rl, naive, key, digits, median=True)}
             for k, name in enumerate(rows[rl]):
                 row[f"student {k} - naive"] = paired(results, name, naive, key, digits)
             out.append(row)
@@ -152,7 +153,8 @@ def main() -> None:
     results = run_cells(todo, args)
     merge_seed_rows(results, rows)
     write_gap = gap_rows(results, rows)
-    gap_cols = ["p, F", "quantity", "RL - naive (3 students)", *(f"student {k} - naive" for k in range(SEEDS))]
+    gap_cols = ["p, F", "quantity", "RL - naive (3 students)", "median of the episodes' differences",
+                *(f"student {k} - naive" for k in range(SEEDS))]
     write_table(write_gap, gap_cols, args.out / "gap", "RL - naive warm start, paired on the same episodes "
                 f"(mean [95 % CI]; height reference {args.com_height or 'default'})")
     write_json({"gap": write_gap}, args.out / "gap.json", indent=1)

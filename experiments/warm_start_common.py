@@ -345,10 +345,12 @@ def med(m: dict | None, digits: int = 1) -> str:
     return f"{m['median']:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
 
 
-def paired(results: dict, a: str, b: str, key: str, digits: int = 1, relative: bool = False) -> str:
+def paired(results: dict, a: str, b: str, key: str, digits: int = 1, relative: bool = False,
+           median: bool = False) -> str:
     """Paired difference of cells ``a`` - ``b`` on the same episodes: 'mean [95 % CI]' (or the relative
     difference sum d / sum b in %), '-' if either cell is missing or was skipped. Two rows merged from the same
-    students (:func:`merge_training_seeds`' ``students``) are paired by student too."""
+    students (:func:`merge_training_seeds`' ``students``) are paired by student too. ``median``: the median over
+    episodes of the paired differences instead of their mean."""
     from dls_quadruped.eval.metrics import paired_difference
 
     sa, sb = results.get(a) or {}, results.get(b) or {}
@@ -358,7 +360,8 @@ def paired(results: dict, a: str, b: str, key: str, digits: int = 1, relative: b
     d = paired_difference(np.array(sa["per_episode"][key]), np.array(sb["per_episode"][key]), paired_seeds=same)
     if relative:
         return f"{100 * d['relative']:+.1f} % [{100 * d['relative_ci95'][0]:+.1f}, {100 * d['relative_ci95'][1]:+.1f}]"
-    return f"{d['mean']:+.{digits}f} [{d['ci95'][0]:+.{digits}f}, {d['ci95'][1]:+.{digits}f}]"
+    v, (lo, hi) = (d["median"], d["median_ci95"]) if median else (d["mean"], d["ci95"])
+    return f"{v:+.{digits}f} [{lo:+.{digits}f}, {hi:+.{digits}f}]"
 
 
 def survival(s: dict) -> str:

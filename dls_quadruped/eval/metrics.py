@@ -188,7 +188,9 @@ def paired_difference(a: np.ndarray, b: np.ndarray, draws: int = 2000, seed: int
     Returns:
         {"mean": mean over episodes of d_e = mean_s a_se - mean_s b_se, "ci95": its 95 % interval (two-level
         bootstrap: episodes resampled together for a and b, seeds independently unless ``paired_seeds``), "relative": sum_e d_e /
-        sum_e b_e (e.g. Table 16's delta), "relative_ci95", "episodes": episodes where both are finite}.
+        sum_e b_e (e.g. Table 16's delta), "relative_ci95", "median": the median over episodes of d_e (robust to
+        a few episodes where one side stumbled) and "median_ci95" (the same resamples), "episodes": episodes
+        where both are finite}.
         Episodes where either side has no finite value are left out of both.
     """
     a, b = _as_units(a), _as_units(b)
@@ -203,26 +205,28 @@ def paired_difference(a: np.ndarray, b: np.ndarray, draws: int = 2000, seed: int
     e = a.shape[1]
     nan2 = [math.nan, math.nan]
     if e == 0:
-        return {"mean": math.nan, "ci95": nan2, "relative": math.nan, "relative_ci95": nan2, "episodes": 0}
+        return {"mean": math.nan, "ci95": nan2, "relative": math.nan, "relative_ci95": nan2, "median": math.nan,
+                "median_ci95": nan2, "episodes": 0}
 
-    def stats(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    def stats(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
         with np.errstate(all="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # a resample of all-NaN seeds: NaN, dropped from the interval
             xm, ym = np.nanmean(x, axis=-2), np.nanmean(y, axis=-2)  # per episode, over seeds
             d = xm - ym
-            return np.nanmean(d, axis=-1), np.nansum(d, axis=-1) / np.nansum(ym, axis=-1)
+            return np.nanmean(d, axis=-1), np.nansum(d, axis=-1) / np.nansum(ym, axis=-1), np.nanmedian(d, axis=-1)
 
-    mean, rel = stats(a, b)
+    mean, rel, median = stats(a, b)
     rng = np.random.default_rng(seed)
     cols = rng.integers(0, e, size=(draws, 1, e))
     ra = rng.integers(0, a.shape[0], size=(draws, a.shape[0], 1)) if a.shape[0] > 1 else np.zeros((draws, 1, 1), int)
     rb = rng.integers(0, b.shape[0], size=(draws, b.shape[0], 1)) if b.shape[0] > 1 else np.zeros((draws, 1, 1), int)
     if paired_seeds:
         rb = ra
-    bm, br = stats(a[ra, cols], b[rb, cols])
+    bm, br, bmed = stats(a[ra, cols], b[rb, cols])
 
     def ci(x: np.ndarray) -> list[float]:
         x = x[np.isfinite(x)]
         return [float(v) for v in np.percentile(x, [2.5, 97.5])] if x.size else nan2
 
-    return {"mean": float(mean), "ci95": ci(bm), "relative": float(rel), "relative_ci95": ci(br), "episodes": int(e)}
+    return {"mean": float(mean), "ci95": ci(bm), "relative": float(rel), "relative_ci95": ci(br),
+            "median": float(median), "median_ci95": ci(bmed), "episodes": int(e)}

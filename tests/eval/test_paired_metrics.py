@@ -58,3 +58,17 @@ def test_paired_seeds_resample_the_same_student_in_both_rows():
     assert apart["mean"] == pytest.approx(1.0) and apart["ci95"][0] < -3.0 and apart["ci95"][1] > 5.0
     with pytest.raises(ValueError, match="same seeds"):
         M.paired_difference(a, b[:2], paired_seeds=True)
+
+
+def test_paired_median_is_robust_to_one_stumbling_episode():
+    """Differences 1 .. 8 and one episode where b stumbled (-100): the mean is dragged to (36 - 100) / 9, the
+    median of {-100, 1, ..., 8} is 4. A resample's median reaches -100 only if it draws the stumble 5 or more
+    times of 9 (binomial(9, 1/9): 0.15 %, under the interval's 2.5 %), so the median's interval stays in [1, 8]
+    while the mean's reaches far below 0."""
+    b = np.array([1.0] * 8 + [101.0])
+    a = np.array([2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 1.0])
+    d = M.paired_difference(a, b, draws=4000)
+    assert d["mean"] == pytest.approx((36.0 - 100.0) / 9) and d["median"] == pytest.approx(4.0)
+    lo, hi = d["median_ci95"]
+    assert 1.0 <= lo <= 4.0 <= hi <= 8.0
+    assert d["ci95"][0] < -15.0  # the mean's interval reaches the stumble

@@ -259,6 +259,7 @@ def test_cost_gap_merges_three_students_and_splits_the_gap_by_term(tmp_path: Pat
     for p, F in cost_gap.ENCODINGS:
         z = rows[(f"{p}, {F}", "term z")]
         assert z["RL - naive (3 students)"] == "+20.00 [+10.00, +30.00]"
+        assert z["median of the episodes' differences"] == "+20.00 [+10.00, +30.00]"  # equal on every episode
         assert [z[f"student {k} - naive"] for k in range(3)] == ["+10.00 [+10.00, +10.00]", "+20.00 [+20.00, +20.00]",
                                                                  "+30.00 [+30.00, +30.00]"]
         vx = rows[(f"{p}, {F}", "term vx")]["RL - naive (3 students)"]
