@@ -111,8 +111,9 @@ def cell_rows(todo: list[Cell], results: dict, rows: dict[str, list[str]]) -> li
 
 
 def figure(results: dict, path: Path) -> None:
-    """Per encoding: the RL - naive difference of each initial-cost term and each state rollout-cost term (paired
-    means, 95 % intervals); the rollout panel only where the cells recorded the rollout terms."""
+    """Per encoding: the RL - naive difference of each initial-cost term and each state rollout-cost term (the
+    median over episodes of the paired differences, 95 % interval: a robot that stumbled in one episode swamps
+    the mean); the rollout panel only where the cells recorded the rollout terms."""
     import numpy as np
 
     from dls_quadruped.eval.metrics import paired_difference
@@ -130,12 +131,12 @@ def figure(results: dict, path: Path) -> None:
                 if key not in rl["per_episode"] or key not in naive["per_episode"]:
                     continue
                 d = paired_difference(np.array(rl["per_episode"][key]), np.array(naive["per_episode"][key]))
-                ax.errorbar(i + 0.2 * (j - 0.5), d["mean"], yerr=[[d["mean"] - d["ci95"][0]],
-                                                                    [d["ci95"][1] - d["mean"]]],
+                m, (lo, hi) = d["median"], d["median_ci95"]
+                ax.errorbar(i + 0.2 * (j - 0.5), m, yerr=[[m - lo], [hi - m]],
                             fmt="o", color=f"C{j}", capsize=3, label=f"{p}-{F}" if i == 0 else None)
         ax.axhline(0, color="k", lw=0.8)
         ax.set_xticks(range(len(terms)), terms, rotation=30)
-        ax.set_ylabel(f"RL - naive, {what} term (mean per episode)")
+        ax.set_ylabel(f"RL - naive, {what} term\n(median of the episodes' paired differences)", fontsize=8)
         ax.set_title(f"{what.capitalize()} gap by term (3 students x sampler seeds, paired episodes)", fontsize=9)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8)
