@@ -111,3 +111,16 @@ def test_the_joint_bootstrap_of_two_relative_changes_centres_on_their_difference
     assert both.value == pytest.approx(naive.value - rl.value)
     assert both.lo < both.value < both.hi
     assert both.hi - both.lo < (naive.hi - naive.lo) + (rl.hi - rl.lo)  # pairing narrows the interval
+
+
+def test_students_paired_in_both_rl_rows_keep_the_value_and_narrow_the_interval():
+    """Table 16 with three students: the RL rows at 4 000 and 10 000 samples hold the same students, so resampling
+    them together (paired_seeds) leaves the point value as it is and narrows the interval."""
+    from experiments.verdicts import relative_gap_difference
+
+    folder, naive = "table16_seeds_medium", ("naive_warm_start_M4000", "naive_warm_start_M10000")
+    rl = ("rl_warm_start_M4000", "rl_warm_start_M10000")
+    joint = relative_gap_difference(folder, naive, rl, paired_seeds=(False, True))
+    apart = relative_gap_difference(folder, naive, rl)
+    assert joint.value == pytest.approx(apart.value)
+    assert apart.lo < joint.lo < joint.value < joint.hi < apart.hi
