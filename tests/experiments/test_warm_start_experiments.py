@@ -339,3 +339,22 @@ def test_table16_students_as_seeds_merge_each_rl_row(tmp_path: Path, monkeypatch
     assert np.asarray(results["rl_warm_start_M4000"]["per_episode"]["initial_cost"]).shape == (3, e)
     table = (out / "table.md").read_text()
     assert "3 students x the sampler seeds" in table and "+10.0 % [+10.0, +10.0]" in table
+
+
+@pytest.mark.parametrize("script", ["table16_samples", "table17_gait_optimisation"])
+@pytest.mark.parametrize("argv, code, text", [(["--help"], 0, "--seed-students"),
+                                              (["--seed-students"], 2, "expected one argument"),
+                                              (["--seed-students", "nowhere"], 2,
+                                               "error: --seed-students nowhere: no student nowhere/first-spline_H10_dt0.02_seed0")])
+def test_table16_and_17_help_a_bad_flag_and_a_missing_student(monkeypatch, capsys, tmp_path, script, argv, code, text):
+    import importlib
+
+    from dls_quadruped.cli import run_cli
+
+    sys.path.insert(0, str(REPO))
+    module = importlib.import_module(f"experiments.{script}")
+    monkeypatch.setattr(sys, "argv", [f"{script}.py", "--out", str(tmp_path), *argv])
+    with pytest.raises(SystemExit) as err:
+        run_cli(module.main)
+    out = capsys.readouterr()
+    assert err.value.code == code and text in (out.out + out.err) and "Traceback" not in out.err
