@@ -93,12 +93,47 @@ def _curve(run: Path, csv: Path) -> dict[str, np.ndarray]:
     return {name: rows[name] for name in rows.dtype.names}
 
 
-def _validation(run: Path) -> dict[int, float]:
+def _validation(run: Path, upto: int | None = None) -> dict[int, float]:
     """{iteration: reward per step on the validation episodes} from ``eval.select``'s evaluations."""
     out = {}
     for res in (run / "selection" / "simple").glob("model_*.json"):
-        out[int(res.stem.split("_")[1])] = float(json.loads(res.read_text())["reward"]["per_step"])
+        it = int(res.stem.split("_")[1])
+        if upto is None or it <= upto:
+            out[it] = float(json.loads(res.read_text())["reward"]["per_step"])
     return dict(sorted(out.items()))
+
+
+def end_episodes(run: Path, upto: int) -> tuple[int, np.ndarray] | None:
+    """The newest validated checkpoint at or before iteration ``upto``: (iteration, per-episode reward per step)."""
+    its = [it for it in _validation(run, upto)]
+    if not its:
+        return None
+    res = json.loads((run / "selection" / "simple" / f"model_{its[-1]}.json").read_text())
+    return its[-1], np.asarray(res["per_episode"]["reward"], dtype=float)
+
+
+def paired_against(ends: dict[str, dict[int, np.ndarray]], baseline: str) -> list[dict]:
+    """Each variant minus ``baseline`` on the same validation episodes, reward per step at the end of the budget.
+
+    ``ends[variant][seed]`` is one run's per-episode values. The training seeds of a variant are its units (S, E);
+    they are resampled independently of the baseline's (two runs with the same seed number share nothing but the
+    seed), the episodes together (``eval.metrics.paired_difference``). Per seed as well: the difference on that
+    seed's episodes alone (the seed's run against the baseline's run with the same seed)."""
+    from dls_quadruped.eval.metrics import paired_difference
+
+    base = ends.get(baseline, {})
+    out = []
+    for variant in sorted(ends):
+        if variant == baseline or not ends[variant] or not base:
+            continue
+        seeds = sorted(ends[variant])
+        a = np.stack([ends[variant][s] for s in seeds])
+        b = np.stack([base[s] for s in sorted(base)])
+        d = paired_difference(a, b)
+        per_seed = {s: paired_difference(ends[variant][s], base[s]) for s in seeds if s in base}
+        out.append({"variant": variant, "baseline": baseline, "seeds": seeds, "mean": d["mean"], "ci95": d["ci95"],
+                    "per_seed": {s: {"mean": v["mean"], "ci95": v["ci95"]} for s, v in per_seed.items()}})
+    return out
 
 
 def cmd_report(a: argparse.Namespace) -> None:
@@ -107,11 +142,13 @@ def cmd_report(a: argparse.Namespace) -> None:
     import matplotlib.pyplot as plt
 
     a.out.mkdir(parents=True, exist_ok=True)
-    rows, curves = [], {}
+    rows, curves, ends = [], {}, {}
     for run in sorted(RUNS.glob("*_s*")):
         if not list(run.glob("events.*")):
             continue
         c = _curve(run, a.out / f"{run.name}.csv")
+        if a.iterations:  # compare every run at the same budget, however long it went on
+            c = {k: v[: a.iterations] for k, v in c.items()}
         curves[run.name] = c
         n = len(c["iteration"])
         last = slice(max(0, n - max(1, n // 4)), n)
@@ -128,9 +165,14 @@ def cmd_report(a: argparse.Namespace) -> None:
             "lr_end": float(c["learning_rate"][-1]) if "learning_rate" in c else None,
             "kl_mean_last_quarter": float(np.nanmean(c["kl_mean"][last])) if "kl_mean" in c else None,
             "s_per_iteration": float(np.nanmedian(c["collection_s"] + c["learning_s"])),
-            "validation": _validation(run),
+            "validation": _validation(run, a.iterations),
         })
+        end = end_episodes(run, a.iterations)
+        if end is not None:
+            ends.setdefault(rows[-1]["variant"], {})[rows[-1]["seed"]] = end[1]
+    paired = paired_against(ends, a.baseline)
     (a.out / "summary.json").write_text(json.dumps(rows, indent=1) + "\n")
+    (a.out / "paired.json").write_text(json.dumps(paired, indent=1) + "\n")
     lines = [("| run | it | return best | return last ¼ | std start → end | std f / d / p / F at end | lr end | "
              "validation reward/step (checkpoint: value) | s/it |"), "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -140,6 +182,14 @@ def cmd_report(a: argparse.Namespace) -> None:
                      f"{r['std_start']:.2f} → {r['std_end']:.2f} | {groups} | "
                      f"{r['lr_end'] if r['lr_end'] is None else format(r['lr_end'], '.1e')} | {val} | "
                      f"{r['s_per_iteration']:.1f} |")
+    lines += ["", f"Validation reward per step at the last validated checkpoint <= {a.iterations}, variant - "
+              f"{a.baseline} on the same episodes (both seeds: seeds resampled; per seed: that seed's runs):", "",
+              "| variant | both seeds | " + " | ".join(f"seed {s}" for s in a.seeds) + " |",
+              "|---|---|" + "---|" * len(a.seeds)]
+    for d in paired:
+        cell = lambda v: f"{v['mean']:+.3f} [{v['ci95'][0]:+.3f}, {v['ci95'][1]:+.3f}]"  # noqa: E731
+        lines.append(f"| {d['variant']} | {cell(d)} | "
+                     + " | ".join(cell(d["per_seed"][s]) if s in d["per_seed"] else "-" for s in a.seeds) + " |")
     (a.out / "summary.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
@@ -171,7 +221,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--variants", nargs="+", default=None, help="run: variants (default: every file)")
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1], help="run: seeds")
     p.add_argument("--jobs", nargs="+", default=None, metavar="VARIANT:SEED", help="run: instead of variants x seeds")
-    p.add_argument("--iterations", type=int, default=200, help="run: PPO iterations per run")
+    p.add_argument("--iterations", type=int, default=200,
+                   help="run: PPO iterations per run; report: compare every run over its first N iterations")
+    p.add_argument("--baseline", default="ent0", help="report: the variant every other is paired against")
     p.add_argument("--num-envs", type=int, default=256, help="run: robots")
     p.add_argument("--save-interval", type=int, default=25, help="run: checkpoint every K iterations")
     p.add_argument("--threads", type=int, default=1, help="torch threads per process")

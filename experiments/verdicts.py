@@ -304,7 +304,7 @@ ROWS = [
         lambda: sweep_gap("disturbed", "naive_today_15k", "dagger_today_15k"), D + "#table-11-settled-where-does-"
         "the-gap-appear-plan-written-2026-11-27-1945-utc-before-the-first-result", -1, -43.68, 5.0,
         note="plain evaluation: −13.2 [−24.0, −3.9]; the gap shrinks with data and is gone at 100 000 (disturbed: "
-             "−1.6 [−8.7, +4.8])"),
+             "−1.6 [−8.7, +4.8]) and 400 000 (+0.9 [−4.9, +6.0])"),
     Row("4 · Table 11 sweep", "the same, 50 000 datapoints, one command per episode, plain evaluation",
         "−43.68 points (f-s)", "naive − DAgger SP, first-spline, narrow, plain",
         lambda: sweep_gap("plain", "naive_narrow_50k", "dagger_narrow_50k"), D + "#table-11-settled-where-does-"
