@@ -28,8 +28,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from dls_quadruped.cli import ArgumentParser, positive_int, run_cli  # noqa: E402
-from dls_quadruped.control.latent_action import ACTION_GROUPS  # noqa: E402
+from dls_quadruped.cli import ArgumentParser, positive_int, run_cli
+from dls_quadruped.control.latent_action import ACTION_GROUPS
 
 GROUPS = {**{name: rows for name, rows in ACTION_GROUPS}, "all": slice(0, 28)}
 """Component name -> columns of the 28-vector that get the noise."""
@@ -57,7 +57,11 @@ def run_condition(policy_path: Path, episodes: int, seed: int, group: str | None
     from dls_quadruped.eval.policy import load_policy
     from dls_quadruped.eval.rollout import run_episodes
     from dls_quadruped.eval.scenario import EvalOptions
-    from dls_quadruped.eval.velocity_tracking import flat_task, simple_commands, summarize
+    from dls_quadruped.eval.velocity_tracking import (
+        flat_task,
+        simple_commands,
+        summarize,
+    )
 
     opts = EvalOptions(episodes=episodes, seed=seed, num_workers=0)
     cmd = simple_commands(episodes, seed)
@@ -112,8 +116,8 @@ def main(argv: list[str] | None = None) -> dict:
            "scenario_seed": seed, "none": {"reward_per_step": float(base.mean()), "fell": int(base_fell.sum())},
            "rows": rows, "seconds": round(time.monotonic() - t0, 1)}
     (a.out / "results.json").write_text(json.dumps(res, indent=1) + "\n")
-    lines = [f"Noise on one component of `{a.policy.name}`'s raw actions, simple task, {a.episodes} validation "
-             f"episodes; reward per step without noise {base.mean():.3f}.", "",
+    lines = [(f"Noise on one component of `{a.policy.name}`'s raw actions, simple task, {a.episodes} validation "
+              f"episodes; reward per step without noise {base.mean():.3f}."), "",
              "| component (dims) | noise std | reward per step | minus no noise [95 %] | episodes with a fall |",
              "|---|---|---|---|---|"]
     for r in rows:

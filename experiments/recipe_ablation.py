@@ -2,10 +2,11 @@
 
     python experiments/recipe_ablation.py run  --variants thesis ent0 --seeds 0 1 --iterations 200 --num-envs 256
     python experiments/recipe_ablation.py eval --every 50 --episodes 64       # validation reward of the checkpoints
-    python experiments/recipe_ablation.py report --out docs/train/recipe_ablation
+    python experiments/recipe_ablation.py report --iterations 200   # every run over its first 200 iterations
 
 Variants are the task files in ``experiments/recipe_ablation/`` (each inherits ``tasks/base_thesis.yaml``, Table 6, and
-changes one thing). ``run`` trains every (variant, seed) in ``runs/recipe_ablation/<variant>_s<seed>``
+changes one thing; ``ent0_std05`` and ``ent0_log05`` start from the default, no entropy bonus, and lower the
+initial std). ``run`` trains every (variant, seed) in ``runs/recipe_ablation/<variant>_s<seed>``
 one after the other and is resumable: a finished run is skipped, an interrupted one continues from its
 newest checkpoint (``train --resume``). Start two ``run`` processes with disjoint variant lists to use two
 cores. ``eval`` scores every ``--every``-th checkpoint on the **validation** episodes of the simple task
@@ -182,12 +183,12 @@ def cmd_report(a: argparse.Namespace) -> None:
                      f"{r['std_start']:.2f} → {r['std_end']:.2f} | {groups} | "
                      f"{r['lr_end'] if r['lr_end'] is None else format(r['lr_end'], '.1e')} | {val} | "
                      f"{r['s_per_iteration']:.1f} |")
-    lines += ["", f"Validation reward per step at the last validated checkpoint <= {a.iterations}, variant - "
-              f"{a.baseline} on the same episodes (both seeds: seeds resampled; per seed: that seed's runs):", "",
+    lines += ["", (f"Validation reward per step at the last validated checkpoint <= {a.iterations}, variant - "
+                   f"{a.baseline} on the same episodes (both seeds: seeds resampled; per seed: that seed's runs):"), "",
               "| variant | both seeds | " + " | ".join(f"seed {s}" for s in a.seeds) + " |",
               "|---|---|" + "---|" * len(a.seeds)]
     for d in paired:
-        cell = lambda v: f"{v['mean']:+.3f} [{v['ci95'][0]:+.3f}, {v['ci95'][1]:+.3f}]"  # noqa: E731
+        cell = lambda v: f"{v['mean']:+.3f} [{v['ci95'][0]:+.3f}, {v['ci95'][1]:+.3f}]"
         lines.append(f"| {d['variant']} | {cell(d)} | "
                      + " | ".join(cell(d["per_seed"][s]) if s in d["per_seed"] else "-" for s in a.seeds) + " |")
     (a.out / "summary.md").write_text("\n".join(lines) + "\n")
@@ -231,6 +232,10 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--episodes", type=int, default=64, help="eval: validation episodes")
     p.add_argument("--out", type=Path, default=ROOT / "docs" / "train" / "recipe_ablation", help="report: folder")
     a = p.parse_args(argv)
+    if a.baseline not in variants():
+        p.error(f"argument --baseline: unknown variant {a.baseline!r}; allowed: {variants()}")
+    if a.iterations < 1:
+        p.error(f"argument --iterations: must be >= 1, got {a.iterations}")
     if a.cmd == "run":
         a.variants = a.variants or variants()
     {"run": cmd_run, "eval": cmd_eval, "report": cmd_report}[a.cmd](a)

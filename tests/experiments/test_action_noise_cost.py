@@ -9,7 +9,7 @@ from experiments.action_noise_cost import GROUPS, main, noisy
 
 
 def test_noise_only_on_the_component_and_the_same_draws_for_every_component():
-    policy = lambda obs: torch.full((3, 28), 0.25)  # noqa: E731
+    policy = lambda obs: torch.full((3, 28), 0.25)
     ref = torch.randn((3, 28), generator=torch.Generator().manual_seed(7))
     for name, cols in GROUPS.items():
         out = noisy(policy, cols, 0.5, torch.Generator().manual_seed(7))(None)

@@ -6,8 +6,9 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
-from experiments.recipe_ablation import _validation, end_episodes, paired_against
+from experiments.recipe_ablation import _validation, end_episodes, main, paired_against
 
 
 def _write(run: Path, it: int, per_episode: list[float]) -> None:
@@ -41,3 +42,14 @@ def test_paired_against_the_baseline_by_hand():
     assert abs(d["mean"] - 0.5) < 1e-12
     assert d["ci95"][0] <= 0.5 <= d["ci95"][1]
     assert paired_against({"x": var}, "ent0") == []  # no baseline evaluated yet: nothing to pair
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["report", "--baseline", "nope"], "unknown variant 'nope'; allowed: ["),
+    (["report", "--iterations", "0"], "--iterations: must be >= 1"),
+])
+def test_bad_report_arguments_are_one_line(argv, message, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    assert message in capsys.readouterr().err
