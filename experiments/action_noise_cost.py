@@ -39,12 +39,13 @@ def noisy(policy, columns: slice, sigma: float, generator: torch.Generator):
     """``policy`` with N(0, sigma^2) added to ``columns`` of its raw actions at every call. The full (B, 28)
     draw is taken whatever the columns, so every condition consumes the generator alike."""
 
+    mask = torch.zeros(28)
+    mask[columns] = sigma  # the noise's std per column: sigma on the component, 0 elsewhere
+
     def act(obs):
         a = policy(obs)
         z = torch.randn(a.shape, generator=generator, dtype=a.dtype)
-        mask = torch.zeros(a.shape[-1], dtype=a.dtype)
-        mask[columns] = 1.0
-        return a + sigma * z.to(a.device) * mask.to(a.device)
+        return a + (z * mask.to(a.dtype)).to(a.device)
 
     return act
 

@@ -94,23 +94,28 @@ def _curve(run: Path, csv: Path) -> dict[str, np.ndarray]:
     return {name: rows[name] for name in rows.dtype.names}
 
 
-def _validation(run: Path, upto: int | None = None) -> dict[int, float]:
-    """{iteration: reward per step on the validation episodes} from ``eval.select``'s evaluations."""
+def _evaluations(run: Path, upto: int | None = None) -> dict[int, dict]:
+    """{iteration: ``eval.select``'s evaluation on the validation episodes}, at or before ``upto``, in order."""
     out = {}
     for res in (run / "selection" / "simple").glob("model_*.json"):
         it = int(res.stem.split("_")[1])
         if upto is None or it <= upto:
-            out[it] = float(json.loads(res.read_text())["reward"]["per_step"])
+            out[it] = json.loads(res.read_text())
     return dict(sorted(out.items()))
+
+
+def _validation(run: Path, upto: int | None = None) -> dict[int, float]:
+    """{iteration: reward per step on the validation episodes}."""
+    return {it: float(res["reward"]["per_step"]) for it, res in _evaluations(run, upto).items()}
 
 
 def end_episodes(run: Path, upto: int) -> tuple[int, np.ndarray] | None:
     """The newest validated checkpoint at or before iteration ``upto``: (iteration, per-episode reward per step)."""
-    its = [it for it in _validation(run, upto)]
-    if not its:
+    evaluations = _evaluations(run, upto)
+    if not evaluations:
         return None
-    res = json.loads((run / "selection" / "simple" / f"model_{its[-1]}.json").read_text())
-    return its[-1], np.asarray(res["per_episode"]["reward"], dtype=float)
+    it = max(evaluations)
+    return it, np.asarray(evaluations[it]["per_episode"]["reward"], dtype=float)
 
 
 def paired_against(ends: dict[str, dict[int, np.ndarray]], baseline: str) -> list[dict]:
@@ -148,8 +153,7 @@ def cmd_report(a: argparse.Namespace) -> None:
         if not list(run.glob("events.*")):
             continue
         c = _curve(run, a.out / f"{run.name}.csv")
-        if a.iterations:  # compare every run at the same budget, however long it went on
-            c = {k: v[: a.iterations] for k, v in c.items()}
+        c = {k: v[: a.iterations] for k, v in c.items()}  # every run at the same budget, however long it went on
         curves[run.name] = c
         n = len(c["iteration"])
         last = slice(max(0, n - max(1, n // 4)), n)

@@ -25,9 +25,17 @@ def test_noise_only_on_the_component_and_the_same_draws_for_every_component():
     (["--episodes", "3"], "give an even number"),
     (["--policy", "/nonexistent.pt2"], "not found"),
     (["--groups", "q"], "invalid choice"),
+    (["--no-such-flag"], "unrecognized arguments: --no-such-flag"),
 ])
 def test_bad_input_is_one_line(argv, message, capsys):
     with pytest.raises(SystemExit) as e:
         main(argv)
     assert e.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_help_names_the_components(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+    assert "--sigmas" in capsys.readouterr().out
