@@ -42,11 +42,6 @@ from typing import Any, Self
 import mujoco
 import numpy as np
 import torch
-import warp as wp
-
-wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no banner, no module-load lines
-
-import mujoco_warp as mjw
 
 from dls_quadruped.control.lowlevel import LegTerms, LowLevelController
 from dls_quadruped.control.torch_dynamics import TorchLegDynamics
@@ -132,7 +127,7 @@ class WarpSim:
         with self._scope():
             self._qpos.copy_(self._key_qpos.expand(n, -1))
             self._qvel.zero_()
-            mjw.forward(self.m, self.d)
+            w.forward(w.torch_stream())
         self._contact_sensors.copy_(self._sensordata)
         self._terms = self._dynamics_terms()
         self.controller.reset(ids, self._terms.foot_pos_w)
@@ -246,14 +241,15 @@ class WarpSim:
         qpos, qvel = reset_coordinates(self.inputs.rows, n, base_pos_w, base_quat_w, joint_pos, joint_vel,
                                        base_lin_vel_w, base_ang_vel_b, device=dev)
         phase = None if phase is None else self.inputs.rows("phase", phase, n, (4,))
-        mask = torch.zeros(self.num_envs, dtype=torch.bool, device=dev)
-        mask.index_fill_(0, ids, True)  # scalar fills: x[ids] = v copies v from the host on CUDA
+        w, torch_stream = self.worlds, self.worlds.torch_stream()
+        w.reset_mask.zero_()
+        w.reset_mask.index_fill_(0, ids, True)  # scalar fills: x[ids] = v copies v from the host on CUDA
         with self._scope():
-            mjw.reset_data(self.m, self.d, reset=wp.from_torch(mask))
+            w.reset_data(torch_stream)  # captured graphs (WarpWorlds): one launch each
             self._qpos[ids] = qpos.to(self._qpos.dtype)
             self._qvel[ids] = qvel.to(self._qvel.dtype)
             self._time.index_fill_(0, ids, 0.0)
-            mjw.forward(self.m, self.d)  # every stage, sensors included: the reset robots' published forces
+            w.forward(torch_stream)  # every stage, sensors included: the reset robots' published forces
         self._contact_sensors[ids] = self._sensordata[ids]
         self.diverged.index_fill_(0, ids, False)
         self.wrench_w.index_fill_(0, ids, 0.0)
@@ -276,10 +272,11 @@ class WarpSim:
         ids = self.inputs.ids(env_ids)
         self._qvel[ids, 0:3] = self.inputs.rows("lin_vel_w", lin_vel_w, len(ids), (3,)).to(self._qvel.dtype)
         with self._scope():
-            # the whole step1: its velocity stage alone (fwd_velocity + sensor_vel) is not equivalent -- on warp-cpu
-            # it moved the pushed robot's foot forces by up to 18 N on the following steps (likely the position
-            # stage's factorisation of M, which step2's implicit integration leaves changed)
-            mjw.step1(self.m, self.d)
+            # the whole step1, replayed from its graph (one launch): its velocity stage alone (fwd_velocity +
+            # sensor_vel) is not equivalent -- on warp-cpu it moved the pushed robot's foot forces by up to 18 N on
+            # the following steps (likely the position stage's factorisation of M, which step2's implicit
+            # integration leaves changed); MuJoCo Warp 4.0 has no per-world mask for step1, so every world runs it
+            self._step1(self.worlds.torch_stream())
         self._terms = self._dynamics_terms()
         return self._publish()
 
@@ -303,7 +300,7 @@ class WarpSim:
                                   dtype=torch.long, device=self.device)
             field[ids[:, None], idx[None, :]] = values
         with self._scope():  # positions and the mass matrix of the new model (a mass changes M)
-            mjw.step1(self.m, self.d)
+            self._step1(self.worlds.torch_stream())
         self._terms = self._dynamics_terms()
 
     def snapshot(self) -> dict:
@@ -336,7 +333,7 @@ class WarpSim:
             v.copy_(snap["command"][k])
         self.wrench_w.copy_(snap["command"]["wrench_w"])
         with self._scope():
-            mjw.step1(self.m, self.d)
+            self._step1(self.worlds.torch_stream())
         self._terms = self._dynamics_terms()
         return self.state
 

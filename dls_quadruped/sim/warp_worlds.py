@@ -2,7 +2,7 @@
 
 :class:`WarpWorlds` puts the host ``mujoco.MjModel`` on the device once (``mujoco_warp.put_model``) with
 ``nworld = N`` worlds in one ``Data``, installs the terrain culling (``sim/warp_collision.py``), wraps the
-two step phases in captured graphs (``sim/warp_graph.py``) and holds ``warp.to_torch`` views (zero-copy) of
+two step phases, ``forward`` and the masked ``reset_data`` in captured graphs (``sim/warp_graph.py``) and holds ``warp.to_torch`` views (zero-copy) of
 the arrays the backend reads and writes every physics step. Per-robot model values (``geom_friction``,
 ``body_mass``, any field MuJoCo Warp can batch) become ``(N, ...)`` arrays the first time one is written,
 shared ``(1, ...)`` arrays until then. A snapshot's part of the simulation is :data:`WARP_STATE_FIELDS`
@@ -105,9 +105,21 @@ class WarpWorlds:
             self.m.opt.warn_overflow = 0
             self.culling = None if cfg.regions is None else TerrainCulling(
                 model, self.m, self.d.naconmax, base_body, cfg.regions.cell or CELL, cfg.regions.margin)
-        # the physics step's two phases, replayed from captured Warp graphs (sim/warp_graph.py)
+        # the physics step's two phases, replayed from captured Warp graphs (sim/warp_graph.py); so are a reset's
+        # reset_data (of the worlds in reset_mask, a buffer the graph reads in place) and forward, and the step1
+        # a push or a model-field change runs: one graph launch each instead of ~60-125 kernel launches
         self.step1 = StepGraph(mjw.step1, self.m, self.d, wp_device, enabled=capture)
         self.step2 = StepGraph(mjw.step2, self.m, self.d, wp_device, enabled=capture)
+        self.forward = StepGraph(mjw.forward, self.m, self.d, wp_device, enabled=capture)
+        self.reset_mask = torch.zeros(num_envs, dtype=torch.bool, device=self.device)
+        """Which worlds :attr:`reset_data` resets (written in place before each call)."""
+        mask = wp.from_torch(self.reset_mask)
+
+        def reset_data(m: Any, d: Any) -> None:
+            mjw.reset_data(m, d, reset=mask)
+
+        self.reset_data = StepGraph(reset_data, self.m, self.d, wp_device, enabled=capture)
+        self.graphs = (self.step1, self.step2, self.forward, self.reset_data)
         self.batched: set[str] = set()
         """The model fields made per-world so far."""
         v = wp.to_torch
@@ -124,7 +136,7 @@ class WarpWorlds:
 
     @capture.setter
     def capture(self, enabled: bool) -> None:
-        for graph in (self.step1, self.step2):
+        for graph in self.graphs:
             graph.enabled = bool(enabled)
             graph.invalidate()
 
@@ -161,7 +173,7 @@ class WarpWorlds:
                 with self.scope():
                     arr = wp.array(tiled, dtype=arr.dtype, device=self.wp_device)
                 setattr(self.m, name, arr)
-                for graph in (self.step1, self.step2):  # they hold the replaced array's address
+                for graph in self.graphs:  # they hold the replaced array's address
                     graph.invalidate()
             self.batched.add(name)
         return wp.to_torch(arr)
