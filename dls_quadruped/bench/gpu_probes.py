@@ -121,13 +121,15 @@ def count_torch_ops(events) -> tuple[int, int]:
     return total, fused
 
 
-def launches(backend: str, device: torch.device, num_envs: int, steps: int, compile: bool | None = None) -> dict:
+def launches(backend: str, device: torch.device, num_envs: int, steps: int, compile: bool | None = None,
+             warmup: int = 40) -> dict:
     """Warp kernel launches (graph replays count one each) and torch operators per ``env.step``, by kind.
 
     Counted: every ``wp.launch`` / ``wp.launch_tiled`` / ``wp.capture_launch`` call (MuJoCo Warp's kernels outside a
     captured graph, and each graph) and every torch operator the step launches (:func:`count_torch_ops`, from the
     torch profiler: eager operators, and the kernels of the physics step's compiled graphs, ``sim/warp_control.py``).
-    ``compile``: the scene's ``compile`` (None: the backend's default, on for CUDA).
+    ``compile``: the scene's ``compile`` (None: the backend's default, on for CUDA). ``warmup`` steps before the count
+    (compiling and capturing, including the reset path's compiles for one robot and for several, happen there).
     """
     import torch._inductor.config as inductor_config
     import warp as wp
@@ -158,7 +160,7 @@ def launches(backend: str, device: torch.device, num_envs: int, steps: int, comp
     rows = []
     try:
         g = torch.Generator(device=device).manual_seed(0)
-        for _ in range(3):
+        for _ in range(warmup):
             env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
         import mujoco_warp._src.warp_util  # noqa: F401  (MuJoCo Warp calls wp.launch through the warp module)
         for k in names:

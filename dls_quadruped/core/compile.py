@@ -30,6 +30,12 @@ def compile_wanted(setting: bool | None, device: torch.device | str) -> bool:
     return setting
 
 
+# the package's lru_cache'd helpers build constant tensors (joint ranges, gravity): tracing the wrapped function, as
+# dynamo does, makes the same constant, which is what its notice is about; a recompile (a reset of another number of
+# robots, a new schedule stream) traces again, after the first call's filter below has gone
+warnings.filterwarnings("ignore", message="Dynamo detected a call to a `functools.lru_cache`")
+
+
 class Fused:
     """``fn`` compiled with ``torch.compile(fullgraph=True, dynamic=dynamic)`` when ``enabled``, else ``fn`` itself.
 
@@ -54,11 +60,7 @@ class Fused:
             return self._impl(*args, **kwargs)
         self._first = False
         try:
-            with warnings.catch_warnings():
-                # the package's lru_cache'd helpers build constant tensors (joint ranges, gravity): tracing the
-                # wrapped function, as dynamo does, makes the same constant, which is what its notice is about
-                warnings.filterwarnings("ignore", message="Dynamo detected a call to a `functools.lru_cache`")
-                return self._impl(*args, **kwargs)
+            return self._impl(*args, **kwargs)
         except Exception as err:  # any compile failure falls back to eager (module doc); others are re-raised
             if not _is_compile_error(err):
                 raise

@@ -32,6 +32,7 @@ from dls_quadruped.core.compile import Fused
 from dls_quadruped.core.hashing import hash32
 
 
+@torch.compiler.assume_constant_result  # a compiled caller (a reset's draws) sees the id as a constant
 def stream_id(name: str) -> int:
     """Stable 32-bit id of a stream name (crc32: the same in every process and Python version)."""
     return zlib.crc32(name.encode())
@@ -129,7 +130,9 @@ class EpisodeSchedule:
     def _bits(self, env_ids: torch.Tensor, shape: tuple[int, ...], stream: str) -> torch.Tensor:
         """(n, *shape) int64 hashes in [0, 2**32); advances ``stream``'s draw count of ``env_ids`` by one."""
         env_ids = torch.as_tensor(env_ids, device=self.device, dtype=torch.long)
-        count = self._draws.setdefault(stream, torch.zeros(self.num_envs, dtype=torch.long, device=self.device))
+        count = self._draws.get(stream)  # get, not setdefault: a compiled caller guards on this stream alone
+        if count is None:
+            count = self._draws[stream] = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
         n, size = len(env_ids), 1
         for s in shape:
             size *= int(s)

@@ -250,13 +250,8 @@ class WarpSim:
             self._qvel[ids] = qvel.to(self._qvel.dtype)
             self._time.index_fill_(0, ids, 0.0)
             w.forward(torch_stream)  # every stage, sensors included: the reset robots' published forces
-        self._contact_sensors[ids] = self._sensordata[ids]
-        self.diverged.index_fill_(0, ids, False)
-        self.wrench_w.index_fill_(0, ids, 0.0)
-        self._standing_references(ids)
         self._terms = self._dynamics_terms()
-        self.controller.reset(ids, self._terms.foot_pos_w[ids], phase)
-        self.tau.index_fill_(0, ids, 0.0)
+        self.rate.reset_rows(ids, self._terms.foot_pos_w, phase)  # sensors, flags, references, controller
         return self._publish()
 
     def set_external_wrench(self, env_ids: Any, force_w: Any, torque_w: Any) -> None:

@@ -27,6 +27,7 @@ import torch
 
 from dls_quadruped.control.lowlevel import LegTerms
 from dls_quadruped.core.compile import Fused, compile_wanted
+from dls_quadruped.sim.interface import standing_references
 from dls_quadruped.sim.shard import MAX_ABS_QVEL
 from dls_quadruped.sim.warp_collision import ALLOCATION_OVERFLOWS
 from dls_quadruped.sim.warp_worlds import publish_contacts
@@ -55,6 +56,7 @@ class PhysicsRate:
         self._terms = Fused(self._terms_eager, on, "WarpSim leg terms")
         self._publish = Fused(self._publish_eager, on, "WarpSim publish")
         self._store = Fused(self._store_eager, on, "WarpSim set_references")
+        self._reset = Fused(self._reset_eager, on, "WarpSim reset rows", dynamic=True)  # a reset's robots vary
         self.time_before = torch.zeros_like(sim._time)
         # the dynamics' constant tensors (chain parameters, index tables) are built on first use: build them here,
         # eagerly, so the compiled functions find them made (creating them from numpy inside a trace fails)
@@ -112,6 +114,23 @@ class PhysicsRate:
         qacc_warmstart.masked_fill_(div, 0.0)
         time.copy_(torch.where(diverged, time_before, time))
         contact_sensors.copy_(sensordata)  # step1 zeroes the acceleration-stage sensors
+
+    def reset_rows(self, ids: torch.Tensor, foot_pos_w: torch.Tensor, phase: torch.Tensor | None) -> None:
+        """After a reset's ``forward``: the robots ``ids`` get their contact sensors, cleared flags, wrench and
+        torques, standing references and a fresh controller (phases ``phase`` or trot, lift-off at ``foot_pos_w``,
+        (N, 4, 3) of every robot)."""
+        s = self.sim
+        self._reset(ids, foot_pos_w, phase, s.total_weight(), s._contact_sensors, s._sensordata, s.diverged,
+                    s.wrench_w, s.tau, s.command)
+
+    def _reset_eager(self, ids, foot_pos_w, phase, weight, contact_sensors, sensordata, diverged, wrench_w, tau,
+                     command) -> None:
+        contact_sensors[ids] = sensordata[ids]
+        diverged.index_fill_(0, ids, False)  # scalar fills: x[ids] = v copies v from the host on CUDA
+        wrench_w.index_fill_(0, ids, 0.0)
+        standing_references(command, ids, weight)
+        self.sim.controller.reset(ids, foot_pos_w[ids], phase)
+        tau.index_fill_(0, ids, 0.0)
 
     def store_references(self, freq, duty, p_td_w, F_w) -> None:
         """The latent references (float64, shaped) into the held commands; non-finite ones flagged on the device."""

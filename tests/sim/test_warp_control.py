@@ -13,6 +13,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from dls_quadruped.envs.mdp.events import _placement
 from dls_quadruped.envs.schedule import EpisodeSchedule
 
 pytestmark = pytest.mark.slow
@@ -31,26 +32,34 @@ def _run(compile: bool, steps: int = 25):
                         num_envs=4, seed=0, verbose=False)
     try:
         g = torch.Generator().manual_seed(0)
-        rows, resets = [], 0
+        rows, resets, logs = [], 0, {}
         for _ in range(steps):
-            _, rew, done, _ = env.step(torch.randn(4, 28, generator=g))
+            _, rew, done, extras = env.step(torch.randn(4, 28, generator=g))
             s = env.state
             rows.append(torch.cat([s.base_pos_w, s.joint_pos, s.joint_torque, s.foot_pos_w.flatten(1)], dim=1).double())
             resets += int(done.sum())
-        return torch.stack(rows), rew, resets, env.scene.sim.rate.compiled, env.schedule.compile
+            for k, v in extras["log"].items():  # the reset path's episode sums, counts and metrics
+                logs.setdefault(k, []).append(float(v))
+        reset_path = (env._reset_bookkeeping, env.fused(_placement, ""), env.command_manager._compute,
+                      env.command_manager._integrate, env.scene.sim.rate._reset)
+        compiled = env.scene.sim.rate.compiled and all(f.compiled for f in reset_path)
+        return torch.stack(rows), rew, resets, compiled, env.schedule.compile, logs
     finally:
         env.close()
 
 
 def test_compiled_and_eager_physics_steps_agree():
     pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
-    eager, rew_e, resets_e, comp_e, sched_e = _run(False)
-    fused, rew_c, resets_c, comp_c, sched_c = _run(True)
-    assert (comp_e, sched_e, comp_c, sched_c) == (False, False, True, True)
+    eager, rew_e, resets_e, comp_e, sched_e, logs_e = _run(False)
+    fused, rew_c, resets_c, comp_c, sched_c, logs_c = _run(True)
+    assert (comp_e, sched_e, comp_c, sched_c) == (False, False, True, True)  # the reset path compiled too
     assert resets_e == resets_c > 4  # episodes of 15 steps, the same robots reset at the same steps
     # float32 round-off of the compiled action conversion, amplified over 25 steps of falling robots: 5.3e-5 measured
     assert torch.allclose(fused, eager, rtol=0, atol=1e-3), (fused - eager).abs().max()
     assert torch.allclose(rew_c, rew_e, rtol=1e-3, atol=1e-4)
+    assert logs_c.keys() == logs_e.keys() and "Episode_Reward/track_lin_vel_xy" in logs_e
+    for k, v in logs_e.items():  # what the compiled bookkeeping logged at each reset step, as the eager one did
+        assert torch.allclose(torch.tensor(logs_c[k]), torch.tensor(v), rtol=1e-3, atol=1e-4), k
 
 
 def test_each_compiled_compute_matches_its_eager_function_on_one_state():
@@ -81,6 +90,17 @@ def test_each_compiled_compute_matches_its_eager_function_on_one_state():
             rm.episode_sums[k].copy_(v)
         assert torch.allclose(compiled, rm._compute.fn(env.step_dt), rtol=1e-5, atol=1e-6)
         assert torch.equal(tm._compute(None), tm._compute.fn(None))
+        # the reset placement: the same draws (schedule counters restored in between), the same poses
+        ids = torch.tensor([2, 0])
+        draws = {k: v.clone() for k, v in env.schedule._draws.items()}
+        args = (env, ids, (0.8, 1.2), (-3.0, 3.0), 0.5, 0.4)
+        placement = env.fused(_placement, "")
+        placed = placement(*args)
+        for k, v in draws.items():
+            env.schedule._draws[k].copy_(v)
+        for a, b in zip(placed, placement.fn(*args)):
+            assert torch.allclose(a, b, rtol=1e-6, atol=1e-6)
+        assert placement.compiled
     finally:
         env.close()
 
@@ -89,10 +109,15 @@ def test_compiled_step_launches_a_fraction_of_the_torch_operators():
     pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
     from dls_quadruped.bench.gpu_probes import launches
 
-    eager = launches("warp-cpu", torch.device("cpu"), 4, 8, compile=False)
-    fused = launches("warp-cpu", torch.device("cpu"), 4, 8, compile=True)
+    eager = launches("warp-cpu", torch.device("cpu"), 4, 12, compile=False)
+    fused = launches("warp-cpu", torch.device("cpu"), 4, 12, compile=True)
     assert fused["compiled"] and not eager["compiled"]
     assert fused["warp_launches_per_step"] <= 150 and eager["warp_launches_per_step"] <= 150
+    # a step with resets: MuJoCo Warp's reset_data and forward replayed from graphs (2 launches, ~125 launched), the
+    # reset path's torch work compiled (the step with resets was 772 operators before); the seeded run resets robots
+    # on 2 of the 12 counted steps
+    assert fused["steps_with_resets"] >= 1 and fused["warp_launches_reset_step"] <= 20
+    assert fused["torch_ops_reset_step"] <= 300 < eager["torch_ops_reset_step"]
     assert 0 < fused["torch_ops_in_compiled_graphs_per_step"] <= 40  # ~15 graph calls per env step, ~1 kernel each
     assert fused["torch_ops_per_step"] <= 300 < eager["torch_ops_per_step"]  # the Warp path's budget for a base env step (docs/gpu.md)
 

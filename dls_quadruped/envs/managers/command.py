@@ -22,6 +22,7 @@ from typing import Any
 
 import torch
 
+from dls_quadruped.core.compile import Fused
 from dls_quadruped.core.rotations import yaw_from_quat
 from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import (
@@ -55,6 +56,9 @@ class CommandManager(ManagerBase):
         self.commanded_yaw = torch.zeros(env.num_envs, device=env.device)
         """(B,) [rad] that tracker's heading (the robot's at reset, then the integrated yaw rate)."""
         self._all_ids = torch.arange(env.num_envs, device=env.device)
+        compile_ = getattr(env, "compile", False)
+        self._compute = Fused(self._compute_eager, compile_, "CommandManager.compute")
+        self._integrate = Fused(self._integrate_eager, compile_, "CommandManager.integrate")
 
     def resample(self, env_ids: torch.Tensor) -> None:
         if len(env_ids) == 0:
@@ -68,7 +72,10 @@ class CommandManager(ManagerBase):
 
         Masked, without reading on the host which expired: every env draws, only the expired ones keep
         their draws and advance their schedule streams (``EpisodeSchedule.only``), so the numbers are those of
-        resampling the expired envs alone."""
+        resampling the expired envs alone. Compiled with ``scene.compile`` (a range a curriculum widens recompiles)."""
+        self._compute(dt)
+
+    def _compute_eager(self, dt: float) -> None:
         self.time_left -= dt
         expired = self.time_left <= 0.0
         ids = self._all_ids
@@ -82,6 +89,9 @@ class CommandManager(ManagerBase):
     def integrate(self, dt: float) -> None:
         """Advance the exact tracker by one policy step of the current command: heading by
         omega dt, position by the base-frame velocity rotated by the mid-step heading."""
+        self._integrate(dt)
+
+    def _integrate_eager(self, dt: float) -> None:
         v, omega = self.command[:, :2], self.command[:, 2]
         mid = self.commanded_yaw + 0.5 * dt * omega
         c, s = torch.cos(mid), torch.sin(mid)

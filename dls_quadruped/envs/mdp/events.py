@@ -69,7 +69,15 @@ def reset_robot(env, env_ids: torch.Tensor, joint_scale: tuple[float, float] = (
                 height: float = C.STANDING_BASE_HEIGHT + 0.02) -> None:
     """Place robots on their terrain origin: random yaw, xy offset in [-xy_offset, xy_offset] [m],
     joints = nominal x U(joint_scale) (0.8-1.2 in "high"), base ``height`` [m] above the terrain, higher
-    where a foot would start inside the terrain (``spawn_height``)."""
+    where a foot would start inside the terrain (``spawn_height``). The placement is one compiled function of the
+    robots' ids where the scene compiles (``scene.compile``, dynamic batch size)."""
+    placement = env.fused(_placement, "reset_robot placement", dynamic=True)
+    env.scene.reset_robots(env_ids, *placement(env, env_ids, joint_scale, yaw, xy_offset, height))
+
+
+def _placement(env, env_ids: torch.Tensor, joint_scale: tuple[float, float], yaw: tuple[float, float],
+               xy_offset: float, height: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``reset_robot``'s base positions (n, 3), orientations (n, 4) and joint positions (n, 12)."""
     dev = env.device
     origins = env.scene.env_origins[env_ids]
     xy = origins[:, :2] + _uniform(env, env_ids, (2,), (-xy_offset, xy_offset), "reset_robot")
@@ -79,7 +87,7 @@ def reset_robot(env, env_ids: torch.Tensor, joint_scale: tuple[float, float] = (
     q = torch.clamp(q, lim[:, 0], lim[:, 1])
     heading = _uniform(env, env_ids, (), yaw, "reset_robot")
     z = spawn_height(env.scene.terrain, xy, heading, q, height)
-    env.scene.reset_robots(env_ids, torch.cat([xy, z[:, None]], dim=-1), quat_from_yaw(heading), q)
+    return torch.cat([xy, z[:, None]], dim=-1), quat_from_yaw(heading), q
 
 
 def reset_home(env, env_ids: torch.Tensor, joint_noise: float = 0.0, yaw: float | list[float] = 0.0,
