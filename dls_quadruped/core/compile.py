@@ -70,6 +70,23 @@ class Fused:
             return self.fn(*args, **kwargs)
 
 
+class FusedCache:
+    """One :class:`Fused` per function, all compiled or all eager: ``cache(fn, name, dynamic)`` returns ``fn``'s.
+
+    An env keeps one (``LocomotionEnv.fused``) so that an event function's torch work, e.g. ``reset_robot``'s
+    placement, is compiled where the env's scene compiles, once per env.
+    """
+
+    def __init__(self, enabled: bool):
+        self.enabled = bool(enabled)
+        self._fused: dict[Callable[..., Any], Fused] = {}
+
+    def __call__(self, fn: Callable[..., Any], name: str | None = None, dynamic: bool = False) -> Fused:
+        if fn not in self._fused:
+            self._fused[fn] = Fused(fn, self.enabled, name, dynamic=dynamic)
+        return self._fused[fn]
+
+
 def _is_compile_error(err: BaseException) -> bool:
     """An error raised by dynamo or inductor (compile-time), not by the function's own code."""
     from torch._dynamo.exc import TorchDynamoException

@@ -40,7 +40,7 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from dls_quadruped.core.compile import Fused, compile_wanted
+from dls_quadruped.core.compile import FusedCache, compile_wanted
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.envs import episode_state
 from dls_quadruped.envs.config import (
@@ -118,11 +118,8 @@ class LocomotionEnv(VecEnv):
         self.reward_manager = RewardManager(self.task, self)
         self.termination_manager = TerminationManager(self.task, self)
         self.event_manager = EventManager(self.task, self)
-        # the reset path's bookkeeping (episode sums and counts logged and cleared, commands resampled) as one
-        # compiled function of the reset robots' ids (dynamic batch size) where the scene compiles
-        self._fused: dict[Callable, Fused] = {}
-        self._reset_bookkeeping = self.fused(self._reset_bookkeeping_eager, "LocomotionEnv reset bookkeeping",
-                                             dynamic=True)
+        self.fused = FusedCache(self.compile)  # torch work compiled where the scene compiles; dynamic: reset ids
+        self._reset_bookkeeping = self.fused(self._reset_bookkeeping_eager, "env reset bookkeeping", dynamic=True)
         self.curriculum_manager = CurriculumManager(self.task, self)
         if not any(t.func in event_mdp.PLACEMENT_EVENTS and t.extra["mode"] == "reset" for t in self.event_manager.terms):
             raise self.task.error("events", "a 'reset' mode event with func reset_robot or reset_home is required "
@@ -156,14 +153,6 @@ class LocomotionEnv(VecEnv):
     @property
     def obs_dims(self) -> dict[str, int]:
         return {g: v.shape[1] for g, v in self.obs_buf.items()}
-
-    def fused(self, fn: Callable, name: str, dynamic: bool = False) -> Fused:
-        """``fn`` compiled where the scene compiles (``scene.compile``, ``core/compile.py``), eager elsewhere; one
-        :class:`Fused` per env and function (an event term's torch work, e.g. ``reset_robot``'s placement).
-        ``dynamic``: its batch size changes from call to call (a reset's robots)."""
-        if fn not in self._fused:
-            self._fused[fn] = Fused(fn, self.compile, name, dynamic=dynamic)
-        return self._fused[fn]
 
     # ------------------------------------------------------------------ VecEnv
     def get_observations(self) -> TensorDict:
@@ -326,8 +315,7 @@ class LocomotionEnv(VecEnv):
         log.update(self._reset_bookkeeping(env_ids))
 
     def _reset_bookkeeping_eager(self, env_ids: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The managers' resets (episode sums and termination counts as 0-dim tensors, actions cleared, commands
-        resampled) and the env's episode metric and counters, for the robots ``env_ids`` just placed."""
+        """The managers' resets (logged episode sums, counts; commands resampled), the env's metric and counters."""
         log: dict[str, torch.Tensor] = {}
         for manager in (self.reward_manager, self.termination_manager, self.action_manager, self.command_manager):
             log.update(manager.reset(env_ids))

@@ -7,7 +7,7 @@ import warnings
 import pytest
 import torch
 
-from dls_quadruped.core.compile import Fused, compile_wanted
+from dls_quadruped.core.compile import Fused, FusedCache, compile_wanted
 
 
 def test_compile_wanted_defaults_to_cuda_only_and_refuses_non_booleans():
@@ -59,3 +59,15 @@ def test_a_compiled_function_gives_the_eager_results():
     r = fused(a, b, o2)
     assert fused.compiled
     assert torch.allclose(r, f(a, b, o1), rtol=1e-13, atol=0) and torch.allclose(o1, o2, rtol=1e-13, atol=0)
+
+
+def test_a_fused_cache_keeps_one_fused_per_function_with_its_setting():
+    def double(x):
+        return x * 2.0
+
+    eager, compiled = FusedCache(False), FusedCache(True)
+    f = eager(double, "double")
+    assert eager(double) is f and eager(_branchy) is not f  # one per function, made on first use
+    assert not f.compiled and f.name == "double" and torch.equal(f(torch.ones(2)), torch.full((2,), 2.0))
+    g = compiled(double, dynamic=True)
+    assert g.compiled and g is not f and compiled(double) is g  # the cache's setting, not the caller's

@@ -40,7 +40,7 @@ def _run(compile: bool, steps: int = 25):
             resets += int(done.sum())
             for k, v in extras["log"].items():  # the reset path's episode sums, counts and metrics
                 logs.setdefault(k, []).append(float(v))
-        reset_path = (env._reset_bookkeeping, env.fused(_placement, ""), env.command_manager._compute,
+        reset_path = (env._reset_bookkeeping, env.fused(_placement), env.command_manager._compute,
                       env.command_manager._integrate, env.scene.sim.rate._reset)
         compiled = env.scene.sim.rate.compiled and all(f.compiled for f in reset_path)
         return torch.stack(rows), rew, resets, compiled, env.schedule.compile, logs
@@ -94,7 +94,7 @@ def test_each_compiled_compute_matches_its_eager_function_on_one_state():
         ids = torch.tensor([2, 0])
         draws = {k: v.clone() for k, v in env.schedule._draws.items()}
         args = (env, ids, (0.8, 1.2), (-3.0, 3.0), 0.5, 0.4)
-        placement = env.fused(_placement, "")
+        placement = env.fused(_placement)
         placed = placement(*args)
         for k, v in draws.items():
             env.schedule._draws[k].copy_(v)
