@@ -36,10 +36,19 @@ def compile_wanted(setting: bool | None, device: torch.device | str) -> bool:
 warnings.filterwarnings("ignore", message="Dynamo detected a call to a `functools.lru_cache`")
 
 
+RECOMPILE_LIMIT = 64
+"""Dynamo's ``recompile_limit`` (8 by default) is raised to this when something is compiled. Compiled code is cached
+per function, not per env: every env of another size in a process (a benchmark's sizes, an evaluation's envs) adds a
+graph to each compiled function, and a reset function adds up to four per env (one robot, several, all of them, a
+first draw stream); past the limit dynamo runs the function eagerly without telling the caller."""
+
+
 class Fused:
     """``fn`` compiled with ``torch.compile(fullgraph=True, dynamic=dynamic)`` when ``enabled``, else ``fn`` itself.
 
-    ``dynamic=True`` for functions whose batch size changes from call to call (a reset's robots).
+    ``dynamic=True`` for functions whose batch size changes from call to call (a reset's robots); their first call
+    runs eagerly, so that what they make on first use (an episode-schedule stream's counters) exists before they
+    are traced and is not a guard that fails on the second call.
 
     Attributes:
         name: what the warning calls it.
@@ -54,10 +63,17 @@ class Fused:
         self.error: BaseException | None = None
         self._impl = torch.compile(fn, fullgraph=True, dynamic=dynamic) if enabled else fn
         self._first = bool(enabled)
+        self._eager_first = bool(enabled and dynamic)
+        if enabled:
+            dynamo_config = torch._dynamo.config
+            dynamo_config.recompile_limit = max(dynamo_config.recompile_limit, RECOMPILE_LIMIT)
 
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
         if not self._first:
             return self._impl(*args, **kwargs)
+        if self._eager_first:
+            self._eager_first = False
+            return self.fn(*args, **kwargs)
         self._first = False
         try:
             return self._impl(*args, **kwargs)

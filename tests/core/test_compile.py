@@ -7,7 +7,12 @@ import warnings
 import pytest
 import torch
 
-from dls_quadruped.core.compile import Fused, FusedCache, compile_wanted
+from dls_quadruped.core.compile import (
+    RECOMPILE_LIMIT,
+    Fused,
+    FusedCache,
+    compile_wanted,
+)
 
 
 def test_compile_wanted_defaults_to_cuda_only_and_refuses_non_booleans():
@@ -71,3 +76,15 @@ def test_a_fused_cache_keeps_one_fused_per_function_with_its_setting():
     assert not f.compiled and f.name == "double" and torch.equal(f(torch.ones(2)), torch.full((2,), 2.0))
     g = compiled(double, dynamic=True)
     assert g.compiled and g is not f and compiled(double) is g  # the cache's setting, not the caller's
+
+
+def test_a_dynamic_function_runs_eagerly_once_before_it_is_traced_and_the_recompile_limit_is_raised():
+    f = Fused(_branchy, True, "branchy", dynamic=True)  # does not compile: shows when tracing happens
+    x = torch.arange(3.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the first call is the function itself: no trace, no warning
+        assert torch.equal(f(x), x * 2.0)
+    assert f.compiled
+    with pytest.warns(RuntimeWarning, match="torch.compile of branchy failed"):  # traced on the second call
+        assert torch.equal(f(-x - 1.0), -x - 2.0)
+    assert torch._dynamo.config.recompile_limit >= RECOMPILE_LIMIT
