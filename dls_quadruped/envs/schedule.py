@@ -38,11 +38,12 @@ def stream_id(name: str) -> int:
     return zlib.crc32(name.encode())
 
 
-def _draw_bits(seed_h: int, stream_h: int, keys: torch.Tensor, episode: torch.Tensor,
+def _draw_bits(seed_h: torch.Tensor, stream_h: int, keys: torch.Tensor, episode: torch.Tensor,
                count: torch.Tensor, env_ids: torch.Tensor, element_h: torch.Tensor) -> torch.Tensor:
     """(n, size) hashes of the envs ``env_ids``: h = hash(seed); then h = hash(h ^ hash(field)) over (key,
-    episode + 1, stream id, draw count); then one hash per element (``EpisodeSchedule._bits``). ``seed_h``,
-    ``stream_h`` are the hashes of the seed and stream id (Python ints: no upload; symbolic when compiled), ``element_h`` (size,) the hashes of the element indices."""
+    episode + 1, stream id, draw count); then one hash per element (``EpisodeSchedule._bits``). ``seed_h`` is the
+    seed's hash (a 0-dim tensor), ``stream_h`` the stream id's (a Python int: no upload; symbolic when compiled),
+    ``element_h`` (size,) the hashes of the element indices."""
     # the per-env fields hashed in one stacked call: the same numbers as hashing each on its own
     key_ep_count = hash32(torch.stack([keys[env_ids], episode[env_ids] + 1, count[env_ids]]))
     h = hash32(seed_h ^ key_ep_count[0])
@@ -83,6 +84,9 @@ class EpisodeSchedule:
         self.device = torch.device(device)
         self._hashes: dict[tuple, int | torch.Tensor] = {}
         self._advance: torch.Tensor | None = None  # see only()
+        self._draws: dict[str, torch.Tensor] = {}  # per stream, the draws each env made in its episode
+        self.seed_hash = torch.zeros((), dtype=torch.long, device=self.device)
+        """hash32 of the seed, a 0-dim tensor: compiled draws read it as an input, so another seed is not a recompile."""
         self.restart(seed, episode_keys)
 
     def restart(self, seed: int, episode_keys: torch.Tensor | None = None) -> None:
@@ -99,10 +103,11 @@ class EpisodeSchedule:
             if keys.shape != (b,) or keys.dtype.is_floating_point or keys.dtype == torch.bool or bool((keys < 0).any()):
                 raise ValueError(f"episode_keys must be {b} non-negative integers (one per env), "
                                  f"got shape {tuple(keys.shape)} of {keys.dtype}")
-        self.seed = int(seed)
+        self._set_seed(seed)
         self.keys = keys.to(torch.long).clone()
         self.episode = torch.full((b,), -1, dtype=torch.long, device=self.device)
-        self._draws: dict[str, torch.Tensor] = {}
+        for count in self._draws.values():  # zeroed, not dropped: a compiled caller's streams stay where they were
+            count.zero_()
 
     def start_episodes(self, env_ids: torch.Tensor) -> None:
         """``env_ids`` begin their next episode: episode += 1, every stream's draw count restarts."""
@@ -138,13 +143,17 @@ class EpisodeSchedule:
             size *= int(s)
         # the constant hashes (seed, stream id, element index) are cached
         draw = _fused_draw() if self.compile else _draw_bits
-        bits = draw(self._constant_hash("seed", self.seed), self._constant_hash("stream", stream_id(stream)),
+        bits = draw(self.seed_hash, self._constant_hash("stream", stream_id(stream)),
                     self.keys, self.episode, count, env_ids, self._element_hash(size))
         if self._advance is None:
             count[env_ids] += 1
         else:
             count[env_ids] += self._advance.to(torch.long)
         return bits.reshape(n, *shape)
+
+    def _set_seed(self, seed: int) -> None:
+        self.seed = int(seed)
+        self.seed_hash.fill_(self._constant_hash("seed", self.seed))  # a scalar fill: no host-to-device copy
 
     def _constant_hash(self, kind: str, value: int) -> int:
         """hash32 of one integer (the seed, a stream id), cached."""
@@ -188,7 +197,7 @@ class EpisodeSchedule:
         """
         if tuple(state["episode"].shape) != (self.num_envs,):
             raise ValueError(f"schedule state is for {state['episode'].numel()} envs, this env has {self.num_envs}")
-        self.seed = int(state["seed"])
+        self._set_seed(state["seed"])
         self.keys = state["keys"].to(self.device, torch.long).clone()
         self.episode = state["episode"].to(self.device, torch.long).clone()
         self._draws = {k: v.to(self.device, torch.long).clone() for k, v in state["draws"].items()}

@@ -137,3 +137,26 @@ def test_compiled_schedule_draws_equal_eager_ones():
         if k == 5:
             for s in (eager, fused):
                 s.start_episodes(sub)
+
+
+def test_another_seed_is_an_input_of_a_compiled_draw_not_a_recompile():
+    """A compiled function that draws from the schedule (the reset path's do) reads the seed's hash as a tensor:
+    ``env.reset(seed=...)`` with a new seed reuses the compiled graph, and the draws are the eager schedule's."""
+    from torch._dynamo.utils import counters
+
+    from dls_quadruped.core.compile import Fused
+
+    fused, eager = EpisodeSchedule(7, 8, compile=True), EpisodeSchedule(7, 8)
+    ids = torch.tensor([5, 1, 2])
+    draw = Fused(lambda i: fused.uniform(i, (3,), -1.0, 2.0, stream="seeded"), True, "seeded draw", dynamic=True)
+    for s in (fused, eager):
+        s.start_episodes(torch.arange(8))
+    for _ in range(3):  # eager first call, then traced
+        assert torch.equal(draw(ids), eager.uniform(ids, (3,), -1.0, 2.0, stream="seeded"))
+    graphs = counters["stats"]["unique_graphs"]
+    for seed in (8, 123456):
+        for s in (fused, eager):
+            s.restart(seed)
+            s.start_episodes(torch.arange(8))
+        assert torch.equal(draw(ids), eager.uniform(ids, (3,), -1.0, 2.0, stream="seeded"))
+    assert draw.compiled and counters["stats"]["unique_graphs"] == graphs
