@@ -11,21 +11,20 @@ Step order (IsaacLab's ``ManagerBasedRLEnv.step``):
 6. command manager: resample expired commands; interval events (pushes);
 7. observation manager -> TensorDict of groups.
 
-Returns ``(obs, reward, dones, extras)`` with ``extras["time_outs"]`` (time limits, bootstrapped
-by PPO) and ``extras["log"]`` (episode means, curriculum values, and
-``Episode_Metric/lin_vel_xy_error``: mean over the resetting envs of the per-step planar
-velocity-tracking error |v_xy,b - v_cmd,xy| [m/s] averaged over their episode). The episode values are
-0-dim tensors on ``device`` (as IsaacLab's; rsl-rl's logger reads them once per iteration), the curriculum
-values floats. The last observation of a reset env is the first one of its new episode (as in IsaacLab).
+Returns ``(obs, reward, dones, extras)`` with ``extras["time_outs"]`` (time limits, bootstrapped by PPO) and
+``extras["log"]`` (episode means, curriculum values, and ``Episode_Metric/lin_vel_xy_error``: mean over the
+resetting envs of the per-step planar velocity-tracking error |v_xy,b - v_cmd,xy| [m/s] averaged over their
+episode). The episode values are 0-dim tensors on ``device`` (as IsaacLab's; rsl-rl's logger reads them once per
+iteration), the curriculum values floats. The last observation of a reset env is the first one of its new episode
+(as in IsaacLab).
 
-Host reads: one per step, the ids of the robots to reset (the simulator backends reset by row id), plus one
-per interval event term (the ids of the robots it pushes); the rest of a step queues device work only
-(``core/sync_probe.py``, ``tests/envs/test_host_sync.py``).
+Host reads: one per step, how many robots reset and how many each interval event (push) fires on (backends reset
+and push by row id; ``nonzero_static`` finds them), plus one per interval term with ``interval_s[0] <= step_dt``;
+the rest queues device work only (``core/sync_probe.py``, ``tests/envs/test_host_sync.py``).
 
-What terms see (``env.<attr>``): ``state`` (RobotState on ``device``), ``num_envs``, ``device``,
-``step_dt`` [s], ``max_episode_length`` [steps], ``max_episode_length_s``, ``episode_length_buf``,
-``robot_weight`` [N], and the managers ``scene``, ``action_manager``, ``command_manager``,
-``reward_manager``, ``curriculum_manager``.
+What terms see (``env.<attr>``): ``state`` (RobotState on ``device``), ``num_envs``, ``device``, ``step_dt`` [s],
+``max_episode_length`` [steps], ``max_episode_length_s``, ``episode_length_buf``, ``robot_weight`` [N], and the
+managers ``scene``, ``action_manager``, ``command_manager``, ``reward_manager``, ``curriculum_manager``.
 """
 
 from __future__ import annotations
@@ -80,8 +79,7 @@ class LocomotionEnv(VecEnv):
         num_envs: overrides ``env.num_envs``.
         device: torch device of observations, rewards and actions.
         seed: overrides ``env.seed``.
-        run_dir: if given, the resolved config is written to ``run_dir/task.yaml``.
-        verbose: print the resolved term tables.
+        run_dir: if given, the resolved config is written to ``run_dir/task.yaml``. verbose: print the term tables.
     """
 
     def __init__(self, task: str | Path | TaskConfig, num_envs: int | None = None, device: str = "cpu",
@@ -271,11 +269,13 @@ class LocomotionEnv(VecEnv):
         reward = self.reward_manager.compute(self.step_dt)
         time_outs = self.termination_manager.time_outs.clone()
         self.extras = {"log": {}}
-        reset_ids = torch.nonzero(dones).flatten()
-        if len(reset_ids):
+        masks = {None: dones, **self.event_manager.due(self.step_dt, dones)}  # resets, pushes: one host read
+        counts = torch.stack(tuple(masks.values())).sum(dim=1).tolist()
+        rows = {k: torch.nonzero_static(m, size=c).flatten() for (k, m), c in zip(masks.items(), counts)}
+        if len(reset_ids := rows.pop(None)):
             self._reset_idx(reset_ids)
         self.command_manager.compute(self.step_dt)
-        self.event_manager.apply("interval", dt=self.step_dt)
+        self.event_manager.apply("interval", dt=self.step_dt, due=rows)
         self.refresh_state()
         self.obs_buf = self.observation_manager.compute()
         self.extras["time_outs"] = time_outs

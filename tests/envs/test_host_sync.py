@@ -22,18 +22,27 @@ from dls_quadruped.envs.env import LocomotionEnv
 
 SMALL = {"terrain": {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0}}
 QUIET = {"commands": {"base_velocity": {"resampling_time_s": [100.0, 100.0]}}}
-EVENTFUL = {"env": {"episode_length_s": 0.2},  # 10 policy steps
+
+
+def _eventful(first_push_s: float) -> dict:
+    """Episodes of 10 policy steps (0.02 s each), commands resampled every few steps, pushes every 0.02-0.08 s."""
+    return {"env": {"episode_length_s": 0.2},
             "commands": {"base_velocity": {"resampling_time_s": [0.05, 0.1]}},
-            "events": {"push": {"func": "push_robot", "mode": "interval", "interval_s": [0.02, 0.06],
+            "events": {"push": {"func": "push_robot", "mode": "interval", "interval_s": [first_push_s, 0.08],
                                 "params": {"velocity_range": [-0.5, 0.5]}}}}
 
+
+EVENTFUL = _eventful(0.04)  # interval_s[0] > step_dt: the pushes' robots are read with the resets
+EVENTFUL_AT_ONCE = _eventful(0.02)  # interval_s[0] <= step_dt: a robot reset this step may be pushed at once
+
 PER_STEP = {
-    # the backends reset robots by row id (SimBackend.reset), so the env reads which robots are done
+    # the backends reset and push robots by row id (SimBackend.reset), so the env reads how many robots reset and
+    # how many each interval term pushes, in one read (the ids then come from torch.nonzero_static)
     "dls_quadruped/envs/env.py:_finish_step": 1,
-    # interval events (pushes) reach the backend by row id too: one read per interval term
+    # an interval term with interval_s[0] <= step_dt finds its robots after the resets: one read per such term
     "dls_quadruped/envs/managers/event.py:apply": 1,
 }
-"""Sites allowed in every step, with how many reads each may make per step (per interval term for events)."""
+"""Sites allowed in every step, with how many reads each may make per step (per such interval term for events)."""
 
 ON_RESET = {
     # a curriculum that switches reward weights on (penalties_when_walking) decides on the host
@@ -92,7 +101,8 @@ def warp():
     return pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
 
 
-@pytest.mark.parametrize("overrides,interval_terms", [(QUIET, 0), (EVENTFUL, 1)], ids=["no_events", "resets_pushes"])
+@pytest.mark.parametrize("overrides,interval_terms", [(QUIET, 0), (EVENTFUL, 0), (EVENTFUL_AT_ONCE, 1)],
+                         ids=["no_events", "resets_pushes", "resets_pushes_at_once"])
 def test_warp_step_reads_the_host_only_at_allowed_sites(warp, overrides, interval_terms):
     env = _env("warp-cpu", overrides)
     try:
@@ -102,21 +112,54 @@ def test_warp_step_reads_the_host_only_at_allowed_sites(warp, overrides, interva
     finally:
         env.close()
     assert resets > 0  # the non-finite action at least
-    if interval_terms:
-        assert resets > 4 and checks > 0  # episodes of 10 steps, and the push term ran
+    if overrides is not QUIET:
+        assert resets > 4  # episodes of 10 steps
+    assert (checks > 0) == bool(interval_terms)  # the push term read its own robots only when it had to
     _check(report, steps, set(PER_STEP) | ON_RESET | WARP_BACKEND, interval_terms)
 
 
-def test_cpu_step_reads_the_host_only_at_allowed_sites():
+@pytest.mark.parametrize("overrides,interval_terms", [(EVENTFUL, 0), (EVENTFUL_AT_ONCE, 1)],
+                         ids=["resets_pushes", "resets_pushes_at_once"])
+def test_cpu_step_reads_the_host_only_at_allowed_sites(overrides, interval_terms):
     """The same outside the CPU backend's files (cheap: no MuJoCo Warp needed, so CI runs it)."""
-    env = _env("cpu", EVENTFUL)
+    env = _env("cpu", overrides)
     try:
         steps = 12
         report, resets = _run(env, steps, exclude=CPU_BACKEND_FILES)
     finally:
         env.close()
     assert resets > 4
-    _check(report, steps, set(PER_STEP) | ON_RESET, interval_terms=1)
+    _check(report, steps, set(PER_STEP) | ON_RESET, interval_terms)
+
+
+def test_pushes_read_with_the_resets_are_the_pushes_found_after_them(monkeypatch):
+    """The robots a push term fires on, read before the resets (``EventManager.due``), are the ones ``apply``
+    finds itself after them: two envs, one with ``due`` disabled, push the same robots at the same steps and give
+    bit-identical steps with resets."""
+    from dls_quadruped.envs.managers.event import EventManager
+
+    def rollout(env: LocomotionEnv) -> tuple[list[torch.Tensor], list[tuple[int, list[int]]]]:
+        out, pushed, step = [], [], [0]
+        push = env.scene.sim.set_base_velocity
+        env.scene.sim.set_base_velocity = lambda ids, v: pushed.append((step[0], ids.tolist())) or push(ids, v)
+        try:
+            for step[0], a in enumerate(_actions(16)):
+                obs, rew, dones, _ = env.step(a)
+                out += [obs["policy"], rew, dones, env.state.base_lin_vel_w]
+        finally:
+            env.close()
+        return out, pushed
+
+    calls: list[int] = []
+    due = EventManager.due
+    monkeypatch.setattr(EventManager, "due", lambda self, dt, r: calls.append(1) or due(self, dt, r))
+    read_with_resets, pushed = rollout(_env("cpu", EVENTFUL))
+    monkeypatch.setattr(EventManager, "due", lambda self, dt, r: {})
+    found_after, pushed_after = rollout(_env("cpu", EVENTFUL))
+    assert len(calls) == 16 and len(pushed) > 4  # pushes every 2-4 steps
+    assert pushed == pushed_after
+    for a, b in zip(read_with_resets, found_after, strict=True):
+        assert torch.equal(a, b)
 
 
 def test_probe_catches_planted_reads_and_uploads():

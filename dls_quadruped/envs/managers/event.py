@@ -53,8 +53,21 @@ class EventManager(ManagerBase):
                     self.timers[t.name] = torch.zeros(self.env.num_envs, device=self.env.device)
                 self.timers[t.name][env_ids] = self._draw(t, env_ids)
 
-    def apply(self, mode: str, env_ids: torch.Tensor | None = None, dt: float = 0.0) -> None:
-        """Run the terms of ``mode``; ``env_ids`` for reset, ``dt`` [s] advances interval timers."""
+    def due(self, dt: float, resetting: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The (B,) bool masks of the robots each interval term fires on at this step's ``apply("interval", dt)``,
+        known before ``resetting`` robots reset (so that the env reads them with its reset mask, in one host read).
+
+        A robot not reset fires iff ``timer - dt <= 0`` (apply's own float operation on the same timer); a reset
+        robot draws a fresh timer of at least ``interval_s[0]``, so it cannot fire when ``interval_s[0] > dt``.
+        Terms with ``interval_s[0] <= dt`` are left out: ``apply`` then finds their robots itself (one more read).
+        """
+        return {t.name: (self.timers[t.name] - dt <= 0.0) & ~resetting for t in self.terms
+                if t.extra["mode"] == "interval" and float(t.extra["interval_s"][0]) - dt > 1e-6}
+
+    def apply(self, mode: str, env_ids: torch.Tensor | None = None, dt: float = 0.0,
+              due: dict[str, torch.Tensor] | None = None) -> None:
+        """Run the terms of ``mode``; ``env_ids`` for reset, ``dt`` [s] advances interval timers; ``due``: for
+        interval terms, the ids of the robots they fire on, from :meth:`due`'s masks (the others are found here)."""
         all_ids = torch.arange(self.env.num_envs, device=self.env.device)
         for t in self.terms:
             if t.extra["mode"] != mode:
@@ -62,7 +75,7 @@ class EventManager(ManagerBase):
             if mode == "interval":
                 timer = self.timers[t.name]
                 timer -= dt
-                ids = torch.nonzero(timer <= 0.0).flatten()
+                ids = due[t.name] if due is not None and t.name in due else torch.nonzero(timer <= 0.0).flatten()
                 if len(ids):
                     timer[ids] = self._draw(t, ids)
                     t(self.env, ids)
