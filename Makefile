@@ -14,7 +14,7 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install install-gpu install-offline wheelhouse gpu-check test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
+.PHONY: install install-gpu install-offline wheelhouse gpu-pack gpu-check test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
 
 # One stamp per (TORCH_SPEC, TORCH_INDEX): changing either re-installs torch (--force-reinstall: pip would keep a
 # 2.13.0+cpu build for a cu128 index's torch==2.13.0, the same version to it).
@@ -52,6 +52,14 @@ WHEEL_EXCLUDE ?=
 wheelhouse: install-gpu
 	$(PY) -m dls_quadruped.tools.wheelhouse --out $(WHEELHOUSE) --python-version $(WHEEL_PYTHON) \
 		$(if $(WHEEL_EXCLUDE),--exclude $(WHEEL_EXCLUDE),)
+
+# A GPU node that takes files in size-limited transfers and has torch but no network (docs/gpu.md "Offline install"):
+# the [gpu] wheels unpacked into one import folder without Warp's CPU compiler, packed with xz into parts of at most
+# GPU_PACK_PART_MB, and the one line that unpacks them there (GPU_PACK/unpack.sh)
+GPU_PACK ?= .gpu_pack
+GPU_PACK_PART_MB ?= 48
+gpu-pack: install-gpu
+	$(PY) -m dls_quadruped.tools.gpu_pack --out $(GPU_PACK) --part-mb $(GPU_PACK_PART_MB) --where $(GPU_PACK)
 
 install-offline:
 	test -d "$(WHEELHOUSE)" || { echo "install-offline: WHEELHOUSE=$(WHEELHOUSE) is not a folder (make wheelhouse)"; exit 2; }
@@ -178,7 +186,7 @@ SET_ARGS = $(foreach kv,$(SET),--set '$(kv)')
 
 train: $(STAMP)
 	OMP_NUM_THREADS=$(TRAIN_THREADS) OMP_WAIT_POLICY=PASSIVE $(PY) -m dls_quadruped.learning.train --task $(TASK) --num-envs $(TRAIN_NUM_ENVS) --iterations $(ITERATIONS) \
-		--device $(DEVICE) $(if $(SEED),--seed $(SEED),) $(if $(RESUME),--resume,) $(if $(INIT_FROM),--init-from $(INIT_FROM),) \
+		--device $(DEVICE) $(if $(SEED),--seed $(SEED),) $(if $(RESUME),--resume,) $(if $(TIME_LIMIT),--time-limit $(TIME_LIMIT),) $(if $(INIT_FROM),--init-from $(INIT_FROM),) \
 		$(if $(INIT_STD),--init-std $(INIT_STD),) \
 		$(if $(RESUME_FROM),--resume-from $(RESUME_FROM),) $(if $(CHECKPOINT_COPY),--checkpoint-copy $(CHECKPOINT_COPY),) \
 		$(if $(TRAIN_WORKERS),--num-workers $(TRAIN_WORKERS),) $(if $(UPDATE_THREADS),--update-threads $(UPDATE_THREADS),) \

@@ -81,8 +81,9 @@ class Fused:
             if not _is_compile_error(err):
                 raise
             self.compiled, self.error, self._impl = False, err, self.fn
-            warnings.warn(f"torch.compile of {self.name} failed, running it eagerly ({type(err).__name__}: "
-                          f"{str(err).splitlines()[0] if str(err) else ''})", RuntimeWarning, stacklevel=2)
+            # the whole message: inductor's first line ("backend='inductor' raised:") names no cause
+            warnings.warn(f"torch.compile of {self.name} failed, running it eagerly ({type(err).__name__}: {err})",
+                          RuntimeWarning, stacklevel=2)
             return self.fn(*args, **kwargs)
 
 

@@ -14,7 +14,9 @@ Checkpoints are read without running code from them (``learning/checkpoint_file.
 ``copy_to`` names a second file every checkpoint is also written to (atomically; one to commit).
 Besides rsl-rl's every-``save_interval`` saves, the runner saves when ``save_every_s`` seconds of
 wall time passed since the last save and, after SIGINT/SIGTERM, at the end of the current
-iteration (then raises ``TrainingInterrupted``). Every iteration also logs ``learning/diagnostics.py``'s
+iteration (then raises ``TrainingInterrupted``). With a ``deadline`` (``train --time-limit``) it also stops
+at the end of the last iteration that leaves time for one more iteration and the closing save and export
+(raises ``TimeLimitReached`` after saving). Every iteration also logs ``learning/diagnostics.py``'s
 ``Diagnostics/*`` scalars (action std and clip fractions per latent-action group, ignored F/p, KL, learning
 rate) and prints them on one line.
 
@@ -59,6 +61,38 @@ class TrainingInterrupted(Exception):
         super().__init__(f"{signal.Signals(signum).name}: saved {path}" if path else signal.Signals(signum).name)
 
 
+class TimeLimitReached(Exception):
+    """The next iteration would not end before the deadline; the last finished one was saved to ``path``."""
+
+    def __init__(self, path: str | None, iteration: int):
+        self.path, self.iteration = path, iteration
+        super().__init__(f"time limit: saved {path} (iteration {iteration})")
+
+
+clock = time.monotonic
+"""The clock of ``Deadline`` and the runner's time checks (a test replaces it)."""
+
+
+class Deadline:
+    """A wall-time budget that started at construction: ``Deadline(seconds)``.
+
+    ``stop_after(iteration_s)`` is True once another iteration of ``iteration_s`` seconds (doubled: the next
+    one can be slower, e.g. a checkpoint save or a recompile), plus ``reserve_s`` for the closing save and
+    the policy export, would end past the budget.
+    """
+
+    def __init__(self, seconds: float, reserve_s: float = 20.0):
+        self.seconds, self.reserve_s = float(seconds), float(reserve_s)
+        self.start = clock()
+
+    def left(self, now: float | None = None) -> float:
+        """Seconds left at ``now`` (default: the clock's now)."""
+        return self.start + self.seconds - (clock() if now is None else now)
+
+    def stop_after(self, iteration_s: float, now: float | None = None) -> bool:
+        return self.left(now) < 2.0 * iteration_s + self.reserve_s
+
+
 class AtomicOnPolicyRunner(OnPolicyRunner):
     """``OnPolicyRunner`` with atomic checkpoints (tmp file + ``os.replace``) that carry the env state,
     wall-time saves and a save on SIGINT/SIGTERM.
@@ -68,11 +102,14 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         fast_update: make rsl-rl's PPO update cheaper without changing its numbers
             (``learning/fast_update.py``); False: rsl-rl's stock update.
         update_threads: with ``fast_update``, torch threads during the update (None: every core).
+        deadline: stop (save, then raise ``TimeLimitReached``) at the end of the last iteration the
+            deadline leaves room for (None: no limit).
         Other arguments as ``OnPolicyRunner``.
     """
 
     def __init__(self, env, train_cfg: dict, log_dir: str | None = None, device: str = "cpu",
-                 save_every_s: float | None = None, fast_update: bool = True, update_threads: int | None = None):
+                 save_every_s: float | None = None, fast_update: bool = True, update_threads: int | None = None,
+                 deadline: Deadline | None = None):
         check_symmetry_cfg(env, train_cfg)  # a bad mirror map fails here, naming its term
         super().__init__(env, train_cfg, log_dir=log_dir, device=device)
         if fast_update:
@@ -83,6 +120,8 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         self.stop_signal: int | None = None
         self._last_save_time = time.monotonic()
         self._last_saved: tuple[str, int] | None = None
+        self.deadline = deadline
+        self._iteration_end = clock()  # the first iteration's time includes the env's first steps (compiles)
         log = self.logger.log
 
         def log_then_checkpoint(*args, **kwargs) -> None:
@@ -136,18 +175,30 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
             self.logger.writer.add_scalar(f"Diagnostics/{name}", value, it)
         print(TrainingDiagnostics.summary(values), flush=True)
 
+    def _out_of_time(self) -> bool:
+        """Whether the deadline leaves no room for another iteration (rank 0 decides, every rank follows)."""
+        if self.deadline is None:
+            return False
+        now = clock()
+        iteration_s, self._iteration_end = now - self._iteration_end, now
+        late = self.deadline.stop_after(iteration_s, now) if self.ranks.is_main else False
+        return bool(any_rank(int(late), self.ranks, self.device))
+
     def _end_of_iteration(self) -> None:
         stop = any_rank(self.stop_signal or 0, self.ranks, self.device)
         self.stop_signal = stop or None
+        late = self._out_of_time()
         path = None
         if self.logger.writer is not None:  # rank 0 with a log dir
             due = self.save_every_s is not None and time.monotonic() - self._last_save_time >= self.save_every_s
-            if due or self.stop_signal is not None:
+            if due or late or self.stop_signal is not None:
                 path = os.path.join(self.logger.log_dir, f"model_{self.current_learning_iteration}.pt")
                 self.save(path)
-        if self.stop_signal is not None:
+        if self.stop_signal is not None or late:
             self.logger.stop_logging_writer()
-            raise TrainingInterrupted(self.stop_signal, path)
+            if self.stop_signal is not None:
+                raise TrainingInterrupted(self.stop_signal, path)
+            raise TimeLimitReached(path, self.current_learning_iteration)
 
     # ------------------------------------------------------------------ export
     def export_policy_to_onnx(self, path: str, filename: str = "policy.onnx", verbose: bool = False) -> None:

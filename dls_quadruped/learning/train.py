@@ -6,6 +6,7 @@
     python -m dls_quadruped.learning.train --task speed --init-from docs/policies/base_networks.pt
     python -m dls_quadruped.learning.train --task base --checkpoint-copy docs/policies/base_resume.pt
     python -m dls_quadruped.learning.train --task base --resume-from docs/policies/base_resume.pt  # another machine
+    python -m dls_quadruped.learning.train --task base --device cuda --backend cuda --num-envs 4096 --time-limit 540
 
 Checkpoints (written atomically, with the env's curricula, terrain levels, command ranges, reward
 weights and RNG state) every ``--save-interval`` iterations (default: a tenth of the run, at most
@@ -18,7 +19,10 @@ continues from a checkpoint file anywhere (e.g. one committed beside the policie
 ``--checkpoint-copy``) in a new run directory: networks, optimiser, learning rate, iteration,
 curricula, terrain levels, command ranges, the episodes in progress (simulator state included) and
 every RNG, so its first iteration is the one the uninterrupted run would have taken (tested).
-``--init-from`` starts a new
+``--time-limit SECONDS`` (counted from the start of the process, so the env's build and compiles are in it)
+ends the run at the end of the last iteration that leaves time for one more and for the closing save and
+export, with its checkpoint, curve rows and exported policy written, and exit status 0; ``--resume`` then
+continues it (a job that fits a short GPU lease). ``--init-from`` starts a new
 run from another run's actor and critic (a checkpoint file or a run directory's newest one; fresh
 optimiser, iteration 0, the task's own curricula; see ``AtomicOnPolicyRunner.init_networks``); it is
 recorded in the run directory's ``init_from.yaml``. At the end the actor is exported as a
@@ -62,6 +66,8 @@ from dls_quadruped.learning.distributed import (
 from dls_quadruped.learning.runner import (
     AtomicOnPolicyRunner,
     CheckpointMismatch,
+    Deadline,
+    TimeLimitReached,
     TrainingInterrupted,
     export_policy,
     latest_run,
@@ -108,6 +114,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="save every K iterations (default: iterations/10, at most agent.save_interval)")
     p.add_argument("--save-every-min", type=positive_float, default=DEFAULT_SAVE_EVERY_MIN,
                    help=f"also save when this many minutes passed since the last save ({DEFAULT_SAVE_EVERY_MIN})")
+    p.add_argument("--time-limit", type=positive_float, default=None, metavar="SECONDS",
+                   help="stop cleanly (checkpoint, curve, export; exit 0) before SECONDS of wall time since the "
+                        "start; continue with --resume (default: no limit)")
     p.add_argument("--num-workers", type=non_negative_int, default=None,
                    help="simulator worker processes (scene.num_workers; 0 = in-process)")
     p.add_argument("--backend", default=None,
@@ -231,6 +240,7 @@ def checkpoint_num_envs(ckpt: dict) -> int | None:
 def main(argv: list[str] | None = None) -> Path:
     """Train; returns the run directory."""
     args = parse_args(argv)
+    args.deadline = Deadline(args.time_limit) if args.time_limit is not None else None
     if args.device == "cuda" and "LOCAL_RANK" in os.environ:  # torchrun: one GPU per process
         args.device = f"cuda:{os.environ['LOCAL_RANK']}"
     ranks = init_distributed(args.device)  # torchrun: join the group before any rank touches the run dir
@@ -266,7 +276,8 @@ def _train(args: argparse.Namespace, ranks: Ranks) -> Path:
     try:
         runner = AtomicOnPolicyRunner(env, cfg, log_dir=str(run_dir), device=args.device,
                                       save_every_s=60.0 * args.save_every_min,
-                                      fast_update=not args.stock_update, update_threads=args.update_threads)
+                                      fast_update=not args.stock_update, update_threads=args.update_threads,
+                                      deadline=args.deadline)
         runner.copy_to = str(args.checkpoint_copy) if args.checkpoint_copy is not None and ranks.is_main else None
         if found is not None:
             path, ckpt = found
@@ -315,6 +326,10 @@ def _train(args: argparse.Namespace, ranks: Ranks) -> Path:
                   + (f"saved {stop.path}; continue with --resume --run-dir {run_dir}" if stop.path
                      else "no iteration had finished, nothing saved"), flush=True)
             raise SystemExit(128 + stop.signum) from None
+        except TimeLimitReached as stop:
+            print(f"[train] time limit ({args.time_limit:g} s) reached after iteration {stop.iteration} "
+                  f"({args.deadline.left():.0f} s left); saved {stop.path}; continue with --resume --run-dir "
+                  f"{run_dir}", flush=True)
         finally:
             for signum, handler in previous.items():
                 signal.signal(signum, handler)

@@ -32,9 +32,11 @@ def _branchy(x: torch.Tensor) -> torch.Tensor:
 def test_a_function_that_does_not_compile_runs_eagerly_after_one_warning():
     f = Fused(_branchy, True, "branchy")
     x = torch.arange(3.0)
-    with pytest.warns(RuntimeWarning, match="torch.compile of branchy failed, running it eagerly"):
+    with pytest.warns(RuntimeWarning, match="torch.compile of branchy failed, running it eagerly") as caught:
         assert torch.equal(f(x), x * 2.0)
     assert not f.compiled and f.error is not None
+    # the whole error, not only its first line (inductor's first line names no cause)
+    assert str(f.error) in str(caught[0].message) and len(str(f.error).splitlines()) > 1
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no second warning
         assert torch.equal(f(-x - 1.0), -x - 2.0)

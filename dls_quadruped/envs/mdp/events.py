@@ -24,13 +24,18 @@ def _uniform(env, env_ids: torch.Tensor, shape: tuple[int, ...], rng, stream: st
     return env.schedule.uniform(env_ids, shape, float(rng[0]), float(rng[1]), stream=stream)
 
 
+_CONSTANTS = {name: value.tolist() for name, value in vars(C).items() if name.isupper() and hasattr(value, "tolist")}
+_CONSTANTS["THIGH_Y"] = (C.LEG_Y_SIGN * C.THIGH_OFFSET_Y).tolist()
+"""The robot's numpy constants as Python numbers: a numpy value read inside a compiled function becomes a graph
+input (and a guard that fails between inference mode and grad mode)."""
+
+
 @constant_cache
 def _constant(name: str, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """The robot constant ``name`` of the ``constants`` module (or ``"THIGH_Y"``, the signed lateral thigh offsets
     (4,) [m]) as a tensor, built once per dtype and device (a per-reset upload is a host-to-device copy on a
     GPU); read-only."""
-    value = C.LEG_Y_SIGN * C.THIGH_OFFSET_Y if name == "THIGH_Y" else getattr(C, name)
-    return torch.as_tensor(value, dtype=dtype, device=device)
+    return torch.as_tensor(_CONSTANTS[name], dtype=dtype, device=device)
 
 
 def foot_positions_b(q: torch.Tensor) -> torch.Tensor:
@@ -66,7 +71,7 @@ def spawn_height(terrain, xy: torch.Tensor, yaw: torch.Tensor, q: torch.Tensor, 
 
 def reset_robot(env, env_ids: torch.Tensor, joint_scale: tuple[float, float] = (1.0, 1.0),
                 yaw: tuple[float, float] = (-math.pi, math.pi), xy_offset: float = 0.0,
-                height: float = C.STANDING_BASE_HEIGHT + 0.02) -> None:
+                height: float = float(C.STANDING_BASE_HEIGHT + 0.02)) -> None:
     """Place robots on their terrain origin: random yaw, xy offset in [-xy_offset, xy_offset] [m],
     joints = nominal x U(joint_scale) (0.8-1.2 in "high"), base ``height`` [m] above the terrain, higher
     where a foot would start inside the terrain (``spawn_height``). The placement is one compiled function of the

@@ -22,10 +22,13 @@ def _gravity_dir_w(device: torch.device) -> torch.Tensor:
     return torch.tensor([0.0, 0.0, -1.0], device=device)
 
 
+_NOMINAL_JOINT_POS = C.NOMINAL_JOINT_POS.tolist()  # Python numbers: no numpy value inside compiled code
+
+
 @constant_cache
 def _nominal_joint_pos(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """(12,) [rad] ``constants.NOMINAL_JOINT_POS`` (built once per dtype and device, read-only)."""
-    return torch.as_tensor(C.NOMINAL_JOINT_POS, dtype=dtype, device=device)
+    return torch.as_tensor(_NOMINAL_JOINT_POS, dtype=dtype, device=device)
 
 
 def base_lin_vel(env) -> torch.Tensor:

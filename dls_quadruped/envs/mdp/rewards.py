@@ -51,7 +51,7 @@ def proprioceptive_height(env) -> torch.Tensor:
     return env.state.base_pos_w[:, 2] - (c * z_feet).sum(dim=-1) / n  # 0/0 = NaN when airborne
 
 
-def base_height(env, target: float = C.BASE_HEIGHT_TARGET - C.FOOT_RADIUS, sigma: float = 0.1,
+def base_height(env, target: float = float(C.BASE_HEIGHT_TARGET - C.FOOT_RADIUS), sigma: float = 0.1,
                 alpha: float = 0.0) -> torch.Tensor:
     """SEK (alpha = 0) or SSEK (alpha > 0, tolerance +-alpha [m]) on the proprioceptive height; 0 with no
     foot in contact (the height is undefined then). ``target`` defaults to the base height target
@@ -79,10 +79,13 @@ def action_rate(env) -> torch.Tensor:
     return kernels.l2(am.raw_action - am.prev_raw_action)
 
 
+_JOINT_RANGES = C.JOINT_RANGES.tolist()  # Python numbers: no numpy value inside compiled code
+
+
 @constant_cache
 def _joint_ranges(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """(12, 2) [rad] ``constants.JOINT_RANGES`` (low, high) (built once per dtype and device, read-only)."""
-    return torch.as_tensor(C.JOINT_RANGES, dtype=dtype, device=device)
+    return torch.as_tensor(_JOINT_RANGES, dtype=dtype, device=device)
 
 
 def joint_soft_limits(env, soft_ratio: float = 0.9) -> torch.Tensor:

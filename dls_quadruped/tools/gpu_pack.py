@@ -1,0 +1,107 @@
+"""Pack the ``[gpu]`` wheels for a GPU node that takes files in size-limited transfers.
+
+``make gpu-pack`` (= ``python -m dls_quadruped.tools.gpu_pack``) is the route to a node with no network whose
+jobs carry at most a few tens of MB each (docs/gpu.md "Offline install"): it downloads the wheels
+``tools/wheelhouse.py`` would (the closure of ``dls_quadruped[gpu]`` for the node's Python, minus what the node
+already has), unpacks them into one folder (an import path: no pip run on the node), leaves out Warp's
+CPU-only compiler ``warp/bin/warp-clang.so`` (CUDA kernels do not need it) and Warp's examples, packs the folder
+with ``xz`` and splits the archive into parts of at most ``--part-mb`` MB. It writes beside the parts
+``unpack.sh``, the one line that joins and unpacks them on the node (``SITE`` the folder, default
+``/tmp/gpu_site``), to be followed by ``export PYTHONPATH=$SITE:$PYTHONPATH``.
+
+The working tree runs from its checkout (``PYTHONPATH=.``), so the package's own wheel is not packed.
+"""
+
+from __future__ import annotations
+
+import lzma
+import tarfile
+import tempfile
+import zipfile
+from pathlib import Path
+
+from dls_quadruped.cli import ArgumentParser, positive_float, run_cli
+from dls_quadruped.tools import wheelhouse
+
+NODE_HAS = ("torch,numpy,pyyaml,tqdm,absl-py,etils,cloudpickle,packaging,matplotlib,tensorboard,onnx,"
+            "sympy,mpmath,typing-extensions,pin")
+"""What the torch 2.11 + CUDA 13 GPU images seen so far already hold (pin: not needed by the Warp backends)."""
+
+LEAVE_OUT = ("warp/bin/warp-clang.so", "warp/examples/")
+"""Paths inside the wheels not unpacked: Warp's LLVM CPU compiler (69 MB) and its examples."""
+
+
+def unpack(wheels: Path, site: Path, leave_out: tuple[str, ...] = LEAVE_OUT) -> list[str]:
+    """Unpack every wheel in ``wheels`` (but this package's own) into ``site``; returns the wheels unpacked."""
+    done = []
+    for whl in sorted(wheels.glob("*.whl")):
+        if whl.name.startswith("dls_quadruped-"):
+            continue
+        with zipfile.ZipFile(whl) as z:
+            for info in z.infolist():
+                if not info.filename.startswith(leave_out):
+                    z.extract(info, site)
+        done.append(whl.name)
+    return done
+
+
+def pack(site: Path, out: Path, part_mb: float, name: str = "gpu_site") -> list[Path]:
+    """``site`` as a tar.xz split into parts ``<name>.tar.xz.part<k>`` of at most ``part_mb`` MB each."""
+    out.mkdir(parents=True, exist_ok=True)
+    archive = out / f"{name}.tar.xz"
+    with lzma.open(archive, "wb", preset=9 | lzma.PRESET_EXTREME) as xz, tarfile.open(fileobj=xz, mode="w") as tar:
+        tar.add(site, arcname=".")
+    size = int(part_mb * 1e6)
+    parts = []
+    with open(archive, "rb") as f:
+        while chunk := f.read(size):
+            part = out / f"{archive.name}.part{len(parts) + 1}"
+            part.write_bytes(chunk)
+            parts.append(part)
+    archive.unlink()
+    return parts
+
+
+def unpack_line(parts: list[Path], where: str) -> str:
+    """The shell line that joins the parts (looked for in ``where`` on the node) and unpacks them into $SITE."""
+    names = " ".join(f"{where}/{p.name}" for p in parts)
+    return f'SITE=${{SITE:-/tmp/gpu_site}}; mkdir -p "$SITE" && cat {names} | xz -d -T0 | tar -x -C "$SITE"'
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = ArgumentParser(prog="dls_quadruped.tools.gpu_pack", description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", type=Path, default=Path(".gpu_pack"), help="folder for the parts (created)")
+    p.add_argument("--wheels", type=Path, default=None,
+                   help="a folder of wheels already downloaded (make wheelhouse); default: download them")
+    p.add_argument("--python-version", default="3.12", help="the node's Python (default 3.12)")
+    p.add_argument("--exclude", default=NODE_HAS, help=f"distributions the node has (default {NODE_HAS})")
+    p.add_argument("--part-mb", type=positive_float, default=48.0, help="largest part in MB (default 48)")
+    p.add_argument("--where", default=".gpu_pack", help="where unpack.sh looks for the parts on the node")
+    args = p.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        wheels = args.wheels
+        if wheels is None:
+            wheels = Path(tmp) / "wheels"
+            wheelhouse.main(["--out", str(wheels), "--python-version", args.python_version,
+                             "--exclude", args.exclude])
+        elif not wheels.is_dir():
+            p.error(f"--wheels {wheels} is not a folder (make wheelhouse WHEELHOUSE={wheels})")
+        site = Path(tmp) / "site"
+        names = unpack(wheels, site)
+        if not names:
+            p.error(f"no wheels in {wheels}")
+        unpacked = sum(f.stat().st_size for f in site.rglob("*") if f.is_file())
+        if args.out.exists():
+            for old in args.out.glob("gpu_site.tar.xz.part*"):
+                old.unlink()
+        parts = pack(site, args.out, args.part_mb)
+    line = unpack_line(parts, args.where)
+    (args.out / "unpack.sh").write_text(line + "\n")
+    packed = sum(q.stat().st_size for q in parts)
+    print(f"{len(names)} wheels, {unpacked / 1e6:.0f} MB unpacked -> {packed / 1e6:.1f} MB xz in {len(parts)} "
+          f"part(s) of <= {args.part_mb:g} MB in {args.out}; on the node:\n  {line}\n"
+          f"  export PYTHONPATH=$SITE:$PYTHONPATH")
+
+
+if __name__ == "__main__":
+    run_cli(main)
