@@ -14,7 +14,7 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install install-gpu install-offline wheelhouse gpu-pack gpu-check test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
+.PHONY: install install-gpu install-offline wheelhouse gpu-pack gpu-caches gpu-check test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
 
 # One stamp per (TORCH_SPEC, TORCH_INDEX): changing either re-installs torch (--force-reinstall: pip would keep a
 # 2.13.0+cpu build for a cu128 index's torch==2.13.0, the same version to it).
@@ -60,6 +60,12 @@ GPU_PACK ?= .gpu_pack
 GPU_PACK_PART_MB ?= 48
 gpu-pack: install-gpu
 	$(PY) -m dls_quadruped.tools.gpu_pack --out $(GPU_PACK) --part-mb $(GPU_PACK_PART_MB) --where $(GPU_PACK)
+# the compile caches of a GPU node's jobs (run them with WARP_CACHE_PATH=$(GPU_CACHES)/warp and
+# TORCHINDUCTOR_CACHE_DIR=$(GPU_CACHES)/inductor), packed the same way for the next node (docs/gpu.md "Cold start")
+GPU_CACHES ?= /tmp/gpu_caches
+gpu-caches:
+	$(if $(wildcard $(STAMP)),$(PY),$(PYTHON)) -m dls_quadruped.tools.gpu_pack --caches $(GPU_CACHES) --out $(GPU_PACK) \
+		--part-mb $(GPU_PACK_PART_MB) --where $(GPU_PACK)
 
 install-offline:
 	test -d "$(WHEELHOUSE)" || { echo "install-offline: WHEELHOUSE=$(WHEELHOUSE) is not a folder (make wheelhouse)"; exit 2; }

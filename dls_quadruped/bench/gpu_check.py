@@ -42,7 +42,13 @@ import numpy as np
 import torch
 
 from dls_quadruped.bench.device import env_steps, machine, mpc_solve
-from dls_quadruped.bench.gpu_probes import gpu_busy, launches, sync_device, syncs
+from dls_quadruped.bench.gpu_probes import (
+    WARMUP_STEPS,
+    gpu_busy,
+    launches,
+    sync_device,
+    syncs,
+)
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
 
@@ -207,11 +213,24 @@ def train(device: torch.device, backend: str, num_envs: int, seconds: float, out
                                  "--png", str(out / "learning_curve.png")])
             rows = (out / "learning_curve.csv").read_text().splitlines()
             result["iterations"] = len(rows) - 1
+            result.update(ppo_throughput(rows, num_envs))
             result["last_row"] = rows[-1]
             result["header"] = rows[0]
         except Exception as err:  # noqa: BLE001 - the checkpoint is there; the curve is a convenience
             result["learning_curve_error"] = f"{type(err).__name__}: {err}"
     return result
+
+
+def ppo_throughput(csv_rows: list[str], num_envs: int, steps_per_env: int = 24) -> dict:
+    """PPO samples/s end to end from a learning curve's rows (header first): the median over iterations after the
+    first (which compiles) of collection + update time."""
+    header = csv_rows[0].split(",")
+    col, upd = header.index("collection_s"), header.index("learning_s")
+    times = sorted(float(r.split(",")[col]) + float(r.split(",")[upd]) for r in csv_rows[2:])
+    if not times:
+        return {}
+    median = times[len(times) // 2] if len(times) % 2 else 0.5 * (times[len(times) // 2 - 1] + times[len(times) // 2])
+    return {"iteration_s_median": median, "samples_per_s": num_envs * steps_per_env / median}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -242,22 +261,23 @@ def main(argv: list[str] | None = None) -> None:
     report.data.update({"device": str(device), "backend": backend})
     # compiled (the CUDA default) and eager side by side at 4 096 first, then the other sizes, then launched
     big = ([("base", 4096, True, None), ("base", 4096, True, False), ("base", 16384, True, None),
-            ("base", 4096, False, None)] if gpu else [("base", 4, True, None), ("base", 4, True, False)])
+            ("base", 65536, True, None), ("base", 4096, False, None)] if gpu
+           else [("base", 4, True, None), ("base", 4, True, False)])
     rough_n = 4096 if gpu else 4
     steps = args.env_steps or (60 if gpu else 3)
     # a compiled step recompiles for the first few reset batch sizes (then marks them dynamic): enough warm-up
     # steps keep those recompiles out of the timed window (docs/gpu.md)
-    warmup = 40 if gpu else 3
+    warmup = WARMUP_STEPS if gpu else 3
     plan = [
         ("versions", lambda: versions(device)),
         ("compile", lambda: compile_times(backend, device, ("flat",))),
         ("trajectories", lambda: trajectories(backend)),
-        ("syncs", lambda: syncs(backend, device, 256 if gpu else 4, 40 if gpu else 4)),
+        ("syncs", lambda: syncs(backend, device, 256 if gpu else 4, 40 if gpu else 4, warmup)),
         ("launches", lambda: {"compiled": launches(backend, device, 4, 12, compile=True),
                               "eager": launches(backend, device, 4, 12, compile=False)}),
         ("env", lambda: {"rows": env_throughput(backend, device, big, steps, report,
                                                  reserve_s=0.35 * args.budget_s, warmup=warmup)}),
-        ("gpu_busy", lambda: gpu_busy(backend, device, 4096, 5)),
+        ("gpu_busy", lambda: gpu_busy(backend, device, 4096, 10, warmup)),
         ("mpc", lambda: mpc_rows(device, (10000, 100000) if gpu else (500,), 20 if gpu else 2, report)),
         ("rough", lambda: {"compile": compile_times(backend, device, ("rough",))["rough"],
                            "rows": env_throughput(backend, device, [("rough", rough_n, True, None)], steps, report,

@@ -36,7 +36,12 @@ def _base_with_pushes(backend: str) -> dict:
                                 "params": {"velocity_range": [-0.5, 0.5]}}}}
 
 
-def syncs(backend: str, device: torch.device, num_envs: int, steps: int) -> dict:
+WARMUP_STEPS = 40
+"""Env steps before any counted or timed window: a compiled step recompiles for the first few reset batch sizes
+and captures its graphs on the first calls (docs/gpu.md), none of which belongs in a steady-state figure."""
+
+
+def syncs(backend: str, device: torch.device, num_envs: int, steps: int, warmup: int = WARMUP_STEPS) -> dict:
     """Host synchronisations per ``env.step`` by site: torch's (CUDA sync debug mode) and Warp array reads."""
     import warp as wp
 
@@ -60,7 +65,7 @@ def syncs(backend: str, device: torch.device, num_envs: int, steps: int) -> dict
 
     try:
         g = torch.Generator(device=device).manual_seed(0)
-        for _ in range(3):  # compile and capture outside the count
+        for _ in range(warmup):  # compile and capture outside the count
             env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
         sync_device(device)
         wp.array.numpy = counted_numpy
@@ -85,7 +90,7 @@ def syncs(backend: str, device: torch.device, num_envs: int, steps: int) -> dict
             torch.cuda.set_sync_debug_mode(0)
         wp.array.numpy = orig_numpy
         env.close()
-    return {"num_envs": num_envs, "steps": steps, "steps_with_resets": done_steps,
+    return {"num_envs": num_envs, "steps": steps, "warmup": warmup, "steps_with_resets": done_steps,
             "syncs_per_step_mean": float(np.mean(per_step)), "syncs_per_step_max": int(np.max(per_step)),
             "by_site": dict(sites.most_common(40)),
             "counted": "torch's CUDA sync debug mode + warp.array.numpy()" if device.type == "cuda"
@@ -188,8 +193,10 @@ def launches(backend: str, device: torch.device, num_envs: int, steps: int, comp
             "steps_with_resets": len(reset)}
 
 
-def gpu_busy(backend: str, device: torch.device, num_envs: int, steps: int) -> dict:
-    """Kernel time over wall time for ``steps`` env steps (torch profiler; Warp's kernels are seen by CUPTI too)."""
+def gpu_busy(backend: str, device: torch.device, num_envs: int, steps: int, warmup: int = WARMUP_STEPS) -> dict:
+    """GPU kernel time over wall time per env step, each from its own window after ``warmup`` steps: wall time
+    without the profiler (which slows the host several-fold), kernel time from the profiler (CUPTI sees Warp's
+    kernels too) over the same number of steps."""
     from torch.profiler import ProfilerActivity, profile
 
     from dls_quadruped.envs.config import load_task
@@ -201,19 +208,24 @@ def gpu_busy(backend: str, device: torch.device, num_envs: int, steps: int) -> d
                         num_envs=num_envs, device=str(device), seed=0, verbose=False)
     try:
         g = torch.Generator(device=device).manual_seed(0)
-        for _ in range(3):
-            env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
+        actions = lambda: torch.randn(num_envs, env.num_actions, generator=g, device=device)
+        for _ in range(warmup):
+            env.step(actions())
         sync_device(device)
+        tic = time.perf_counter()
+        for _ in range(steps):
+            env.step(actions())
+        sync_device(device)
+        wall = time.perf_counter() - tic
         with profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA]) as prof:
-            tic = time.perf_counter()
             for _ in range(steps):
-                env.step(torch.randn(num_envs, env.num_actions, generator=g, device=device))
+                env.step(actions())
             sync_device(device)
-            wall = time.perf_counter() - tic
         kernels = [e for e in prof.events() if e.device_type == torch.autograd.DeviceType.CUDA]
-        busy_us = sum(e.device_time for e in kernels)
+        kernel_s = sum(e.device_time for e in kernels) * 1e-6
     finally:
         env.close()
-    return {"num_envs": num_envs, "steps": steps, "wall_s": wall, "kernel_s": busy_us * 1e-6,
-            "busy_fraction": busy_us * 1e-6 / wall, "kernels_per_step": len(kernels) / steps,
-            "note": "wall time under the profiler (slower than without)"}
+    return {"num_envs": num_envs, "steps": steps, "warmup": warmup, "wall_s_per_step": wall / steps,
+            "kernel_s_per_step": kernel_s / steps, "busy_fraction": kernel_s / wall,
+            "kernels_per_step": len(kernels) / steps,
+            "note": "wall time from an unprofiled window, kernel time from a profiled one of as many steps"}

@@ -10,6 +10,11 @@ with ``xz`` and splits the archive into parts of at most ``--part-mb`` MB. It wr
 ``/tmp/gpu_site``), to be followed by ``export PYTHONPATH=$SITE:$PYTHONPATH``.
 
 The working tree runs from its checkout (``PYTHONPATH=.``), so the package's own wheel is not packed.
+
+``--caches DIR`` packs a compile-cache folder instead (``make gpu-caches``): run the node's jobs with
+``WARP_CACHE_PATH=DIR/warp TORCHINDUCTOR_CACHE_DIR=DIR/inductor``, bring ``DIR`` back packed, and the next node
+unpacks it (``unpack_caches.sh``, into ``$CACHES``, default ``/tmp/gpu_caches``) before its first build, so
+Warp's kernels and inductor's Triton code are not compiled again (docs/gpu.md "Cold start").
 """
 
 from __future__ import annotations
@@ -45,11 +50,12 @@ def unpack(wheels: Path, site: Path, leave_out: tuple[str, ...] = LEAVE_OUT) -> 
     return done
 
 
-def pack(site: Path, out: Path, part_mb: float, name: str = "gpu_site") -> list[Path]:
+def pack(site: Path, out: Path, part_mb: float, name: str = "gpu_site", preset: int = 9 | lzma.PRESET_EXTREME
+         ) -> list[Path]:
     """``site`` as a tar.xz split into parts ``<name>.tar.xz.part<k>`` of at most ``part_mb`` MB each."""
     out.mkdir(parents=True, exist_ok=True)
     archive = out / f"{name}.tar.xz"
-    with lzma.open(archive, "wb", preset=9 | lzma.PRESET_EXTREME) as xz, tarfile.open(fileobj=xz, mode="w") as tar:
+    with lzma.open(archive, "wb", preset=preset) as xz, tarfile.open(fileobj=xz, mode="w") as tar:
         tar.add(site, arcname=".")
     size = int(part_mb * 1e6)
     parts = []
@@ -62,10 +68,10 @@ def pack(site: Path, out: Path, part_mb: float, name: str = "gpu_site") -> list[
     return parts
 
 
-def unpack_line(parts: list[Path], where: str) -> str:
-    """The shell line that joins the parts (looked for in ``where`` on the node) and unpacks them into $SITE."""
+def unpack_line(parts: list[Path], where: str, var: str = "SITE", default: str = "/tmp/gpu_site") -> str:
+    """The shell line that joins the parts (looked for in ``where`` on the node) and unpacks them into ``$var``."""
     names = " ".join(f"{where}/{p.name}" for p in parts)
-    return f'SITE=${{SITE:-/tmp/gpu_site}}; mkdir -p "$SITE" && cat {names} | xz -d -T0 | tar -x -C "$SITE"'
+    return f'{var}=${{{var}:-{default}}}; mkdir -p "${var}" && cat {names} | xz -d -T0 | tar -x -C "${var}"'
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -77,7 +83,21 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--exclude", default=NODE_HAS, help=f"distributions the node has (default {NODE_HAS})")
     p.add_argument("--part-mb", type=positive_float, default=48.0, help="largest part in MB (default 48)")
     p.add_argument("--where", default=".gpu_pack", help="where unpack.sh looks for the parts on the node")
+    p.add_argument("--caches", type=Path, default=None, metavar="DIR",
+                   help="pack this compile-cache folder (warp/, inductor/) instead of the wheels")
     args = p.parse_args(argv)
+    if args.caches is not None:
+        if not args.caches.is_dir():
+            p.error(f"--caches {args.caches} is not a folder")
+        for old in args.out.glob("gpu_caches.tar.xz.part*") if args.out.exists() else ():
+            old.unlink()
+        parts = pack(args.caches, args.out, args.part_mb, "gpu_caches", preset=1)  # caches change: pack fast
+        line = unpack_line(parts, args.where, "CACHES", "/tmp/gpu_caches")
+        (args.out / "unpack_caches.sh").write_text(line + "\n")
+        print(f"{args.caches} -> {sum(q.stat().st_size for q in parts) / 1e6:.1f} MB xz in {len(parts)} part(s) in "
+              f"{args.out}; on the node:\n  {line}\n  export WARP_CACHE_PATH=$CACHES/warp "
+              f"TORCHINDUCTOR_CACHE_DIR=$CACHES/inductor")
+        return
     with tempfile.TemporaryDirectory() as tmp:
         wheels = args.wheels
         if wheels is None:

@@ -66,5 +66,14 @@ def test_compiled_managers_run_under_inference_mode():
         fused = (env.reward_manager._compute, env.observation_manager._groups, env.termination_manager._compute,
                  env.action_manager._convert, env.fused(_placement))
         assert all(f.compiled for f in fused)
+        # a curriculum switching a weight on is a write into the tensor the compiled compute reads: no recompile
+        from torch._dynamo.utils import counters
+
+        graphs = counters["stats"]["unique_graphs"]
+        env.reward_manager.weights["action_rate"] = -1.0
+        with torch.inference_mode():
+            env.step(torch.randn(4, 28, generator=g))
+        assert counters["stats"]["unique_graphs"] == graphs
+        assert env.reward_manager.step_reward[:, env.reward_manager.weights.index["action_rate"]].ne(0).any()
     finally:
         env.close()

@@ -187,6 +187,33 @@ def test_penalties_switch_on_once_walking():
         rm.episode_sums["track_lin_vel_xy"][:] = 0.8 * 1.5 * env.max_episode_length_s
         cur_mdp.penalties_when_walking(env, ids, ["action_rate"], "track_lin_vel_xy", 0.5)
         assert rm.weights["action_rate"] == pytest.approx(-2.5e-5)
+        # the switch reached the tensor the (compiled) compute reads, and the reward: step_reward = value * w * dt
+        i = rm.weights.index["action_rate"]
+        assert rm.weights.tensor[i].item() == pytest.approx(-2.5e-5)
+        env.step(torch.ones(4, 28))
+        expected = torch.nan_to_num(rm.terms[i](env).float()) * -2.5e-5 * env.step_dt
+        assert torch.allclose(rm.step_reward[:, i], expected, rtol=1e-6) and (expected != 0).all()
+    finally:
+        env.close()
+
+
+def test_reward_weights_mirror_into_the_device_tensor_and_name_unknown_terms():
+    env = make_env("base", rewards={"track_lin_vel_xy": {"weight": 1.5, "params": {"sigma": 0.5}},
+                                    "lin_vel_z": {"weight": 0.0}})
+    try:
+        rm = env.reward_manager
+        i = rm.weights.index["lin_vel_z"]
+        assert i not in rm.weights.active  # weight 0 at build: not computed
+        compute = rm._compute
+        env.step(torch.zeros(4, 28))
+        assert (rm.step_reward[:, i] == 0).all()
+        rm.weights.update({"lin_vel_z": -2.0})  # a write activates it and rebuilds the compute once
+        assert i in rm.weights.active and rm._compute is not compute and rm.weights.tensor[i].item() == -2.0
+        env.step(torch.ones(4, 28))
+        expected = torch.nan_to_num(rm.terms[i](env).float()) * -2.0 * env.step_dt
+        assert torch.allclose(rm.step_reward[:, i], expected, rtol=1e-6) and (expected != 0).any()
+        with pytest.raises(KeyError, match="unknown reward term 'lin_vel_q'; allowed: "):
+            rm.weights["lin_vel_q"] = 1.0
     finally:
         env.close()
 

@@ -50,3 +50,19 @@ def test_a_missing_wheel_folder_is_a_usage_error(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         gpu_pack.main(["--wheels", str(tmp_path / "nowhere"), "--out", str(tmp_path / "pack")])
     assert exc.value.code == 2 and "--wheels" in capsys.readouterr().err
+
+
+def test_a_cache_folder_round_trips(tmp_path):
+    caches = tmp_path / "caches"
+    (caches / "warp" / "k1").mkdir(parents=True)
+    (caches / "warp" / "k1" / "module.cubin").write_bytes(os.urandom(9000))
+    (caches / "inductor").mkdir()
+    (caches / "inductor" / "fx.bin").write_bytes(b"graph")
+    out = tmp_path / "pack"
+    gpu_pack.main(["--caches", str(caches), "--out", str(out), "--part-mb", "0.004", "--where", str(out)])
+    line = (out / "unpack_caches.sh").read_text().strip()
+    assert line.startswith("CACHES=${CACHES:-/tmp/gpu_caches}")
+    back = tmp_path / "back"
+    subprocess.run(["bash", "-c", line], env={**os.environ, "CACHES": str(back)}, check=True)
+    for rel in ("warp/k1/module.cubin", "inductor/fx.bin"):
+        assert (back / rel).read_bytes() == (caches / rel).read_bytes()

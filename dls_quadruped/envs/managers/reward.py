@@ -1,7 +1,9 @@
 """Reward manager: r = sum_i w_i r_i dt (IsaacLab convention: weights are per second).
 
-Weights are mutable (``self.weights``) so a curriculum can switch terms on. Episode sums per term
-are logged at reset as ``Episode_Reward/<term>`` (sum over the episode / episode length in s, a 0-dim tensor).
+Weights are mutable (``self.weights``) so a curriculum can switch terms on. Each write also lands in a device
+tensor the (compiled) compute reads, so switching a weight neither recompiles nor uploads per step. Episode sums
+per term are logged at reset as ``Episode_Reward/<term>`` (sum over the episode / episode length in s, a 0-dim
+tensor).
 """
 
 from __future__ import annotations
@@ -26,15 +28,48 @@ def resolve_rewards(task: TaskConfig) -> list[Term]:
     return resolve_terms(task, "rewards", reward_mdp, {"weight": ...})
 
 
+class Weights(dict):
+    """``{term: weight}`` whose every write is mirrored into ``tensor`` (float32, (terms,), on the env's device).
+
+    A term whose weight is 0 when the manager is built is not computed (it cannot reward anything) until a write
+    makes it non-zero; ``on_activate`` is then called once (the manager rebuilds its compiled compute)."""
+
+    def __init__(self, names: list[str], values: list[float], device: torch.device, on_activate) -> None:
+        super().__init__(zip(names, values))
+        self.index = {n: i for i, n in enumerate(names)}
+        self.tensor = torch.tensor(values, dtype=torch.float32, device=device)
+        self.active = tuple(i for i, v in enumerate(values) if v != 0.0)
+        self._on_activate = on_activate
+
+    def __setitem__(self, name: str, value: float) -> None:
+        if name not in self.index:
+            raise KeyError(f"unknown reward term {name!r}; allowed: {sorted(self.index)}")
+        value = float(value)
+        super().__setitem__(name, value)
+        i = self.index[name]
+        self.tensor[i] = value  # in place: the compiled compute keeps reading the same storage
+        if value != 0.0 and i not in self.active:
+            self.active = tuple(sorted((*self.active, i)))
+            self._on_activate()
+
+    def update(self, other=(), **kwargs) -> None:
+        for name, value in dict(other, **kwargs).items():
+            self[name] = value
+
+
 class RewardManager(ManagerBase):
     def __init__(self, task: TaskConfig, env):
         super().__init__(env)
         self.terms = resolve_rewards(task)
-        self.weights = {t.name: float(t.extra["weight"]) for t in self.terms}
+        self.weights = Weights([t.name for t in self.terms], [float(t.extra["weight"]) for t in self.terms],
+                               env.device, self._build_compute)
         self.episode_sums = {t.name: torch.zeros(env.num_envs, device=env.device) for t in self.terms}
         self.step_reward = torch.zeros(env.num_envs, len(self.terms), device=env.device)
-        # compiled with scene.compile (a weight a curriculum switches on recompiles once)
-        self._compute = Fused(self._compute_eager, getattr(env, "compile", False), "RewardManager.compute")
+        self._build_compute()
+
+    def _build_compute(self) -> None:
+        # compiled with scene.compile; the weights are a tensor it reads, so a curriculum switch does not recompile
+        self._compute = Fused(self._compute_eager, getattr(self.env, "compile", False), "RewardManager.compute")
 
     def compute(self, dt: float) -> torch.Tensor:
         """(B,) total reward of this policy step; non-finite term values count as 0 (and are logged)."""
@@ -42,14 +77,15 @@ class RewardManager(ManagerBase):
 
     def _compute_eager(self, dt: float) -> torch.Tensor:
         total = torch.zeros(self.env.num_envs, device=self.env.device)
+        w = self.weights.tensor
+        active = self.weights.active
         for i, term in enumerate(self.terms):
-            w = self.weights[term.name]
-            if w == 0.0:
+            if i not in active:  # weight 0 since the manager was built
                 self.step_reward[:, i] = 0.0
                 continue
             value = term(self.env).float()
             value = torch.nan_to_num(value, nan=0.0, posinf=0.0, neginf=0.0)
-            r = value * w * dt
+            r = value * w[i] * dt  # a weight switched to 0 by a curriculum adds +-0
             self.step_reward[:, i] = r
             self.episode_sums[term.name] += r
             total += r
