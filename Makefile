@@ -14,7 +14,7 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install install-gpu install-offline wheelhouse gpu-pack gpu-caches gpu-check test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
+.PHONY: install install-gpu install-offline wheelhouse gpu-pack gpu-caches gpu-check test test-gpu-path test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
 
 # One stamp per (TORCH_SPEC, TORCH_INDEX): changing either re-installs torch (--force-reinstall: pip would keep a
 # 2.13.0+cpu build for a cu128 index's torch==2.13.0, the same version to it).
@@ -85,6 +85,15 @@ gpu-check:
 TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile
+
+# the code paths only a GPU runs, exercised on warp-cpu (MuJoCo Warp on Warp's CPU device, scene.compile on):
+# the [gpu] extra and every test of the Warp backends, the compiled env step and the GPU check, slow ones included
+# (~20-40 min on 2 cores, most of it compiling; not part of .ci/run)
+GPU_PATH_TESTS ?= tests/sim/test_warp_backend.py tests/sim/test_warp_graph.py tests/sim/test_warp_collision.py \
+	tests/sim/test_warp_control.py tests/envs/test_host_sync.py tests/envs/test_compile_guards.py \
+	tests/bench/test_gpu_check.py tests/core/test_compile.py
+test-gpu-path: install-gpu
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile -m "slow or not slow" $(GPU_PATH_TESTS)
 
 test-all: $(STAMP)
 	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile -m "slow or not slow"
