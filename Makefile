@@ -4,10 +4,12 @@
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
-# torch is installed first and pinned: a CPU wheel of 2.13.0 is local on our dev machines.
-# Elsewhere override, e.g. `make TORCH_SPEC="torch==2.13.0" TORCH_INDEX="--index-url https://download.pytorch.org/whl/cu128"`.
+# torch is installed first and pinned, from PyTorch's CPU index by default: PyPI's Linux torch is the CUDA build,
+# several GB of CUDA libraries a CPU machine never uses (pip still takes a local wheel of the same version first,
+# e.g. from a find-links folder). On a GPU machine name a CUDA index (docs/install.md), e.g.
+# `make TORCH_INDEX="--index-url https://download.pytorch.org/whl/cu128" install-gpu`; TORCH_INDEX= uses pip's own.
 TORCH_SPEC ?= torch==2.13.0
-TORCH_INDEX ?=
+TORCH_INDEX ?= --index-url https://download.pytorch.org/whl/cpu
 STAMP := $(VENV)/.installed
 
 NUM_ENVS ?= 64
@@ -50,8 +52,8 @@ WHEELHOUSE ?= wheelhouse
 WHEEL_PYTHON ?= 3.12
 WHEEL_EXCLUDE ?=
 wheelhouse: install-gpu
-	$(PY) -m dls_quadruped.tools.wheelhouse --out $(WHEELHOUSE) --python-version $(WHEEL_PYTHON) \
-		$(if $(WHEEL_EXCLUDE),--exclude $(WHEEL_EXCLUDE),)
+	$(strip $(PY) -m dls_quadruped.tools.wheelhouse --out $(WHEELHOUSE) --python-version $(WHEEL_PYTHON) \
+		$(if $(WHEEL_EXCLUDE),--exclude $(WHEEL_EXCLUDE),))
 
 install-offline:
 	test -d "$(WHEELHOUSE)" || { echo "install-offline: WHEELHOUSE=$(WHEELHOUSE) is not a folder (make wheelhouse)"; exit 2; }
@@ -98,8 +100,8 @@ demo-balance: $(STAMP)
 bench: $(if $(filter cuda%,$(DEVICE)),bench-device,bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop)
 
 bench-device: $(STAMP)
-	$(PY) -m dls_quadruped.bench.device --device $(or $(DEVICE),cuda) $(if $(BACKEND),--backend $(BACKEND),) \
-		--out $(OUT)/bench
+	$(strip $(PY) -m dls_quadruped.bench.device --device $(or $(DEVICE),cuda) $(if $(BACKEND),--backend $(BACKEND),) \
+		--out $(OUT)/bench)
 
 bench-env: $(STAMP)
 	$(PY) -m dls_quadruped.bench.env --out $(OUT)/bench
@@ -177,16 +179,17 @@ SET_ARGS = $(foreach kv,$(SET),--set '$(kv)')
 .PHONY: train play tasks
 
 train: $(STAMP)
-	OMP_NUM_THREADS=$(TRAIN_THREADS) OMP_WAIT_POLICY=PASSIVE $(PY) -m dls_quadruped.learning.train --task $(TASK) --num-envs $(TRAIN_NUM_ENVS) --iterations $(ITERATIONS) \
+	$(strip OMP_NUM_THREADS=$(TRAIN_THREADS) OMP_WAIT_POLICY=PASSIVE $(PY) -m dls_quadruped.learning.train --task $(TASK) \
+		--num-envs $(TRAIN_NUM_ENVS) --iterations $(ITERATIONS) \
 		--device $(DEVICE) $(if $(SEED),--seed $(SEED),) $(if $(RESUME),--resume,) $(if $(INIT_FROM),--init-from $(INIT_FROM),) \
 		$(if $(INIT_STD),--init-std $(INIT_STD),) \
 		$(if $(RESUME_FROM),--resume-from $(RESUME_FROM),) $(if $(CHECKPOINT_COPY),--checkpoint-copy $(CHECKPOINT_COPY),) \
 		$(if $(TRAIN_WORKERS),--num-workers $(TRAIN_WORKERS),) $(if $(UPDATE_THREADS),--update-threads $(UPDATE_THREADS),) \
-		$(if $(BACKEND),--backend $(BACKEND),) $(SET_ARGS)
+		$(if $(BACKEND),--backend $(BACKEND),) $(SET_ARGS))
 
 play: $(STAMP)
-	$(PY) -m dls_quadruped.learning.play --task $(TASK) --seconds $(PLAY_SECONDS) $(if $(CHECKPOINT),--checkpoint $(CHECKPOINT),) \
-		$(SET_ARGS)
+	$(strip $(PY) -m dls_quadruped.learning.play --task $(TASK) --seconds $(PLAY_SECONDS) \
+		$(if $(CHECKPOINT),--checkpoint $(CHECKPOINT),) $(SET_ARGS))
 
 # the registered tasks (tasks/*.yaml), one line each
 tasks: $(STAMP)
@@ -205,8 +208,8 @@ EVAL_OUT ?=
 .PHONY: eval
 
 eval: $(STAMP)
-	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval --policy $(POLICY) --scenario $(SCENARIO) $(if $(EPISODES),--episodes $(EPISODES),) \
-		$(if $(EVAL_OUT),--out $(EVAL_OUT),) $(SET_ARGS)
+	$(strip OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval --policy $(POLICY) --scenario $(SCENARIO) \
+		$(if $(EPISODES),--episodes $(EPISODES),) $(if $(EVAL_OUT),--out $(EVAL_OUT),) $(SET_ARGS))
 
 # Choose a run's checkpoint on the scenario's validation episodes (docs/train.md "Choosing a checkpoint"):
 # `make select RUN=runs/base/<run> SCENARIO=simple EVERY=50` writes RUN/selection/<scenario>/selection.json
@@ -216,8 +219,8 @@ EVERY ?=
 .PHONY: select
 
 select: $(STAMP)
-	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval.select $(RUN) --scenario $(SCENARIO) $(if $(EVERY),--every $(EVERY),) \
-		$(if $(EPISODES),--episodes $(EPISODES),)
+	$(strip OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval.select $(RUN) --scenario $(SCENARIO) \
+		$(if $(EVERY),--every $(EVERY),) $(if $(EPISODES),--episodes $(EPISODES),))
 
 # ---------------------------------------------------------------------------------------------
 # Distillation of an expert into a horizon student (docs/distill.md). Defaults: Table 7
@@ -237,7 +240,14 @@ DISTILL_TASK ?=
 
 .PHONY: distill
 
+# RESUME=1 continues with the run's stored settings (its distill.yaml): of EXPERT ... DISTILL_NUM_ENVS only the ones
+# given on the command line (or in the environment) are passed, as overrides (another expert or encoding is refused)
+given = $(filter command line environment environment override override,$(origin $(1)))
+distill_flag = $(if $(or $(if $(RESUME),,new),$(call given,$(2))),$(1) $($(2)),)
+
 distill: $(STAMP)
-	OMP_NUM_THREADS=$(TRAIN_THREADS) $(PY) -m dls_quadruped.learning.distill --expert $(EXPERT) --encoding $(ENCODING) \
-		--horizon $(HORIZON) --dt $(DT) --algo $(ALGO) --epochs $(EPOCHS) --num-envs $(DISTILL_NUM_ENVS) \
-		--out $(DISTILL_OUT) $(if $(DISTILL_TASK),--task $(DISTILL_TASK),) $(if $(RESUME),--resume,) $(DISTILL_ARGS)
+	$(strip OMP_NUM_THREADS=$(TRAIN_THREADS) $(PY) -m dls_quadruped.learning.distill $(call distill_flag,--expert,EXPERT) \
+		$(call distill_flag,--encoding,ENCODING) $(call distill_flag,--horizon,HORIZON) $(call distill_flag,--dt,DT) \
+		$(call distill_flag,--algo,ALGO) $(call distill_flag,--epochs,EPOCHS) \
+		$(call distill_flag,--num-envs,DISTILL_NUM_ENVS) --out $(DISTILL_OUT) $(if $(DISTILL_TASK),--task $(DISTILL_TASK),) \
+		$(if $(RESUME),--resume,) $(DISTILL_ARGS))
