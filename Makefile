@@ -16,7 +16,7 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install install-gpu install-offline wheelhouse gpu-check test test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
+.PHONY: install install-gpu install-offline wheelhouse gpu-check test test-all docs demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
 
 # One stamp per (TORCH_SPEC, TORCH_INDEX): changing either re-installs torch (--force-reinstall: pip would keep a
 # 2.13.0+cpu build for a cu128 index's torch==2.13.0, the same version to it).
@@ -29,7 +29,7 @@ $(TORCH_STAMP):
 	touch $@
 
 $(STAMP): setup.py $(TORCH_STAMP)
-	$(PY) -m pip install -q -e ".[dev]"
+	$(PY) -m pip install -q -e ".[dev,docs]"
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -80,6 +80,11 @@ test-all: $(STAMP)
 lint: $(STAMP)
 	$(PY) -m ruff check dls_quadruped tests
 
+# the documentation site (mkdocs.yml, docs/index.md): site/index.html, the API pages from the docstrings; --strict
+# makes every warning an error, a broken link or anchor included (tests/test_docs_site.py runs the same build)
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict
+
 # The main job (thesis 7.3): the committed student warm-starting the sampling MPC beside the naive MPC and
 # the RL expert alone, DEMO_EPISODES robots each on the simple task, M = 10 000 (docs/demo.md).
 DEMO_EPISODES ?= 4
@@ -118,7 +123,7 @@ bench-rl: $(STAMP)
 	$(PY) -m dls_quadruped.bench.rl_env --out $(OUT)/bench
 
 # one PPO iteration split into collection and update, samples/s of each, rsl-rl's stock update beside
-# learning/fast_update.py's, interleaved (N = 256 and 1024; docs/benchmarks.md "PPO update");
+# learning/fast_update.py's, interleaved (N = 256 and 1024; docs/reports/benchmarks.md "PPO update");
 # BENCH_PPO_ARGS="--variants fast fast_bf16" adds the bf16 update (pays only on CPUs with bf16 instructions)
 BENCH_PPO_ARGS ?=
 bench-ppo: $(STAMP)
@@ -132,7 +137,7 @@ bench-closed-loop: $(STAMP)
 	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.bench.closed_loop --robots 16 64 --paths fused torch --out $(OUT)/bench
 
 clean:
-	rm -rf $(VENV) results .pytest_cache
+	rm -rf $(VENV) results site .pytest_cache
 
 # ---------------------------------------------------------------------------------------------
 # RL training and playback.
