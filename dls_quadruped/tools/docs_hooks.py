@@ -73,6 +73,6 @@ def rewrite_outside_links(markdown: str, page_src: str, docs_dir: Path) -> str:
     return "\n".join(out)
 
 
-def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ANN001 -- MkDocs' hook signature
+def on_page_markdown(markdown: str, page, config, files) -> str:
     """MkDocs hook: links leaving ``docs/`` become repository paths, links to result folders their pages."""
     return rewrite_outside_links(markdown, page.file.src_uri, Path(config["docs_dir"]))
