@@ -142,8 +142,8 @@ clean:
 # ---------------------------------------------------------------------------------------------
 # RL training and playback.
 # `make train TASK=rough NUM_ENVS=256 ITERATIONS=500 DEVICE=cpu SEED=0 RESUME=1`, see docs/train.md.
-# Defaults sized for the 2-core dev machine (base, 256 envs: ~4.2 s per iteration on a loaded 2-core VM, so
-# ~35 min for 500; docs/workflow.md). NUM_ENVS on the command line overrides TRAIN_NUM_ENVS.
+# Defaults sized for the 2-core dev machine (base, 256 envs: 6.2 s per iteration on the loaded 2-core VM, so
+# ~51 min for 500; docs/workflow.md). NUM_ENVS on the command line overrides TRAIN_NUM_ENVS.
 TASK ?= base
 TRAIN_NUM_ENVS ?= $(if $(filter command line environment,$(origin NUM_ENVS)),$(NUM_ENVS),256)
 ITERATIONS ?= 500

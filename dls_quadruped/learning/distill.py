@@ -78,7 +78,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--run-dir", type=Path, default=None, help="default: a new runs/distill/<time>")
     p.add_argument("--log-root", type=Path, default=Path("runs") / "distill")
-    p.add_argument("--resume", action="store_true", help="continue after the last finished epoch")
+    p.add_argument("--resume", action="store_true",
+                   help="continue after the last finished epoch, with the run's stored settings (flags given override them)")
     p.add_argument("--out", type=Path, default=None,
                    help="also copy student.pt2/.json, metrics.json and mse_sp.png here")
     return p.parse_args(argv)
