@@ -4,17 +4,19 @@
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
-# torch is installed first and pinned: a CPU wheel of 2.13.0 is local on our dev machines.
-# Elsewhere override, e.g. `make TORCH_SPEC="torch==2.13.0" TORCH_INDEX="--index-url https://download.pytorch.org/whl/cu128"`.
+# torch is installed first and pinned, from PyTorch's CPU index by default: PyPI's Linux torch is the CUDA build,
+# several GB of CUDA libraries a CPU machine never uses (pip still takes a local wheel of the same version first,
+# e.g. from a find-links folder). On a GPU machine name a CUDA index (docs/install.md), e.g.
+# `make TORCH_INDEX="--index-url https://download.pytorch.org/whl/cu128" install-gpu`; TORCH_INDEX= uses pip's own.
 TORCH_SPEC ?= torch==2.13.0
-TORCH_INDEX ?=
+TORCH_INDEX ?= --index-url https://download.pytorch.org/whl/cpu
 STAMP := $(VENV)/.installed
 
 NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install install-gpu install-offline wheelhouse gpu-pack gpu-caches gpu-check test test-gpu-path test-all demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
+.PHONY: install install-gpu install-offline wheelhouse gpu-pack gpu-caches gpu-check test test-gpu-path test-all docs demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
 
 # One stamp per (TORCH_SPEC, TORCH_INDEX): changing either re-installs torch (--force-reinstall: pip would keep a
 # 2.13.0+cpu build for a cu128 index's torch==2.13.0, the same version to it).
@@ -27,7 +29,7 @@ $(TORCH_STAMP):
 	touch $@
 
 $(STAMP): setup.py $(TORCH_STAMP)
-	$(PY) -m pip install -q -e ".[dev]"
+	$(PY) -m pip install -q -e ".[dev,docs]"
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -50,8 +52,8 @@ WHEELHOUSE ?= wheelhouse
 WHEEL_PYTHON ?= 3.12
 WHEEL_EXCLUDE ?=
 wheelhouse: install-gpu
-	$(PY) -m dls_quadruped.tools.wheelhouse --out $(WHEELHOUSE) --python-version $(WHEEL_PYTHON) \
-		$(if $(WHEEL_EXCLUDE),--exclude $(WHEEL_EXCLUDE),)
+	$(strip $(PY) -m dls_quadruped.tools.wheelhouse --out $(WHEELHOUSE) --python-version $(WHEEL_PYTHON) \
+		$(if $(WHEEL_EXCLUDE),--exclude $(WHEEL_EXCLUDE),))
 
 # A GPU node that takes files in size-limited transfers and has torch but no network (docs/gpu.md "Offline install"):
 # the [gpu] wheels unpacked into one import folder without Warp's CPU compiler, packed with xz into parts of at most
@@ -60,12 +62,13 @@ GPU_PACK ?= .gpu_pack
 GPU_PACK_PART_MB ?= 48
 gpu-pack: install-gpu
 	$(PY) -m dls_quadruped.tools.gpu_pack --out $(GPU_PACK) --part-mb $(GPU_PACK_PART_MB) --where $(GPU_PACK)
+
 # the compile caches of a GPU node's jobs (run them with WARP_CACHE_PATH=$(GPU_CACHES)/warp and
 # TORCHINDUCTOR_CACHE_DIR=$(GPU_CACHES)/inductor), packed the same way for the next node (docs/gpu.md "Cold start")
 GPU_CACHES ?= /tmp/gpu_caches
 gpu-caches:
-	$(if $(wildcard $(STAMP)),$(PY),$(PYTHON)) -m dls_quadruped.tools.gpu_pack --caches $(GPU_CACHES) --out $(GPU_PACK) \
-		--part-mb $(GPU_PACK_PART_MB) --where $(GPU_PACK)
+	$(strip $(if $(wildcard $(STAMP)),$(PY),$(PYTHON)) -m dls_quadruped.tools.gpu_pack --caches $(GPU_CACHES) \
+		--out $(GPU_PACK) --part-mb $(GPU_PACK_PART_MB) --where $(GPU_PACK))
 
 install-offline:
 	test -d "$(WHEELHOUSE)" || { echo "install-offline: WHEELHOUSE=$(WHEELHOUSE) is not a folder (make wheelhouse)"; exit 2; }
@@ -93,13 +96,18 @@ GPU_PATH_TESTS ?= tests/sim/test_warp_backend.py tests/sim/test_warp_graph.py te
 	tests/sim/test_warp_control.py tests/envs/test_host_sync.py tests/envs/test_compile_guards.py \
 	tests/bench/test_gpu_check.py tests/core/test_compile.py
 test-gpu-path: install-gpu
-	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile -m "slow or not slow" $(GPU_PATH_TESTS)
+	$(strip $(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile -m "slow or not slow" $(GPU_PATH_TESTS))
 
 test-all: $(STAMP)
 	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile -m "slow or not slow"
 
 lint: $(STAMP)
 	$(PY) -m ruff check dls_quadruped tests
+
+# the documentation site (mkdocs.yml, docs/index.md): site/index.html, the API pages from the docstrings; --strict
+# makes every warning an error, a broken link or anchor included (tests/test_docs_site.py runs the same build)
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict
 
 # The main job (thesis 7.3): the committed student warm-starting the sampling MPC beside the naive MPC and
 # the RL expert alone, DEMO_EPISODES robots each on the simple task, M = 10 000 (docs/demo.md).
@@ -121,8 +129,8 @@ demo-balance: $(STAMP)
 bench: $(if $(filter cuda%,$(DEVICE)),bench-device,bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop)
 
 bench-device: $(STAMP)
-	$(PY) -m dls_quadruped.bench.device --device $(or $(DEVICE),cuda) $(if $(BACKEND),--backend $(BACKEND),) \
-		--out $(OUT)/bench
+	$(strip $(PY) -m dls_quadruped.bench.device --device $(or $(DEVICE),cuda) $(if $(BACKEND),--backend $(BACKEND),) \
+		--out $(OUT)/bench)
 
 bench-env: $(STAMP)
 	$(PY) -m dls_quadruped.bench.env --out $(OUT)/bench
@@ -139,7 +147,7 @@ bench-rl: $(STAMP)
 	$(PY) -m dls_quadruped.bench.rl_env --out $(OUT)/bench
 
 # one PPO iteration split into collection and update, samples/s of each, rsl-rl's stock update beside
-# learning/fast_update.py's, interleaved (N = 256 and 1024; docs/benchmarks.md "PPO update");
+# learning/fast_update.py's, interleaved (N = 256 and 1024; docs/reports/benchmarks.md "PPO update");
 # BENCH_PPO_ARGS="--variants fast fast_bf16" adds the bf16 update (pays only on CPUs with bf16 instructions)
 BENCH_PPO_ARGS ?=
 bench-ppo: $(STAMP)
@@ -153,13 +161,13 @@ bench-closed-loop: $(STAMP)
 	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.bench.closed_loop --robots 16 64 --paths fused torch --out $(OUT)/bench
 
 clean:
-	rm -rf $(VENV) results .pytest_cache
+	rm -rf $(VENV) results site .pytest_cache
 
 # ---------------------------------------------------------------------------------------------
 # RL training and playback.
 # `make train TASK=rough NUM_ENVS=256 ITERATIONS=500 DEVICE=cpu SEED=0 RESUME=1`, see docs/train.md.
-# Defaults sized for the 2-core dev machine (base, 256 envs: ~4.2 s per iteration on a loaded 2-core VM, so
-# ~35 min for 500; docs/workflow.md). NUM_ENVS on the command line overrides TRAIN_NUM_ENVS.
+# Defaults sized for the 2-core dev machine (base, 256 envs: 6.2 s per iteration on the loaded 2-core VM, so
+# ~51 min for 500; docs/workflow.md). NUM_ENVS on the command line overrides TRAIN_NUM_ENVS.
 TASK ?= base
 TRAIN_NUM_ENVS ?= $(if $(filter command line environment,$(origin NUM_ENVS)),$(NUM_ENVS),256)
 ITERATIONS ?= 500
@@ -200,16 +208,18 @@ SET_ARGS = $(foreach kv,$(SET),--set '$(kv)')
 .PHONY: train play tasks
 
 train: $(STAMP)
-	OMP_NUM_THREADS=$(TRAIN_THREADS) OMP_WAIT_POLICY=PASSIVE $(PY) -m dls_quadruped.learning.train --task $(TASK) --num-envs $(TRAIN_NUM_ENVS) --iterations $(ITERATIONS) \
-		--device $(DEVICE) $(if $(SEED),--seed $(SEED),) $(if $(RESUME),--resume,) $(if $(TIME_LIMIT),--time-limit $(TIME_LIMIT),) $(if $(INIT_FROM),--init-from $(INIT_FROM),) \
+	$(strip OMP_NUM_THREADS=$(TRAIN_THREADS) OMP_WAIT_POLICY=PASSIVE $(PY) -m dls_quadruped.learning.train --task $(TASK) \
+		--num-envs $(TRAIN_NUM_ENVS) --iterations $(ITERATIONS) \
+		--device $(DEVICE) $(if $(SEED),--seed $(SEED),) $(if $(RESUME),--resume,) $(if $(TIME_LIMIT),--time-limit $(TIME_LIMIT),) \
+		$(if $(INIT_FROM),--init-from $(INIT_FROM),) \
 		$(if $(INIT_STD),--init-std $(INIT_STD),) \
 		$(if $(RESUME_FROM),--resume-from $(RESUME_FROM),) $(if $(CHECKPOINT_COPY),--checkpoint-copy $(CHECKPOINT_COPY),) \
 		$(if $(TRAIN_WORKERS),--num-workers $(TRAIN_WORKERS),) $(if $(UPDATE_THREADS),--update-threads $(UPDATE_THREADS),) \
-		$(if $(BACKEND),--backend $(BACKEND),) $(SET_ARGS)
+		$(if $(BACKEND),--backend $(BACKEND),) $(SET_ARGS))
 
 play: $(STAMP)
-	$(PY) -m dls_quadruped.learning.play --task $(TASK) --seconds $(PLAY_SECONDS) $(if $(CHECKPOINT),--checkpoint $(CHECKPOINT),) \
-		$(SET_ARGS)
+	$(strip $(PY) -m dls_quadruped.learning.play --task $(TASK) --seconds $(PLAY_SECONDS) \
+		$(if $(CHECKPOINT),--checkpoint $(CHECKPOINT),) $(SET_ARGS))
 
 # the registered tasks (tasks/*.yaml), one line each
 tasks: $(STAMP)
@@ -228,8 +238,8 @@ EVAL_OUT ?=
 .PHONY: eval
 
 eval: $(STAMP)
-	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval --policy $(POLICY) --scenario $(SCENARIO) $(if $(EPISODES),--episodes $(EPISODES),) \
-		$(if $(EVAL_OUT),--out $(EVAL_OUT),) $(SET_ARGS)
+	$(strip OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval --policy $(POLICY) --scenario $(SCENARIO) \
+		$(if $(EPISODES),--episodes $(EPISODES),) $(if $(EVAL_OUT),--out $(EVAL_OUT),) $(SET_ARGS))
 
 # Choose a run's checkpoint on the scenario's validation episodes (docs/train.md "Choosing a checkpoint"):
 # `make select RUN=runs/base/<run> SCENARIO=simple EVERY=50` writes RUN/selection/<scenario>/selection.json
@@ -239,8 +249,8 @@ EVERY ?=
 .PHONY: select
 
 select: $(STAMP)
-	OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval.select $(RUN) --scenario $(SCENARIO) $(if $(EVERY),--every $(EVERY),) \
-		$(if $(EPISODES),--episodes $(EPISODES),)
+	$(strip OMP_NUM_THREADS=1 $(PY) -m dls_quadruped.eval.select $(RUN) --scenario $(SCENARIO) \
+		$(if $(EVERY),--every $(EVERY),) $(if $(EPISODES),--episodes $(EPISODES),))
 
 # ---------------------------------------------------------------------------------------------
 # Distillation of an expert into a horizon student (docs/distill.md). Defaults: Table 7
@@ -260,7 +270,14 @@ DISTILL_TASK ?=
 
 .PHONY: distill
 
+# RESUME=1 continues with the run's stored settings (its distill.yaml): of EXPERT ... DISTILL_NUM_ENVS only the ones
+# given on the command line (or in the environment) are passed, as overrides (another expert or encoding is refused)
+given = $(filter command line environment environment override override,$(origin $(1)))
+distill_flag = $(if $(or $(if $(RESUME),,new),$(call given,$(2))),$(1) $($(2)),)
+
 distill: $(STAMP)
-	OMP_NUM_THREADS=$(TRAIN_THREADS) $(PY) -m dls_quadruped.learning.distill --expert $(EXPERT) --encoding $(ENCODING) \
-		--horizon $(HORIZON) --dt $(DT) --algo $(ALGO) --epochs $(EPOCHS) --num-envs $(DISTILL_NUM_ENVS) \
-		--out $(DISTILL_OUT) $(if $(DISTILL_TASK),--task $(DISTILL_TASK),) $(if $(RESUME),--resume,) $(DISTILL_ARGS)
+	$(strip OMP_NUM_THREADS=$(TRAIN_THREADS) $(PY) -m dls_quadruped.learning.distill $(call distill_flag,--expert,EXPERT) \
+		$(call distill_flag,--encoding,ENCODING) $(call distill_flag,--horizon,HORIZON) $(call distill_flag,--dt,DT) \
+		$(call distill_flag,--algo,ALGO) $(call distill_flag,--epochs,EPOCHS) \
+		$(call distill_flag,--num-envs,DISTILL_NUM_ENVS) --out $(DISTILL_OUT) $(if $(DISTILL_TASK),--task $(DISTILL_TASK),) \
+		$(if $(RESUME),--resume,) $(DISTILL_ARGS))

@@ -28,6 +28,10 @@ setup(
         # pytest-xdist: `make test` runs the suite on two workers (one per core of the 2-core CI machine, 1.7x)
         "dev": ["pytest>=8", "pytest-xdist>=3.5", "ruff>=0.5", "onnx>=1.16", "onnxscript>=0.1",
                 "onnxruntime>=1.18"],
+        # the documentation site (`make docs`, mkdocs.yml): MkDocs renders the Markdown pages as they are,
+        # mkdocstrings builds the API pages from the docstrings by reading the source (no import), Material is
+        # the theme; `make test` installs it so the suite's strict build (tests/test_docs_site.py) runs in CI
+        "docs": ["mkdocs>=1.6", "mkdocs-material>=9.5", "mkdocstrings[python]>=0.26"],
         # the MuJoCo Warp simulator backends (scene.backend: cuda / warp-cpu, sim/warp_backend.py, docs/gpu.md);
         # optional: it pulls warp-lang (~100 MB) and compiles kernels on first use, the CPU backend needs none of it.
         # Pinned: the backend uses MuJoCo Warp's two-phase step, its CSR mass matrix and batched model fields,

@@ -28,8 +28,29 @@ class UserError(Exception):
     """An error the user can fix from the message alone (printed as one line, no traceback)."""
 
 
+def _shows_default(action: argparse.Action) -> bool:
+    """Whether ``--help`` should print the option's default: a value that is not None, False, empty or suppressed,
+    for an option that takes a value and whose help does not already say its default."""
+    default = action.default
+    return (bool(action.option_strings) and action.nargs != 0 and default is not None
+            and default is not argparse.SUPPRESS and default is not False and default not in ((), [], "")
+            and "default" not in (action.help or "").lower())
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """The description as written (the modules' docstrings carry command examples) and every option's default
+    after its help (``(default: 10.0)``), unless the help already names it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if _shows_default(action):
+            text += (" " if text else "") + "(default: %(default)s)"
+        return text
+
+
 class ArgumentParser(argparse.ArgumentParser):
-    """``argparse.ArgumentParser`` whose usage errors are one line (the usage is in ``--help``).
+    """``argparse.ArgumentParser`` whose usage errors are one line (the usage is in ``--help``) and whose
+    ``--help`` shows every option's default (:class:`HelpFormatter`).
 
     ``prog`` defaults to the module run with ``python -m`` (``dls_quadruped.eval``, not
     ``__main__.py``), the name :func:`run_cli` reports its errors under.
@@ -37,7 +58,15 @@ class ArgumentParser(argparse.ArgumentParser):
 
     def __init__(self, *args: Any, **kwargs: Any):
         kwargs.setdefault("prog", _prog())
+        if kwargs.get("formatter_class") in (None, argparse.HelpFormatter, argparse.RawDescriptionHelpFormatter):
+            kwargs["formatter_class"] = HelpFormatter
         super().__init__(*args, **kwargs)
+
+    def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
+        action = super().add_argument(*args, **kwargs)
+        if not action.help and _shows_default(action):  # argparse prints no help line for an option without help
+            action.help = "(default: %(default)s)"
+        return action
 
     def error(self, message: str) -> NoReturn:
         self.exit(USER_ERROR_STATUS, f"{self.prog}: error: {message} (see --help)\n")

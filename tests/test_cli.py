@@ -100,3 +100,24 @@ def test_strict_json_names_what_was_not_finite():
     data = json.loads(text)
     assert data["b"] == [None, 2.0] and data["c"]["d"] is None and data["e"] is None
     assert data["non_finite"] == ["b[0]", "c.d", "e"]
+
+
+def test_help_shows_every_option_default_once():
+    """``--help`` of every entry point prints each option's default (``cli.HelpFormatter``): after the help text,
+    alone where an option has no help, never for None / False / empty defaults or where the help names it."""
+    import argparse
+
+    from dls_quadruped.cli import ArgumentParser
+
+    p = ArgumentParser(prog="x", formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--num-envs", type=int, default=4)
+    p.add_argument("--seconds", type=float, default=10.0, help="episode length [s]")
+    p.add_argument("--out", default=None, help="output folder")
+    p.add_argument("--flag", action="store_true", help="a switch")
+    p.add_argument("--set", action="append", default=[], help="overrides")
+    p.add_argument("--root", default="runs", help="where runs go (default runs/)")
+    text = " ".join(p.format_help().split())
+    assert "--num-envs NUM_ENVS (default: 4)" in text and "episode length [s] (default: 10.0)" in text
+    assert "output folder --flag" in text and "a switch --set" in text and "overrides --root" in text
+    assert "(default runs/) (default" not in text and text.count("(default:") == 2
+

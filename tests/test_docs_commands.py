@@ -1,7 +1,8 @@
 """Every command the docs name exists: make targets and variables, ``python -m`` modules and their flags,
 experiment scripts, and the repository files and links the pages point at.
 
-The pages are ``README.md``, ``docs/*.md``, ``docs/experiments/*.md`` and ``docs/policies/README.md``, the result reports included
+The pages are ``README.md``, ``docs/*.md``, ``docs/{experiments,reports,tasks,tutorials}/*.md`` and
+``docs/policies/README.md``, the result reports included
 (the command lines they quote as records of past runs must still name what exists). Commands are read from
 shell code blocks, indented code lines and inline code spans; a command is ``make ...``, ``python -m MODULE ...``
 (also ``.venv/bin/python``, ``torchrun ... -m MODULE``), ``python experiments/SCRIPT.py ...``,
@@ -41,7 +42,8 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")), *sorted((REPO / "docs" / "experiments").glob("*.md")),
+PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")),
+         *(p for sub in ("experiments", "reports", "tasks", "tutorials") for p in sorted((REPO / "docs" / sub).glob("*.md"))),
          REPO / "docs" / "policies" / "README.md"]
 
 OUTPUTS = ("runs/", "results/", "exported/", "dataset/", "selection/", "play/", "cells/", "wheels/",

@@ -123,3 +123,13 @@ def test_cuda_is_refused_where_there_is_none(capsys):
     lines = capsys.readouterr().err.strip().splitlines()
     assert exit_.value.code == 2 and len(lines) == 1 and "argument --device: cuda: " in lines[0], lines
     assert lines[0].endswith("this torch build has no CUDA; use cpu (see --help)")
+
+
+def test_help_shows_the_defaults(probed):
+    """Every option's default is in ``--help`` (``cli.HelpFormatter``): play's, and nowhere a meaningless one."""
+    play_help = " ".join(probed["dls_quadruped.learning.play"][0]["stdout"].split())
+    assert "--seconds SECONDS (default: 10.0)" in play_help and "--num-envs NUM_ENVS (default: 4)" in play_help
+    assert "--log-root LOG_ROOT train's runs: <log-root>/<task>/<run>/ (default: runs)" in play_help
+    noisy = [t for t in TARGETS if "(default: None)" in probed[t][0]["stdout"]
+             or "(default: False)" in probed[t][0]["stdout"]]
+    assert not noisy, noisy

@@ -33,7 +33,7 @@ Conventions (the same as ``control/dynamics.py`` ``LegDynamics``; tests/control/
   (``d v_w/dt = 0``) and neither does its angular velocity in the world frame
   (``d(R omega_b)/dt = R (omega_b x omega_b) + R d omega_b/dt = 0``).
 
-CPU time of the leg terms against ``LegDynamics.compute``: docs/benchmarks.md "Leg dynamics from MuJoCo".
+CPU time of the leg terms against ``LegDynamics.compute``: docs/reports/benchmarks.md "Leg dynamics from MuJoCo".
 """
 
 from __future__ import annotations

@@ -165,12 +165,12 @@ class LocomotionEnv(VecEnv):
 
         Returns:
             (actions on ``device`` as float32 with non-finite rows replaced by zeros,
-             (num_envs,) bool mask of the rows that were not finite: NaN/inf, or an entry whose physical
-             value overflows, as -3e38 does in a force, ``ActionManager.finite_rows``).
+                (num_envs,) bool mask of the rows that were not finite: NaN/inf, or an entry whose physical
+                value overflows, as -3e38 does in a force, ``ActionManager.finite_rows``).
 
         Raises:
-            TypeError: not a tensor/array of numbers. ValueError: wrong shape (no broadcasting:
-            a (28,) or (1, 28) action for a batch of robots is an error).
+            TypeError: not a tensor/array of numbers.
+            ValueError: wrong shape (no broadcasting: a (28,) or (1, 28) action for a batch of robots is an error).
         """
         if isinstance(actions, np.ndarray):
             if not np.issubdtype(actions.dtype, np.number) or np.issubdtype(actions.dtype, np.complexfloating):

@@ -211,22 +211,86 @@ class LocomotionVectorEnv(gymnasium.vector.VectorEnv):
         self.env.close()
 
 
+RENDER_SIZE = (360, 480)
+"""(height, width) [pixels] of ``render()``'s frames, as ``make play``'s video."""
+
+
+class _RobotCamera:
+    """Offscreen frames of robot 0 with a tracking camera (MuJoCo's renderer on a local ``MjData`` of the env's
+    model; needs an OpenGL platform: ``MUJOCO_GL=egl`` or ``osmesa``)."""
+
+    def __init__(self, model, size: tuple[int, int] = RENDER_SIZE):
+        import mujoco
+
+        self._mujoco, self.model, self.data = mujoco, model, mujoco.MjData(model)
+        self.renderer = mujoco.Renderer(model, *size)
+        self.camera = mujoco.MjvCamera()
+        self.camera.distance, self.camera.azimuth, self.camera.elevation = 2.0, 135.0, -20.0
+        self.option = mujoco.MjvOption()
+        self.option.geomgroup[:4] = 1  # the robot's collision primitives (group 3) are its only body shapes
+
+    def frame(self, env) -> np.ndarray:
+        """(H, W, 3) uint8 RGB of robot 0 of ``env`` (a ``LocomotionEnv``) now."""
+        s = env.state
+        self.data.qpos[:3] = s.base_pos_w[0].cpu().numpy()
+        self.data.qpos[3:7] = s.base_quat_w[0].cpu().numpy()
+        self.data.qpos[7:19] = s.joint_pos[0].cpu().numpy()
+        self._mujoco.mj_forward(self.model, self.data)
+        self.camera.lookat[:] = self.data.qpos[:3]
+        self.renderer.update_scene(self.data, camera=self.camera, scene_option=self.option)
+        return self.renderer.render().copy()
+
+    def close(self) -> None:
+        self.renderer.close()
+
+
 class LocomotionGymEnv(gymnasium.Env):
     """One robot of a task as a gymnasium ``Env``, numpy in and out (passes ``check_env``).
 
     A view of a one-robot :class:`LocomotionVectorEnv` (same arguments, without ``num_envs``). When an
     episode ends, ``step`` returns its last observation; the env has already started the next
     episode, which the following ``reset()`` (without a seed) hands out instead of resetting again.
+
+    Args (besides the vector view's):
+        render_mode: None or ``"rgb_array"``: ``render()`` returns an (H, W, 3) uint8 frame of the robot
+            (MuJoCo's offscreen renderer, as ``make play``; gymnasium's ``RecordVideo`` records it).
+        normalize_actions: the action space is ``Box(-1, 1, (28,))`` and an action u is the raw latent
+            action ``low + (u + 1) / 2 (high - low)`` of the raw box (``gym_spaces.action_bounds``), the
+            symmetric, normalised box libraries such as Stable-Baselines3 expect; False: the raw box.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": []}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 50}
 
     def __init__(self, task: str | Path | TaskConfig = "base", device: str = "cpu", seed: int | None = None,
-                 num_workers: int | None = None, overrides: dict | None = None):
+                 num_workers: int | None = None, overrides: dict | None = None, render_mode: str | None = None,
+                 normalize_actions: bool = False):
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.vec = LocomotionVectorEnv(1, task, device, seed, num_workers, overrides, final_obs="all")
         self.observation_space = self.vec.single_observation_space
-        self.action_space = self.vec.single_action_space
+        raw = self.vec.single_action_space
+        self.normalize_actions = bool(normalize_actions)
+        self._raw_low, self._raw_span = raw.low, raw.high - raw.low
+        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, raw.shape, np.float32) if self.normalize_actions else raw
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / self.vec.env.step_dt)}
+        self._camera: _RobotCamera | None = None
         self._next_obs: dict[str, torch.Tensor] | None = None
+
+    def raw_action(self, action: np.ndarray) -> np.ndarray:
+        """(28,) the raw latent action ``step`` applies for ``action`` (itself without ``normalize_actions``)."""
+        action = np.asarray(action, dtype=np.float32)
+        if not self.normalize_actions:
+            return action
+        return (self._raw_low + (action + 1.0) * 0.5 * self._raw_span).astype(np.float32)
+
+    def render(self) -> np.ndarray | None:
+        """(H, W, 3) uint8 frame of the robot with ``render_mode="rgb_array"``; None without a render mode."""
+        if self.render_mode is None:
+            return None
+        if self._camera is None:
+            self._camera = _RobotCamera(self.vec.env.scene.model)
+        return self._camera.frame(self.vec.env)
 
     @staticmethod
     def _first(obs: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
@@ -243,11 +307,12 @@ class LocomotionGymEnv(gymnasium.Env):
         return self._first(obs), {}
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
-        """Args: action (28,) raw latent action. Returns obs, reward, terminated, truncated, info
+        """Args: action (28,) raw latent action (in [-1, 1] with ``normalize_actions``). Returns obs, reward,
+        terminated, truncated, info
         (``"time_out"``; at an episode's end ``"episode"`` {"r", "l", "t"})."""
-        action = torch.as_tensor(np.asarray(action, dtype=np.float32))
-        if action.shape != self.action_space.shape:
-            raise ValueError(f"action must have shape {self.action_space.shape}, got {tuple(action.shape)}")
+        if np.shape(action) != self.action_space.shape:
+            raise ValueError(f"action must have shape {self.action_space.shape}, got {np.shape(action)}")
+        action = torch.as_tensor(self.raw_action(action))
         obs, reward, terminated, truncated, info = self.vec.step(action[None])
         out: dict[str, Any] = {"time_out": bool(truncated[0])}
         if "final_obs" in info:  # the episode ended: hand out its last observation, keep the new one
@@ -258,6 +323,9 @@ class LocomotionGymEnv(gymnasium.Env):
         return self._first(obs), float(reward[0]), bool(terminated[0]), bool(truncated[0]), out
 
     def close(self) -> None:
+        if self._camera is not None:
+            self._camera.close()
+            self._camera = None
         self.vec.close()
 
 

@@ -7,7 +7,8 @@
 ``--policy``: an exported actor (e.g. ``runs/base/<run>/exported/policy.pt2``, or a TorchScript one such as the
 committed ``docs/policies/base_actor.pt``) or an
 rsl-rl checkpoint (``runs/base/<run>/model_<it>.pt``). Writes ``<out>/<scenario>.json`` and
-``<out>/<scenario>.png`` (default ``results/eval/<policy stem>``) and prints the headline figures
+``<out>/<scenario>.png`` (default: :func:`default_out`, ``results/eval/<task>/<run>/<policy stem>`` for a file of a
+training run, ``results/eval/<policy stem>`` for any other) and prints the headline figures
 and the targets. ``--split validation`` plays disjoint episodes of the same scenario, for choosing checkpoints; reports use
 the default ``test``. ``--episodes`` is per condition (speed, step height, grid cell); each scenario has a
 small default. Scenarios: see ``dls_quadruped/eval/scenarios.py`` and docs/eval.md.
@@ -59,7 +60,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--num-workers", type=int, default=-1, help="simulator worker processes (-1: one per core)")
     p.add_argument("--episode-length-s", type=float, default=None, help="override the task's episode length [s]")
     p.add_argument("--device", type=torch_device, default="cpu", help="cpu, cuda or cuda:<index>")
-    p.add_argument("--out", type=Path, default=None, help="output folder (default results/eval/<policy stem>)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="output folder (default: results/eval/<task>/<run>/<policy stem> for a file of a training run "
+                        "runs/<task>/<run>/, else results/eval/<policy stem>)")
     add_set_argument(p, f"of the base task every scenario starts from, in its sections {', '.join(OVERRIDABLE_SECTIONS)}: "
                         f"the scenario sets {', '.join(FIXED_SECTIONS)} itself, so a key there is refused; recorded "
                         "in the JSON as task_overrides")
@@ -75,6 +78,17 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         p.error(f"argument --episodes: scenario {args.scenario} needs a multiple of {multiple} (every command has a "
                 f"mirrored twin), got {args.episodes}")
     return args
+
+
+def default_out(policy: Path, root: Path = Path("results/eval")) -> Path:
+    """Where an evaluation of ``policy`` goes without ``--out``: ``root/<task>/<run>/<stem>`` for a file inside a
+    training run (a folder holding the ``task.yaml`` train writes: ``runs/base/<run>/model_450.pt``,
+    ``runs/base/<run>/exported/policy.pt2``), so two runs' ``policy.pt2`` never share a folder; ``root/<stem>``
+    for any other file (``docs/policies/base_actor.pt`` -> ``results/eval/base_actor``)."""
+    for run in list(policy.parents)[:2]:
+        if (run / "task.yaml").is_file() and run.name and run.parent.name:
+            return root / run.parent.name / run.name / policy.stem
+    return root / policy.stem
 
 
 def headline(res: dict) -> str:
@@ -116,7 +130,7 @@ def main(argv: list[str] | None = None) -> dict:
     if overrides:
         res["task_overrides"] = overrides
     res["wall_s"] = round(time.perf_counter() - t0, 1)
-    out = args.out or Path("results/eval") / args.policy.stem
+    out = args.out or default_out(args.policy)
     out.mkdir(parents=True, exist_ok=True)
     write_json(res, out / f"{scenario.name}.json", indent=1)  # strict JSON: a NaN metric becomes null, listed
     scenario.plot(res, out / f"{scenario.name}.png")

@@ -78,7 +78,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--run-dir", type=Path, default=None, help="default: a new runs/distill/<time>")
     p.add_argument("--log-root", type=Path, default=Path("runs") / "distill")
-    p.add_argument("--resume", action="store_true", help="continue after the last finished epoch")
+    p.add_argument("--resume", action="store_true",
+                   help="continue after the last finished epoch, with the run's stored settings (flags given override them)")
     p.add_argument("--out", type=Path, default=None,
                    help="also copy student.pt2/.json, metrics.json and mse_sp.png here")
     return p.parse_args(argv)
@@ -157,6 +158,24 @@ def distill_task(task: str, num_workers: int | None, overrides: dict | None = No
     return replace_sections(cfg, {"curriculum": {}}, source="<distill: no curriculum>")
 
 
+def _flat_keys(over: dict, prefix: str = "") -> list[str]:
+    """Dotted keys of a nested override dict (``{"train": {"epochs": 2}}`` -> ``["train.epochs"]``)."""
+    keys = []
+    for key, value in over.items():
+        keys += _flat_keys(value, f"{prefix}{key}.") if isinstance(value, dict) else [f"{prefix}{key}"]
+    return keys
+
+
+def resume_summary(run_dir: Path, cfg, over: dict) -> str:
+    """One line saying what a resumed run continues with: its stored settings (``<run>/distill.yaml``), and
+    which of them the command line overrode."""
+    enc = cfg.encoding
+    given = _flat_keys(over)
+    return (f"[distill] resuming {run_dir} with its stored settings: expert {cfg.expert}, {cfg.algorithm}, "
+            f"{enc.p}-{enc.F} H={enc.horizon} dt={enc.dt:g}, {cfg.train.epochs} epochs; "
+            + (f"overridden on the command line: {', '.join(given)}" if given else "nothing overridden"))
+
+
 def _run_dir(args: argparse.Namespace) -> Path | None:
     """The run directory to continue (--resume), or the --run-dir to create (checked empty), or None
     (a new one under --log-root). Nothing is created here."""
@@ -223,7 +242,6 @@ def main(argv: list[str] | None = None) -> Path:
     if args.resume and config_path is None and args.run_dir is not None and (args.run_dir / RESOLVED).is_file():
         config_path = args.run_dir / RESOLVED
     cfg = load_distill_config(config_path, over)
-    expert = load_expert(cfg.expert)
     run_dir = _run_dir(args)
     state = None
     if args.resume:
@@ -233,6 +251,8 @@ def main(argv: list[str] | None = None) -> Path:
         if state["config"]["encoding"] != cfg.to_dict()["encoding"] or state["config"]["algorithm"] != cfg.algorithm:
             raise UserError(f"--resume: {run_dir} was started with {state['config']['algorithm']} "
                             f"{state['config']['encoding']}, not {cfg.algorithm} {cfg.to_dict()['encoding']}")
+        print(resume_summary(run_dir, cfg, over), flush=True)
+    expert = load_expert(cfg.expert)  # the run's own expert on --resume, unless --expert names another
     task = distill_task(cfg.task, cfg.collect.num_workers)
     torch.manual_seed(cfg.train.seed)
     env = LocomotionEnv(task, num_envs=cfg.collect.num_envs, seed=cfg.train.seed, verbose=False)

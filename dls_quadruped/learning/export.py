@@ -8,7 +8,7 @@ or to a ``torch.export`` program, checked numerically; or export any training ch
 
 The actor is rebuilt from the task's ``agent.actor`` config (the same rsl-rl ``MLPModel`` training
 makes), the exported weights are loaded into it (every normaliser and MLP tensor must match), and
-``runner.export_actor_onnx`` or ``runner.export_actor_program`` writes it with a free batch size, as
+``policy_export.export_actor_onnx`` or ``policy_export.export_actor_program`` writes it with a free batch size, as
 training does; the output's suffix (``.onnx``, ``.pt2``) says which. The new file is then run (ONNX
 with onnxruntime) on in-distribution observations (normaliser mean + std x N(0, 1)) and compared with
 the source actor.
@@ -24,13 +24,15 @@ import torch
 from dls_quadruped.cli import ArgumentParser, UserError, run_cli
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
+from dls_quadruped.learning.policy_export import (
+    export_actor_onnx,
+    export_actor_program,
+    export_policy,
+)
 from dls_quadruped.learning.policy_file import PROGRAM_SUFFIX, load_module
 from dls_quadruped.learning.runner import (
     AtomicOnPolicyRunner,
     CheckpointMismatch,
-    export_actor_onnx,
-    export_actor_program,
-    export_policy,
     read_checkpoint,
     runner_config,
 )

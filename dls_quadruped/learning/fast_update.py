@@ -1,7 +1,7 @@
 """A cheaper rsl-rl-lib PPO update with the same algorithm, hyper-parameters and mini-batches.
 
 The update is compute-bound: most of its time is the actor's and critic's matrix products, which MKL
-already runs near one core's peak (profile in docs/benchmarks.md "PPO update"). What this module removes
+already runs near one core's peak (profile in docs/reports/benchmarks.md "PPO update"). What this module removes
 is the work rsl-rl adds around them; every change leaves the numbers rsl-rl computes the same, up to the
 summation order of fused Adam and threaded products (``tests/learning/test_fast_update.py`` compares
 losses, learning rate and weights after one update with the stock one):
@@ -22,7 +22,7 @@ losses, learning rate and weights after one update with the stock one):
   own the cores then); the update, during which the workers idle, runs with ``threads`` torch
   threads. On a shared machine this needs ``OMP_WAIT_POLICY=PASSIVE`` (the ``learning`` package sets
   it as a default, the Makefile explicitly): with OpenMP's default spin-waiting, extra threads on busy
-  cores make the update several times slower than one thread (docs/benchmarks.md "PPO update").
+  cores make the update several times slower than one thread (docs/reports/benchmarks.md "PPO update").
 
 ``torch.compile`` of the actor and critic (rsl-rl's agent key ``torch_compile_mode``) is left off: the
 time is in MKL's matrix products either way, so it gains little for its compilation at every start

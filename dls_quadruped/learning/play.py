@@ -174,9 +174,11 @@ def main(argv: list[str] | None = None) -> Path:
     p.add_argument("--log-root", type=Path, default=Path("runs"), help="train's runs: <log-root>/<task>/<run>/")
     p.add_argument("--num-envs", type=positive_int, default=4)
     p.add_argument("--seconds", type=positive_float, default=10.0)
-    p.add_argument("--out", type=Path, default=None)
+    p.add_argument("--out", type=Path, default=None,
+                   help="output folder (default: play/ beside a checkpoint of a run under --log-root, else "
+                        "<log-root>/<task>/play/<checkpoint stem>)")
     p.add_argument("--num-workers", type=non_negative_int, default=0)
-    p.add_argument("--no-video", action="store_true")
+    p.add_argument("--no-video", action="store_true", help="skip the GIF (the plots and play.npz are still written)")
     add_set_argument(p)
     args = p.parse_args(argv)
     if args.zero_action and args.checkpoint is not None:

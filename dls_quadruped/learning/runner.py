@@ -35,20 +35,20 @@ import re
 import signal
 import threading
 import time
-import warnings
 from pathlib import Path
 
 import torch
 import yaml
 from rsl_rl.runners import OnPolicyRunner
 
-from dls_quadruped.learning import checkpoint_file, resume_state
+from dls_quadruped.learning import checkpoint_file, resume_state, time_limit
 from dls_quadruped.learning.checkpoint_file import UnsafeCheckpoint
 from dls_quadruped.learning.diagnostics import TrainingDiagnostics
 from dls_quadruped.learning.distributed import any_rank, init_distributed
 from dls_quadruped.learning.fast_update import speed_up_update
-from dls_quadruped.learning.policy_file import save_program
+from dls_quadruped.learning.policy_export import export_actor_onnx
 from dls_quadruped.learning.symmetry import check_symmetry_cfg
+from dls_quadruped.learning.time_limit import Deadline, TimeLimitReached
 
 _CKPT = re.compile(r"model_(\d+)\.pt$")
 
@@ -61,41 +61,9 @@ class TrainingInterrupted(Exception):
         super().__init__(f"{signal.Signals(signum).name}: saved {path}" if path else signal.Signals(signum).name)
 
 
-class TimeLimitReached(Exception):
-    """The next iteration would not end before the deadline; the last finished one was saved to ``path``."""
-
-    def __init__(self, path: str | None, iteration: int):
-        self.path, self.iteration = path, iteration
-        super().__init__(f"time limit: saved {path} (iteration {iteration})")
-
-
-clock = time.monotonic
-"""The clock of ``Deadline`` and the runner's time checks (a test replaces it)."""
-
-
-class Deadline:
-    """A wall-time budget that started at construction: ``Deadline(seconds)``.
-
-    ``stop_after(iteration_s)`` is True once another iteration of ``iteration_s`` seconds (doubled: the next
-    one can be slower, e.g. a checkpoint save or a recompile), plus ``reserve_s`` for the closing save and
-    the policy export, would end past the budget.
-    """
-
-    def __init__(self, seconds: float, reserve_s: float = 20.0):
-        self.seconds, self.reserve_s = float(seconds), float(reserve_s)
-        self.start = clock()
-
-    def left(self, now: float | None = None) -> float:
-        """Seconds left at ``now`` (default: the clock's now)."""
-        return self.start + self.seconds - (clock() if now is None else now)
-
-    def stop_after(self, iteration_s: float, now: float | None = None) -> bool:
-        return self.left(now) < 2.0 * iteration_s + self.reserve_s
-
-
 class AtomicOnPolicyRunner(OnPolicyRunner):
     """``OnPolicyRunner`` with atomic checkpoints (tmp file + ``os.replace``) that carry the env state,
-    wall-time saves and a save on SIGINT/SIGTERM.
+    wall-time saves and a save on SIGINT/SIGTERM. Arguments not listed are ``OnPolicyRunner``'s.
 
     Args:
         save_every_s: also save when this many seconds passed since the last save (None: never).
@@ -104,7 +72,6 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         update_threads: with ``fast_update``, torch threads during the update (None: every core).
         deadline: stop (save, then raise ``TimeLimitReached``) at the end of the last iteration the
             deadline leaves room for (None: no limit).
-        Other arguments as ``OnPolicyRunner``.
     """
 
     def __init__(self, env, train_cfg: dict, log_dir: str | None = None, device: str = "cpu",
@@ -121,7 +88,7 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         self._last_save_time = time.monotonic()
         self._last_saved: tuple[str, int] | None = None
         self.deadline = deadline
-        self._iteration_end = clock()  # the first iteration's time includes the env's first steps (compiles)
+        self._iteration_end = time_limit.clock()  # the first iteration's time includes the env's first steps (compiles)
         log = self.logger.log
 
         def log_then_checkpoint(*args, **kwargs) -> None:
@@ -179,7 +146,7 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         """Whether the deadline leaves no room for another iteration (rank 0 decides, every rank follows)."""
         if self.deadline is None:
             return False
-        now = clock()
+        now = time_limit.clock()
         iteration_s, self._iteration_end = now - self._iteration_end, now
         late = self.deadline.stop_after(iteration_s, now) if self.ranks.is_main else False
         return bool(any_rank(int(late), self.ranks, self.device))
@@ -379,51 +346,6 @@ def latest_run(task_dir: Path) -> Path | None:
     """Most recently modified run directory of a task that holds a checkpoint."""
     runs = [d for d in Path(task_dir).glob("*") if d.is_dir() and latest_checkpoint(d) is not None]
     return max(runs, key=lambda d: latest_checkpoint(d).stat().st_mtime) if runs else None
-
-
-def export_policy(runner: OnPolicyRunner, out_dir: Path) -> dict[str, Path | str]:
-    """Export the deterministic actor (with its observation normaliser) as a ``torch.export`` program
-    ``out_dir/policy.pt2`` and, if possible, as ONNX ``out_dir/policy.onnx``.
-
-    Returns:
-        {"program": path, "onnx": path or the reason it was skipped}.
-    """
-    out_dir = Path(out_dir)
-    program = export_actor_program(runner.alg.get_policy(), out_dir / "policy.pt2")
-    result: dict[str, Path | str] = {"program": program}
-    try:
-        runner.export_policy_to_onnx(str(out_dir), "policy.onnx")
-        result["onnx"] = out_dir / "policy.onnx"
-    except (ImportError, RuntimeError) as err:  # onnx/onnxscript missing or an exporter failure: report it
-        result["onnx"] = f"skipped: {type(err).__name__}: {err}"
-    return result
-
-
-def export_actor_program(actor, path: Path) -> Path:
-    """Export an rsl-rl ``MLPModel`` actor (normaliser + MLP + mean action) as a ``torch.export`` program
-    ``obs (B, obs_dim) -> actions (B, num_actions)`` with a free batch size (``learning/policy_file.py``)."""
-    # rsl-rl's inference module of the actor (what its own TorchScript export scripts): plain torch, exportable
-    return save_program(actor.as_jit(), actor.obs_dim, path)
-
-
-def export_actor_onnx(actor, path: Path, verbose: bool = False) -> Path:
-    """Export an rsl-rl ``MLPModel`` actor (normaliser + MLP + mean action) to ONNX with a dynamic batch axis.
-
-    Weights are embedded (no ``.data`` file); opset 18, torch's ``torch.export``-based exporter.
-    """
-    model = actor.as_onnx(verbose=verbose).to("cpu").eval()
-    # batch 2, not 1: torch.export turns a size-1 example dimension into a constant
-    example = torch.zeros(2, model.input_size)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with warnings.catch_warnings():
-        # torch's exporter copies the graph through a pytree check that torch itself deprecates: nothing to act on here
-        warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)` is deprecated",
-                                category=FutureWarning)
-        torch.onnx.export(model, (example,), str(path), dynamo=True, external_data=False, opset_version=18,
-                          input_names=model.input_names, output_names=model.output_names, verbose=verbose,
-                          dynamic_shapes=({0: torch.export.Dim("batch")},))
-    return path
 
 
 def sha256_file(path: Path) -> str:

@@ -63,13 +63,11 @@ from dls_quadruped.learning.distributed import (
     close_distributed,
     init_distributed,
 )
+from dls_quadruped.learning.policy_export import export_policy
 from dls_quadruped.learning.runner import (
     AtomicOnPolicyRunner,
     CheckpointMismatch,
-    Deadline,
-    TimeLimitReached,
     TrainingInterrupted,
-    export_policy,
     latest_run,
     new_run_dir,
     newest_readable_checkpoint,
@@ -79,6 +77,7 @@ from dls_quadruped.learning.runner import (
     sha256_file,
     write_yaml,
 )
+from dls_quadruped.learning.time_limit import Deadline, TimeLimitReached
 
 DEFAULT_SAVE_EVERY_MIN = 5.0
 

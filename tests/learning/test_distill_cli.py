@@ -42,7 +42,9 @@ def test_tiny_run_resume_and_outputs(tmp_path, tiny_task, capsys, one_line_error
     obs, labels = ds.ordered()
     ds.append(obs[:15], labels[:15])
     distill.main(["--resume", "--run-dir", str(run_dir), "--epochs", "2"])
-    assert "resumed" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "resumed" in out and "with its stored settings: expert" in out and "first-spline H=5 dt=0.02" in out
+    assert "2 epochs; overridden on the command line: train.epochs" in out
     assert DiskDataset.open(run_dir / "dataset").total_written == 80  # 40 + 15 + 25, not 40 + 15 + 40
     metrics = json.loads((run_dir / "metrics.json").read_text())
     assert [r["epoch"] for r in metrics["history"]] == [1, 2]
@@ -52,6 +54,10 @@ def test_tiny_run_resume_and_outputs(tmp_path, tiny_task, capsys, one_line_error
     assert (run_dir / "mse_sp.png").stat().st_size > 0 and list(run_dir.glob("events.out.tfevents.*"))
     student, meta = load_student(run_dir / "exported" / "student.pt2")
     assert meta["encoding"]["horizon"] == 5 and meta["output_dim"] == 64 and meta["epochs_trained"] == 2
+    # `make distill RESUME=1` passes no settings: the run keeps its 2 epochs (the config file says 30), H = 5
+    distill.main(["--resume", "--run-dir", str(run_dir)])
+    assert "5 dt=0.02, 2 epochs; nothing overridden" in capsys.readouterr().out
+    assert [r["epoch"] for r in json.loads((run_dir / "metrics.json").read_text())["history"]] == [1, 2]
     assert student(torch.zeros(3, 259)).shape == (3, 64)
     # a corrupt dataset is named and nothing else is touched
     (run_dir / "dataset" / "state.json").unlink()

@@ -11,20 +11,20 @@ import itertools
 
 import pytest
 
-from dls_quadruped.learning import runner as runner_module
-from dls_quadruped.learning import train
-from dls_quadruped.learning.runner import Deadline, checkpoints, read_checkpoint
+from dls_quadruped.learning import time_limit, train
+from dls_quadruped.learning.runner import checkpoints, read_checkpoint
+from dls_quadruped.learning.time_limit import Deadline
 from tests.learning.test_resume_from import differences
 
 
 @pytest.fixture
 def fake_clock(monkeypatch):
     ticks = itertools.count(0.0, 100.0)  # start 0; the runner's own start 100; iteration ends 200, 300, ...
-    monkeypatch.setattr(runner_module, "clock", lambda: next(ticks))
+    monkeypatch.setattr(time_limit, "clock", lambda: next(ticks))
 
 
 def test_deadline_keeps_room_for_two_iterations_and_the_reserve(monkeypatch):
-    monkeypatch.setattr(runner_module, "clock", lambda: 0.0)
+    monkeypatch.setattr(time_limit, "clock", lambda: 0.0)
     d = Deadline(100.0, reserve_s=10.0)  # started at 0
     assert not d.stop_after(19.0, now=50.0)  # 50 s left >= 2 * 19 + 10 = 48
     assert d.stop_after(21.0, now=50.0)      # 50 s left < 2 * 21 + 10 = 52

@@ -72,7 +72,7 @@ def spawn_height(terrain, xy: torch.Tensor, yaw: torch.Tensor, q: torch.Tensor, 
 def reset_robot(env, env_ids: torch.Tensor, joint_scale: tuple[float, float] = (1.0, 1.0),
                 yaw: tuple[float, float] = (-math.pi, math.pi), xy_offset: float = 0.0,
                 height: float = float(C.STANDING_BASE_HEIGHT + 0.02)) -> None:
-    """Place robots on their terrain origin: random yaw, xy offset in [-xy_offset, xy_offset] [m],
+    """Place robots on their terrain origin: random yaw, xy offset within +-``xy_offset`` [m],
     joints = nominal x U(joint_scale) (0.8-1.2 in "high"), base ``height`` [m] above the terrain, higher
     where a foot would start inside the terrain (``spawn_height``). The placement is one compiled function of the
     robots' ids where the scene compiles (``scene.compile``, dynamic batch size)."""

@@ -76,7 +76,7 @@ def foot_contact(env, threshold: float = CONTACT_FORCE_THRESHOLD) -> torch.Tenso
 
 
 def height_scan(env) -> torch.Tensor:
-    """(B, 187) base z - terrain z - 0.5 m on the 17 x 11 yaw-aligned grid, clipped to [-1, 1] [m]."""
+    """(B, 187) base z - terrain z - 0.5 m on the 17 x 11 yaw-aligned grid, clipped to +-1 m."""
     scene = env.scene
     s = env.state
     return _height_scan(scene.terrain, scene.scan_pattern, s.base_pos_w, s.base_quat_w, scene.scan_cfg)
