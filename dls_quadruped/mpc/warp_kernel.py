@@ -292,3 +292,22 @@ def warp_costs(inp, cfg: SamplerConfig, model: SRBDModel) -> torch.Tensor:
     launch_rollout(cfg, b, m, g, dev, wp.from_torch(seed), consts, [wp.from_torch(t) for t in tensors],
                    wp.from_torch(costs.view(-1)), stream)
     return costs
+
+
+def warp_argmin(costs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B,) first minimum and its (B,) int64 index of each row of ``costs`` (B, M) float32 (never NaN), by the two
+    device argmin kernels (no host read): ``torch.min(costs, dim=1)``'s answer."""
+    init()
+    b, m = costs.shape
+    dev, parts = wp_device(costs.device), parts_for(m)
+    costs = costs.contiguous()
+    part_cost = torch.empty(b, parts, dtype=torch.float32, device=costs.device)
+    part_index = torch.empty(b, parts, dtype=torch.int32, device=costs.device)
+    best_cost = torch.empty(b, dtype=torch.float32, device=costs.device)
+    best_index = torch.empty(b, dtype=torch.int64, device=costs.device)
+    flat = [wp.from_torch(t.view(-1)) for t in (costs, part_cost, part_index)]
+    stream = wp.stream_from_torch(torch.cuda.current_stream(costs.device)) if costs.is_cuda else None
+    wp.launch(argmin_partial, dim=(b, parts), inputs=[flat[0], m, parts, flat[1], flat[2]], device=dev, stream=stream)
+    wp.launch(argmin_rows, dim=b, inputs=[*flat, m, parts, wp.from_torch(best_cost), wp.from_torch(best_index)],
+              device=dev, stream=stream)
+    return best_cost, best_index
