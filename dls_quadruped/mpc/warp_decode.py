@@ -31,7 +31,7 @@ _U8 = wp.array(dtype=wp.uint8)
 @wp.func
 def clean_row(src: _F32, dst: _F32, start: int, n: int) -> int:
     """dst[start:start + n] = src where finite, else 0; returns 1 if any entry was not finite."""
-    bad = int(0)
+    bad = 0
     for j in range(n):
         v = src[start + j]
         ok = wp.isfinite(v)
@@ -72,8 +72,9 @@ def clean_kernel(base_seed: int, frame_xy: int, frame_yaw: int, frame_z: int, co
     else:  # base origin = CoM - R c_b, R = Rz(yaw) Ry(pitch) Rx(roll) of the cleaned state
         roll, pitch, yaw = cx[b * 24 + 6], cx[b * 24 + 7], cx[b * 24 + 8]
         cr, sr, cp, sp, cy, sy = wp.cos(roll), wp.sin(roll), wp.cos(pitch), wp.sin(pitch), wp.cos(yaw), wp.sin(yaw)
-        rc0 = cy * cp * com_offset[0] + (cy * sp * sr - sy * cr) * com_offset[1] + (cy * sp * cr + sy * sr) * com_offset[2]
-        rc1 = sy * cp * com_offset[0] + (sy * sp * sr + cy * cr) * com_offset[1] + (sy * sp * cr - cy * sr) * com_offset[2]
+        c0, c1, c2 = com_offset[0], com_offset[1], com_offset[2]
+        rc0 = cy * cp * c0 + (cy * sp * sr - sy * cr) * c1 + (cy * sp * cr + sy * sr) * c2
+        rc1 = sy * cp * c0 + (sy * sp * sr + cy * cr) * c1 + (sy * sp * cr - cy * sr) * c2
         cbase_xy[b * 2] = cx[b * 24] - rc0
         cbase_xy[b * 2 + 1] = cx[b * 24 + 1] - rc1
         flags[f + 2] = wp.uint8(0)
@@ -173,7 +174,7 @@ def decode_kernel(size: int):
                costs: _F32, part_cost: _F32, part_index: wp.array(dtype=wp.int32), flags: _U8, out: Outputs):
         b = wp.tid()
         arg = argmin_final(part_cost, part_index, b, parts)
-        bad_in = int(0)
+        bad_in = 0
         for t in range(NUM_FLAGS - 1):
             bad_in = wp.where(flags[b * NUM_FLAGS + t] != wp.uint8(0), 1, bad_in)
         have_prev = out.have_prev[b] != wp.uint8(0)
@@ -185,7 +186,7 @@ def decode_kernel(size: int):
         half_d = wp.uint32(dim // 2)
         row = wp.uint32(b) * wp.uint32(m_total) + wp.uint32(pick)
         P = vec_d()
-        finite = bool(True)
+        finite = True
         for j in range(0, dim, 2):
             z = normal_pair(row * half_d + wp.uint32(j // 2), key)
             P[j] = clampf(warm[wb + j] + pm * (sigma[j] * z[0]), lo[j], hi[j])
@@ -196,18 +197,19 @@ def decode_kernel(size: int):
         cv = contacts(P, phase, b, 0, dt)
         shift = weight / wp.max(cv[0] + cv[1] + cv[2] + cv[3], 1.0)
         for i in range(4):  # the last guard: the first action finite
-            ph, fh, tg, fw = leg_action(P, dec_idx, dec_w, prm, 0, i, cv[i], shift, frame, terrain_z[b * 4 + i] + foot_r)
+            ph, fh, tg, fw = leg_action(P, dec_idx, dec_w, prm, 0, i, cv[i], shift, frame,
+                                        terrain_z[b * 4 + i] + foot_r)
             finite = finite and wp.isfinite(ph[0]) and wp.isfinite(ph[1]) and wp.isfinite(fh[0])
             finite = finite and wp.isfinite(fh[1]) and wp.isfinite(fh[2]) and wp.isfinite(tg[0])
             finite = finite and wp.isfinite(tg[1]) and wp.isfinite(tg[2]) and wp.isfinite(fw[0]) and wp.isfinite(fw[1])
         bad = bad_in == 1 or not finite
         write = not bad or not have_prev  # a fallback robot with a previous action keeps it (buffers untouched)
         inf = float(wp.inf)
-        input_total = float(0.0)
+        input_total = 0.0
         for k in range(n_steps):
             cv = contacts(P, phase, b, k, dt)
             shift = weight / wp.max(cv[0] + cv[1] + cv[2] + cv[3], 1.0)
-            step_cost = float(0.0)
+            step_cost = 0.0
             for i in range(4):
                 ph, fh, tg, fw = leg_action(P, dec_idx, dec_w, prm, k, i, cv[i], shift, frame,
                                             terrain_z[b * 4 + i] + foot_r)

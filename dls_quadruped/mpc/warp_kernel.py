@@ -108,7 +108,7 @@ def rollout_kernel(size: int):
         feet = vec12()
         for a in range(12):
             feet[a] = x0[xb + 12 + a]
-        total = float(0.0)
+        total = 0.0
         yaw_sc = wp.vec2(wp.sin(base_yaw[b]), wp.cos(base_yaw[b]))  # std::sin / std::cos of the frame's yaw
         syaw, cyaw = yaw_sc[0], yaw_sc[1]
         bx, by = base_xy[2 * b], base_xy[2 * b + 1]
@@ -127,8 +127,8 @@ def rollout_kernel(size: int):
                 cv[i] = wp.where((ang - fl) < P[4 + i], 1.0, 0.0)
             nst = cv[0] + cv[1] + cv[2] + cv[3]
             shift = weight / (nst + wp.where(nst < 0.5, 1.0, 0.0))
-            sfx, sfy, sfz = float(0.0), float(0.0), float(0.0)
-            tx, ty, tzq, rcost = float(0.0), float(0.0), float(0.0), float(0.0)
+            sfx, sfy, sfz = 0.0, 0.0, 0.0
+            tx, ty, tzq, rcost = 0.0, 0.0, 0.0, 0.0
             nf = vec12()
             for i in range(4):
                 c = cv[i]

@@ -29,13 +29,11 @@ A_SCALE = wp.constant(wp.float32(6.283185307179586 / 4294967296.0))
 @wp.func_native("uint32_t u; memcpy(&u, &x, 4); return u;")
 def bits_of(x: wp.float32) -> wp.uint32:  # type: ignore[empty-body]
     """The IEEE-754 bits of ``x``."""
-    ...
 
 
 @wp.func_native("float f; memcpy(&f, &u, 4); return f;")
 def float_of(u: wp.uint32) -> wp.float32:  # type: ignore[empty-body]
     """The float whose IEEE-754 bits are ``u``."""
-    ...
 
 
 @wp.func
@@ -73,7 +71,8 @@ def log_f(x: wp.float32) -> wp.float32:
 
 @wp.func
 def sincos_f(x: wp.float32) -> wp.vec2:
-    """(sin x, cos x): rollout_kernel.cpp's sincos_f (reduction by pi/2 in three parts, polynomials on [-pi/4, pi/4])."""
+    """(sin x, cos x): rollout_kernel.cpp's sincos_f (reduction by pi/2 in three parts, polynomials on
+    [-pi/4, pi/4])."""
     q = wp.rint(x * 0.636619772367581343)
     r = x - q * 1.5703125
     r = r - q * 4.837512969970703125e-4

@@ -32,7 +32,12 @@ from dls_quadruped.mpc import warp_kernel
 from dls_quadruped.mpc.encodings import encoded_dim
 from dls_quadruped.mpc.solution import MPCResult, describe_bad
 from dls_quadruped.mpc.solve_glue import INPUT_WIDTHS
-from dls_quadruped.mpc.warp_decode import NUM_FLAGS, Outputs, clean_kernel, decode_kernel
+from dls_quadruped.mpc.warp_decode import (
+    NUM_FLAGS,
+    Outputs,
+    clean_kernel,
+    decode_kernel,
+)
 from dls_quadruped.sim.warp_graph import StepGraph
 
 FLAG_NAMES = (*INPUT_WIDTHS, "warm_starts", "solution")
