@@ -4,7 +4,7 @@
   whole row, a phase outside [0, 1] flagged too), the default frame (base x, y = CoM - R c_b, yaw = the state's)
   when none is given; thread 0 advances the solve counter and derives this solve's noise seed from it, so that no
   seed goes through the host;
-* :func:`decode_kernel` (one module per sample-vector bucket): the argmin's last stage (``warp_kernel.argmin_final``),
+* :func:`decode_kernel` (one module per sample-vector bucket): the argmin's last stage (``warp_argmin.argmin_final``),
   the winner re-drawn exactly as the rollout drew it, its horizon decoded (contacts, forces from offsets, Table 1
   limits, frame H -> world: ``samples.decode_samples``), its input cost per step, the initial cost, and the last
   guard: a robot with a flagged input or a non-finite action keeps its previous action fields (they are still in
@@ -19,7 +19,7 @@ from typing import Any
 
 import warp as wp
 
-from dls_quadruped.mpc.warp_kernel import argmin_final
+from dls_quadruped.mpc.warp_argmin import argmin_final
 from dls_quadruped.mpc.warp_math import clampf, hash32, normal_pair, seed_key
 
 NUM_FLAGS = 11
@@ -31,7 +31,7 @@ _U8 = wp.array(dtype=wp.uint8)
 @wp.func
 def clean_row(src: _F32, dst: _F32, start: int, n: int) -> int:
     """dst[start:start + n] = src where finite, else 0; returns 1 if any entry was not finite."""
-    bad = 0
+    bad = wp.int32(0)  # a dynamic variable: a plain literal is a constant to Warp
     for j in range(n):
         v = src[start + j]
         ok = wp.isfinite(v)
@@ -167,14 +167,15 @@ def decode_kernel(size: int):
     vec_d = wp.types.vector(length=size, dtype=wp.float32)
 
     @wp.kernel(enable_backward=False, module="unique")
-    def decode(m_total: int, n_steps: int, g_total: int, dim: int, parts: int, seed: wp.array(dtype=wp.int64),
+    def decode(m_total: int, n_steps: int, g_total: int, dim: int, seed: wp.array(dtype=wp.int64),
                prm: _F32, sigma: _F32, lo: _F32, hi: _F32, dec_idx: wp.array(dtype=wp.int32), dec_w: _F32,
                warm: _F32, group: wp.array(dtype=wp.int64), perturb: _F32, x0: _F32, phase: _F32, base_xy: _F32,
                base_yaw: _F32, terrain_z: _F32, h_ref: _F32, vel_ref: _F32, wz_ref: _F32, foothold: _F32,
-               costs: _F32, part_cost: _F32, part_index: wp.array(dtype=wp.int32), flags: _U8, out: Outputs):
+               costs: _F32, last_cost: _F32, last_index: wp.array(dtype=wp.int32), last_first: int, last_n: int,
+               flags: _U8, out: Outputs):
         b = wp.tid()
-        arg = argmin_final(part_cost, part_index, b, parts)
-        bad_in = 0
+        arg = argmin_final(last_cost, last_index, last_first, last_n, b)
+        bad_in = wp.int32(0)
         for t in range(NUM_FLAGS - 1):
             bad_in = wp.where(flags[b * NUM_FLAGS + t] != wp.uint8(0), 1, bad_in)
         have_prev = out.have_prev[b] != wp.uint8(0)
@@ -186,7 +187,7 @@ def decode_kernel(size: int):
         half_d = wp.uint32(dim // 2)
         row = wp.uint32(b) * wp.uint32(m_total) + wp.uint32(pick)
         P = vec_d()
-        finite = True
+        finite = wp.isfinite(0.0)  # True, as a dynamic variable (a literal is a constant to Warp)
         for j in range(0, dim, 2):
             z = normal_pair(row * half_d + wp.uint32(j // 2), key)
             P[j] = clampf(warm[wb + j] + pm * (sigma[j] * z[0]), lo[j], hi[j])
@@ -205,11 +206,11 @@ def decode_kernel(size: int):
         bad = bad_in == 1 or not finite
         write = not bad or not have_prev  # a fallback robot with a previous action keeps it (buffers untouched)
         inf = float(wp.inf)
-        input_total = 0.0
+        input_total = wp.float32(0.0)
         for k in range(n_steps):
             cv = contacts(P, phase, b, k, dt)
             shift = weight / wp.max(cv[0] + cv[1] + cv[2] + cv[3], 1.0)
-            step_cost = 0.0
+            step_cost = wp.float32(0.0)
             for i in range(4):
                 ph, fh, tg, fw = leg_action(P, dec_idx, dec_w, prm, k, i, cv[i], shift, frame,
                                             terrain_z[b * 4 + i] + foot_r)
@@ -243,7 +244,7 @@ def decode_kernel(size: int):
                 + x0[xb + 6] * x0[xb + 6] * prm[41] + x0[xb + 7] * x0[xb + 7] * prm[42]
                 + x0[xb + 9] * x0[xb + 9] * prm[43] + x0[xb + 10] * x0[xb + 10] * prm[44] + ewz * ewz * prm[45])
         out.initial_cost[b] = wp.where(bad or wp.isnan(init), inf, init)
-        out.best_cost[b] = wp.where(bad, inf, costs[b * m_total + arg])
+        out.best_cost[b] = wp.where(bad, inf, costs[wp.int64(b) * wp.int64(m_total) + wp.int64(arg)])
         out.best_input_cost[b] = wp.where(bad, inf, input_total)
         out.best_index[b] = wp.where(bad, wp.int64(-1), wp.int64(arg))
         out.warm_start_index[b] = wp.where(bad, wp.int64(-1), group[arg])

@@ -9,10 +9,7 @@ world, explicit-Euler SRBD and the quadratic cost -- and writes its cost (NaN ->
 in a per-thread vector of D entries (D rounded up to a bucket of :data:`BUCKETS`: one compiled module per
 bucket, not per encoding).
 
-Per-robot argmin on the device without a host read, two small kernels: :func:`argmin_partial` (B x T threads,
-thread t scans samples t, t + T, ... keeping the first minimum), then :func:`argmin_final` over the T partials
-(lowest cost, ties to the lowest index): the first minimum of the row, as ``torch.min(dim=1)`` and the ``cpp``
-kernel's ``mpc_solve`` pick it.
+The per-robot argmin runs on the device too (``warp_argmin.py``).
 
 :func:`warp_costs` is the kernel registry's ``warp`` entry ((B, M) costs of a ``KernelInputs`` on its torch
 device: ``cpu`` runs on Warp's CPU device, ``cuda:k`` on that GPU); ``warp_solve.py`` drives the same kernels in
@@ -34,8 +31,6 @@ from dls_quadruped.mpc.warp_math import clampf, normal_pair, seed_key, sincos_f
 
 BUCKETS = (64, 128, 256, 512)
 """Lengths of the per-thread sample vector: a kernel is compiled per bucket (D <= bucket)."""
-ARGMIN_THREADS = 256
-"""Partial argmin threads per robot (T): each scans M / T samples."""
 _INITIALISED = False
 _ENABLE_BACKWARD = False  # no gradients: halves the generated code and Warp's compile time
 
@@ -108,7 +103,7 @@ def rollout_kernel(size: int):
         feet = vec12()
         for a in range(12):
             feet[a] = x0[xb + 12 + a]
-        total = 0.0
+        total = wp.float32(0.0)  # a dynamic variable: a plain literal is a constant to Warp
         yaw_sc = wp.vec2(wp.sin(base_yaw[b]), wp.cos(base_yaw[b]))  # std::sin / std::cos of the frame's yaw
         syaw, cyaw = yaw_sc[0], yaw_sc[1]
         bx, by = base_xy[2 * b], base_xy[2 * b + 1]
@@ -127,8 +122,8 @@ def rollout_kernel(size: int):
                 cv[i] = wp.where((ang - fl) < P[4 + i], 1.0, 0.0)
             nst = cv[0] + cv[1] + cv[2] + cv[3]
             shift = weight / (nst + wp.where(nst < 0.5, 1.0, 0.0))
-            sfx, sfy, sfz = 0.0, 0.0, 0.0
-            tx, ty, tzq, rcost = 0.0, 0.0, 0.0, 0.0
+            sfx, sfy, sfz = wp.float32(0.0), wp.float32(0.0), wp.float32(0.0)
+            tx, ty, tzq, rcost = wp.float32(0.0), wp.float32(0.0), wp.float32(0.0), wp.float32(0.0)
             nf = vec12()
             for i in range(4):
                 c = cv[i]
@@ -196,64 +191,16 @@ def rollout_kernel(size: int):
             total += (prm[37] * ez * ez + prm[38] * evx * evx + prm[39] * evy * evy + prm[40] * vz * vz
                       + prm[41] * ro * ro + prm[42] * pi * pi + prm[43] * wx * wx + prm[44] * wy * wy
                       + prm[45] * ewz * ewz + prm[46] * rcost)
-        costs[b * m_total + m] = wp.where(wp.isnan(total), wp.inf, total)  # NaN cost = +inf
+        # NaN cost = +inf; the (B, M) index in int64: B M passes 2^31 at B = 4 096, M = 10^6
+        costs[wp.int64(b) * wp.int64(m_total) + wp.int64(m)] = wp.where(wp.isnan(total), wp.inf, total)
 
     return rollout
-
-
-@wp.kernel(enable_backward=_ENABLE_BACKWARD)
-def argmin_partial(costs: wp.array(dtype=wp.float32), m_total: int, parts: int,
-                   part_cost: wp.array(dtype=wp.float32), part_index: wp.array(dtype=wp.int32)):
-    """Thread (b, t): the first minimum of robot b's costs t, t + T, t + 2T, ... (T = ``parts``); +inf at index
-    M if it has none (t >= M)."""
-    b, t = wp.tid()
-    best = float(wp.inf)
-    arg = m_total
-    row = b * m_total
-    for m in range(t, m_total, parts):
-        c = costs[row + m]
-        if c < best or arg == m_total:
-            best = c
-            arg = m
-    part_cost[b * parts + t] = best
-    part_index[b * parts + t] = arg
-
-
-@wp.func
-def argmin_final(part_cost: wp.array(dtype=wp.float32), part_index: wp.array(dtype=wp.int32), b: int,
-                 parts: int) -> wp.int32:
-    """The first minimum of robot b's row from its ``parts`` partials: lowest cost, ties to the lowest index."""
-    best = part_cost[b * parts]
-    arg = part_index[b * parts]
-    for t in range(1, parts):
-        c = part_cost[b * parts + t]
-        i = part_index[b * parts + t]
-        if c < best or (c == best and i < arg):
-            best = c
-            arg = i
-    return arg
-
-
-@wp.kernel(enable_backward=_ENABLE_BACKWARD)
-def argmin_rows(costs: wp.array(dtype=wp.float32), part_cost: wp.array(dtype=wp.float32),
-                part_index: wp.array(dtype=wp.int32), m_total: int, parts: int,
-                best_cost: wp.array(dtype=wp.float32), best_index: wp.array(dtype=wp.int64)):
-    """Thread b: robot b's first minimum (:func:`argmin_final`): its cost and index."""
-    b = wp.tid()
-    arg = argmin_final(part_cost, part_index, b, parts)
-    best_index[b] = wp.int64(arg)
-    best_cost[b] = costs[b * m_total + arg]
 
 
 @functools.lru_cache(maxsize=64)
 def device_constants(cfg: SamplerConfig, model: SRBDModel, device: str) -> tuple[torch.Tensor, ...]:
     """``cpp_kernel.constants`` (params, sigma, lo, hi, decode indices and weights) on ``device``, built once."""
     return tuple(t.to(device).reshape(-1) for t in cpp_kernel.constants(cfg, model))
-
-
-def parts_for(m: int) -> int:
-    """Partial-argmin threads per robot for M = ``m`` samples (at most :data:`ARGMIN_THREADS`)."""
-    return max(1, min(ARGMIN_THREADS, m))
 
 
 def launch_rollout(cfg: SamplerConfig, b: int, m: int, g: int, dev: str, seed: wp.array, consts: list,
@@ -293,21 +240,3 @@ def warp_costs(inp, cfg: SamplerConfig, model: SRBDModel) -> torch.Tensor:
                    wp.from_torch(costs.view(-1)), stream)
     return costs
 
-
-def warp_argmin(costs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(B,) first minimum and its (B,) int64 index of each row of ``costs`` (B, M) float32 (never NaN), by the two
-    device argmin kernels (no host read): ``torch.min(costs, dim=1)``'s answer."""
-    init()
-    b, m = costs.shape
-    dev, parts = wp_device(costs.device), parts_for(m)
-    costs = costs.contiguous()
-    part_cost = torch.empty(b, parts, dtype=torch.float32, device=costs.device)
-    part_index = torch.empty(b, parts, dtype=torch.int32, device=costs.device)
-    best_cost = torch.empty(b, dtype=torch.float32, device=costs.device)
-    best_index = torch.empty(b, dtype=torch.int64, device=costs.device)
-    flat = [wp.from_torch(t.view(-1)) for t in (costs, part_cost, part_index)]
-    stream = wp.stream_from_torch(torch.cuda.current_stream(costs.device)) if costs.is_cuda else None
-    wp.launch(argmin_partial, dim=(b, parts), inputs=[flat[0], m, parts, flat[1], flat[2]], device=dev, stream=stream)
-    wp.launch(argmin_rows, dim=b, inputs=[*flat, m, parts, wp.from_torch(best_cost), wp.from_torch(best_index)],
-              device=dev, stream=stream)
-    return best_cost, best_index

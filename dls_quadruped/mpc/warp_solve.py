@@ -9,8 +9,8 @@ read):
    ``wp.ScopedCapture`` on CUDA and on Warp's CPU device alike) runs
    ``clean_kernel`` (B threads: inputs cleaned, one flag per robot and input, the default frame, the solve counter
    advanced and this solve's noise seed derived from it on the device), the rollout (B x M threads,
-   ``warp_kernel.rollout_kernel``), ``argmin_partial`` (B x T threads) and ``decode_kernel`` (B threads: the
-   argmin's last stage, the winner re-drawn and decoded, the last guard);
+   ``warp_kernel.rollout_kernel``), the argmin's tree levels (``warp_argmin``: 1-3 launches for M up to 10^6) and
+   ``decode_kernel`` (B threads: the argmin's last stage, the winner re-drawn and decoded, the last guard);
 3. torch clones the three output buffers (float32, int64, uint8) and the :class:`MPCResult` is made of views
    of the clones.
 
@@ -32,6 +32,7 @@ from dls_quadruped.mpc import warp_kernel
 from dls_quadruped.mpc.encodings import encoded_dim
 from dls_quadruped.mpc.solution import MPCResult, describe_bad
 from dls_quadruped.mpc.solve_glue import INPUT_WIDTHS
+from dls_quadruped.mpc.warp_argmin import ArgminTree
 from dls_quadruped.mpc.warp_decode import (
     NUM_FLAGS,
     Outputs,
@@ -84,7 +85,6 @@ class DeviceSolve:
         self.cfg, self.model, self.b, self.g = cfg, mpc.model, b, g
         self.m, self.n, self.dim = cfg.num_samples, cfg.horizon, encoded_dim(cfg.encoding)
         self.device, self.wp_device = dev, warp_kernel.wp_device(dev)
-        self.parts = warp_kernel.parts_for(self.m)
         z = lambda *shape, dtype=torch.float32: torch.zeros(shape, dtype=dtype, device=dev)
         names = ("x", "phase", "base_xy", "base_yaw", "terrain_z", "h_ref", "vel_ref", "wz_ref", "foothold")
         widths = (24, 4, 2, 1, 4, 1, 2, 1, 12)
@@ -95,7 +95,7 @@ class DeviceSolve:
         self.seed = z(1, dtype=torch.int64)
         self.counter = mpc.solve_counter()
         self.costs = z(b, self.m)
-        self.part_cost, self.part_index = z(b, self.parts), z(b, self.parts, dtype=torch.int32)
+        self.argmin = ArgminTree(b, self.m, dev)
         self.group, self.perturb = mpc.sample_layout(props)
         self.shapes = _fields(b, self.n, self.dim)
         self.out_f, self.out_i = z(_size(self.shapes[0])), z(_size(self.shapes[1]), dtype=torch.int64)
@@ -118,7 +118,8 @@ class DeviceSolve:
         return out
 
     def launch(self) -> None:
-        """The solve's four launches on the staged inputs (what the graph captures)."""
+        """The solve's launches on the staged inputs (what the graph captures): clean, rollout, the argmin's levels,
+        decode."""
         b, m, n, g, dim, dev = self.b, self.m, self.n, self.g, self.dim, self.wp_device
         s, c, a = self.staged, self._wp, lambda t: wp.from_torch(t.view(-1))
         seed = wp.from_torch(self.seed)
@@ -133,12 +134,9 @@ class DeviceSolve:
                                           "wz_ref", "foothold"))]
         costs = a(self.costs)
         warp_kernel.launch_rollout(self.cfg, b, m, g, dev, seed, self.consts, kernel_inputs, costs)
-        part_cost, part_index = a(self.part_cost), a(self.part_index)
-        wp.launch(warp_kernel.argmin_partial, dim=(b, self.parts), device=dev,
-                  inputs=[costs, m, self.parts, part_cost, part_index])
+        last = self.argmin.launch(costs, dev)
         wp.launch(decode_kernel(warp_kernel.bucket(dim)), dim=b, device=dev, inputs=[
-            m, n, g, dim, self.parts, seed, *self.consts, *kernel_inputs, costs, part_cost, part_index,
-            a(self.flags), self._outputs])
+            m, n, g, dim, seed, *self.consts, *kernel_inputs, costs, *last, a(self.flags), self._outputs])
 
     def stage(self, x: torch.Tensor, phase: torch.Tensor, frame: tuple, refs, warm: torch.Tensor) -> None:
         """Copy one solve's inputs into the staging buffers (device copies; a frame part not given is left)."""

@@ -21,6 +21,7 @@ from dls_quadruped.mpc.srbd import robot_srbd_model
 
 wp = pytest.importorskip("warp")
 warp_kernel = pytest.importorskip("dls_quadruped.mpc.warp_kernel")
+warp_argmin = pytest.importorskip("dls_quadruped.mpc.warp_argmin")
 
 ENCODINGS = [("first", "spline", 10), ("discrete", "discrete", 5), ("spline", "first", 7), ("spline", "spline", 10)]
 LAYOUTS = [(1.0,), (0.3, 0.7), (0.7, 0.3), (0.5, 0.5)]
@@ -68,7 +69,7 @@ def test_warp_costs_and_argmin_agree_with_cpp(cpp_lib, enc_p, enc_F, horizon, pr
     costs = KERNEL_REGISTRY.get("warp")(inp, cfg, model)
     assert costs.shape == (16, 300) and torch.isfinite(cpp).all()
     _assert_agree(costs, cpp)
-    best_cost, best_index = warp_kernel.warp_argmin(costs)
+    best_cost, best_index = warp_argmin.warp_argmin(costs)
     cpp_best, cpp_index = cpp.min(dim=1)  # the cpp kernel's mpc_solve: the first minimum of each row
     assert (best_index == cpp_index).float().mean() >= 0.99
     assert torch.equal(best_cost, costs.gather(1, best_index[:, None])[:, 0])
@@ -84,31 +85,35 @@ def test_argmin_over_many_problems_and_a_large_m(cpp_lib, perturbed_standing):
     cpp = cpp_kernel.cpp_costs(inp, cfg, model, cpp_lib)
     costs = warp_kernel.warp_costs(inp, cfg, model)
     _assert_agree(costs, cpp)
-    _, index = warp_kernel.warp_argmin(costs)
+    _, index = warp_argmin.warp_argmin(costs)
     assert (index == cpp.min(dim=1).indices).float().mean() >= 0.99
 
 
 def test_argmin_ties_go_to_the_lowest_index():
-    """Hand-made rows: ties inside one partial scan, across partials (t and t + T), all +inf, a single sample, and
-    M < T: the first minimum, as torch.min and the cpp kernel's strict '<' scan."""
-    m = 600  # T = 256: samples 3, 259 and 515 share partial 3
-    rows = torch.full((6, m), 5.0)
-    rows[0, [3, 259, 515]] = 1.0  # one partial, three ties -> 3
-    rows[1, [300, 44]] = 1.0  # partial 44 (index 300) and partial 44 (index 44) -> 44
-    rows[2, [599, 2]] = 0.5  # different partials -> 2
+    """Hand-made rows: ties inside one level-1 thread, across threads (the last stage's tie rule), across levels of a
+    3-level tree, all +inf, a single sample and M <= 32 (no level): the first minimum, as torch.min and the cpp
+    kernel's strict '<' scan."""
+    m = 600  # plan: 19 level-1 threads (thread t: samples t, t + 19, ...), then the last stage scans 19
+    assert warp_argmin.plan(m) == (19,) and warp_argmin.plan(40000) == (1250, 40, 2) and warp_argmin.plan(32) == ()
+    rows = torch.full((5, m), 5.0)
+    rows[0, [41, 22, 3]] = 1.0  # one thread (3 mod 19), three ties -> 3
+    rows[1, [300, 44]] = 1.0  # threads 15 and 6 -> 44
+    rows[2, [599, 2]] = 0.5  # -> 2
     rows[3] = float("inf")  # every sample diverged -> 0
-    rows[4, 255] = 0.0
-    rows[4, 511] = 0.0  # partials 255 and 255 -> 255
-    rows[5, 0] = 7.0
-    rows[5, 1:] = torch.arange(1, m, dtype=torch.float32)  # minimum at index 1
-    best_cost, best_index = warp_kernel.warp_argmin(rows)
+    rows[4, 1:] = torch.arange(1, m, dtype=torch.float32)  # minimum at index 1 (row 4, sample 0 stays 5)
+    best_cost, best_index = warp_argmin.warp_argmin(rows)
     expected = torch.min(rows, dim=1)
-    assert best_index.tolist() == [3, 44, 2, 0, 255, 1] == expected.indices.tolist()
+    assert best_index.tolist() == [3, 44, 2, 0, 1] == expected.indices.tolist()
     assert torch.equal(best_cost, expected.values)
-    single = warp_kernel.warp_argmin(torch.tensor([[3.0], [float("inf")]]))
+    big = torch.full((3, 40000), 2.0)
+    big[0, [39999, 31250, 17]] = -1.0  # ties in different level-1, level-2 and level-3 groups -> 17
+    big[1, 39999] = 0.0  # the last sample alone
+    big[2, [1250 * 7 + 3, 3]] = 0.0  # level-1 thread 3 twice -> 3
+    assert warp_argmin.warp_argmin(big)[1].tolist() == [17, 39999, 3] == torch.min(big, dim=1).indices.tolist()
+    single = warp_argmin.warp_argmin(torch.tensor([[3.0], [float("inf")]]))
     assert single[1].tolist() == [0, 0]
     small = torch.tensor([[2.0, 1.0, 1.0, 4.0]])
-    assert warp_kernel.warp_argmin(small)[1].tolist() == [1]
+    assert warp_argmin.warp_argmin(small)[1].tolist() == [1]
 
 
 def test_warp_matches_reference_sigma_off_and_nan_state(cpp_lib, standing):
