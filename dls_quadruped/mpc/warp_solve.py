@@ -152,12 +152,20 @@ class DeviceSolve:
         s["foothold"].copy_(refs.foothold_w.reshape(-1, 12))
         s["warm"].copy_(warm)
 
+    def execute(self) -> None:
+        """Replay (or launch) the solve on the staged inputs, ordered after torch's queued work and before torch's
+        later work on CUDA: a direct launch runs on torch's current stream, a capture and its replays on the graph's
+        own stream (CUDA cannot capture the legacy default stream) between two event waits (``StepGraph``)."""
+        if self.device.type != "cuda":
+            self.graph()
+            return
+        torch_stream = wp.stream_from_torch(torch.cuda.current_stream(self.device))
+        with wp.ScopedStream(torch_stream, sync_enter=False, sync_exit=False):
+            self.graph(torch_stream)
+
     def run(self) -> MPCResult:
-        """Replay (or launch) the solve on the staged inputs; the result's tensors are views of fresh copies."""
-        torch_stream = None
-        if self.device.type == "cuda":
-            torch_stream = wp.stream_from_torch(torch.cuda.current_stream(self.device))
-        self.graph(torch_stream)
+        """:meth:`execute`, then the result: views of fresh copies of the output buffers."""
+        self.execute()
         fields = {}
         for buf, shapes in zip((self.out_f, self.out_i, self.out_b), self.shapes, strict=True):
             fields.update(_views(buf.clone(), shapes))
