@@ -12,7 +12,9 @@ launched and a captured warm-up solve:
 * ``latency_ms``: on CUDA, one solve then a synchronisation, median wall time (what a caller that reads the action
   at once waits).
 
-On the CPU (Warp's CPU device) the ``cpp`` kernel's fused solve is timed on the same problems, side by side.
+On the CPU (Warp's CPU device) the ``cpp`` kernel's fused solve is timed on the same problems, side by side. First,
+unless ``--no-check``, the kernel's costs against the eager ``reference`` kernel on the same device and a captured
+device solve against a launched one (:func:`check`, recorded in the JSON's ``machine.check``).
 Writes JSON (``--out``, atomically) and prints a table. Imports neither MuJoCo nor YAML: the SRBD model comes from
 the MJCF when MuJoCo is installed, else :data:`ALIENGO_SRBD` (the same model, computed once from the MJCF), so the
 command runs on a GPU node that has only torch, numpy and Warp.
@@ -134,6 +136,39 @@ def _per_call_ms(fn, count: int, device: torch.device) -> float:
     return statistics.median(times)
 
 
+def check(device: torch.device, model: SRBDModel) -> dict:
+    """The kernel against the eager ``reference`` kernel on ``device`` (B = 8, M = 512, N = 10, two warm-start groups)
+    and a captured device solve against a launched one: a few seconds, before any timing."""
+    from dls_quadruped.mpc.kernel import KernelInputs, reference_costs
+    from dls_quadruped.mpc.samples import group_layout
+    from dls_quadruped.mpc.warp_argmin import warp_argmin
+    from dls_quadruped.mpc.warp_kernel import warp_costs
+
+    cfg = SamplerConfig(num_samples=512, horizon=10)
+    b = 8
+    state, refs, phase = problem(b, device)
+    ws0 = warm_start.nominal_trot(b, cfg).to(device)
+    group, perturb, _ = group_layout(cfg.num_samples, (0.5, 0.5))
+    inp = KernelInputs(torch.tensor(77, device=device), torch.stack([ws0, warm_start.nominal_trot(
+        b, cfg, freq=1.8).to(device)], dim=1), group.to(device), perturb.to(device), state.as_vector(), phase,
+        0.1 * torch.ones(b, 2, device=device), state.euler[:, 2].contiguous(), torch.zeros(b, 4, device=device), refs)
+    costs, ref = warp_costs(inp, cfg, model), reference_costs(inp, cfg, model)
+    rel = ((costs - ref).abs() / ref.abs().clamp_min(1.0)).flatten()
+    _, index = warp_argmin(costs)
+    out = {"max_rel_vs_reference": float(rel.max()), "median_rel_vs_reference": float(rel.median()),
+           "argmin_same_as_reference": float((index == ref.min(dim=1).indices).float().mean())}
+    results = []
+    for capture in (True, False):
+        mpc = SamplingMPC(SamplerConfig(num_samples=512, horizon=10, kernel="warp"), model=model, device=device)
+        mpc.capture = capture
+        for _ in range(3):
+            r = mpc.solve(state, refs, [mpc.naive_warm_start(ws0)], phase=phase)
+        results.append(r)
+    out["captured_equals_launched"] = bool(torch.equal(results[0].best_encoded, results[1].best_encoded)
+                                           and torch.equal(results[0].best_index, results[1].best_index))
+    return out
+
+
 def table(rows: list[dict]) -> str:
     """Markdown: one line per (device, kernel, B, M)."""
     lines = ["| device | kernel | B | M | solve [ms] | graph [ms] | latency [ms] | samples/s | first call [s] |",
@@ -175,9 +210,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--horizon", type=int, default=10)
     p.add_argument("--solves", type=int, default=50, help="timed solves per point at most (default 50)")
     p.add_argument("--point-s", type=float, default=2.0, help="seconds of timed solves per point at most")
-    p.add_argument("--budget-s", type=float, default=120.0, help="the run's seconds: later points are skipped")
+    p.add_argument("--budget-s", type=float, default=120.0,
+                   help="seconds for the run: once spent, the remaining points are skipped (the first always runs)")
     p.add_argument("--max-work", type=float, default=4.2e9, help="largest B M timed (costs: 4 B M bytes)")
     p.add_argument("--no-cpp", action="store_true", help="on the CPU, skip the cpp kernel's rows")
+    p.add_argument("--no-check", action="store_true", help="skip the check against the reference kernel")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (default: torch's choice)")
     p.add_argument("--out", type=Path, default=Path(os.environ.get("OUT", "results/bench")) / "mpc_warp.json")
     args = p.parse_args(argv)
@@ -197,6 +234,11 @@ def main(argv: list[str] | None = None) -> int:
     kernels = ["warp"] + ([] if cuda or args.no_cpp else ["cpp"])
     model, source = srbd_model()
     info = {**machine(device), "srbd_model": source}
+    if not args.no_check:
+        tic = time.perf_counter()
+        info["check"] = check(device, model)
+        print(f"[mpc_warp] check ({time.perf_counter() - tic:.1f} s, Warp compiles included): {info['check']}",
+              flush=True)
     points = sorted(((b, m) for b in bs for m in ms), key=lambda bm: (bm[0] * bm[1], bm[1]))
     rows, start = [], time.perf_counter()
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -205,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
             base = {"B": b, "M": m, "N": args.horizon, "kernel": kernel, "device": str(device)}
             if b * m > args.max_work:
                 rows.append({**base, "skipped": f"B M > --max-work {args.max_work:.3g}"})
-            elif time.perf_counter() - start > args.budget_s:
+            elif any("solve_ms" in r for r in rows) and time.perf_counter() - start > args.budget_s:
                 rows.append({**base, "skipped": "over --budget-s"})
             else:
                 try:
