@@ -75,6 +75,20 @@ def problem(b: int, device: torch.device) -> tuple[SRBDState, Refs, torch.Tensor
     return state, refs, phase.to(device)
 
 
+def predict_s(timed: list[dict], work: int) -> float:
+    """Seconds a point of B M = ``work`` will take (~8 solves: 2 warm-up, >= 3 timed, >= 3 replays), from the last two
+    timed points (in order of work) as a fixed cost plus a cost per sample; 0 before any."""
+    if not timed:
+        return 0.0
+    last = timed[-1]
+    w1, t1 = last["B"] * last["M"], last["solve_ms"]
+    rate = 0.0
+    if len(timed) > 1:
+        w0, t0 = timed[-2]["B"] * timed[-2]["M"], timed[-2]["solve_ms"]
+        rate = max(0.0, (t1 - t0) / (w1 - w0)) if w1 > w0 else 0.0
+    return 8e-3 * (t1 + rate * max(0, work - w1))
+
+
 def time_point(b: int, m: int, n: int, kernel: str, device: torch.device, model: SRBDModel, solves: int,
                point_s: float) -> dict:
     """One grid point (module doc); at most ~``point_s`` seconds of timed solves after the warm-up."""
@@ -245,10 +259,14 @@ def main(argv: list[str] | None = None) -> int:
     for b, m in points:
         for kernel in kernels:
             base = {"B": b, "M": m, "N": args.horizon, "kernel": kernel, "device": str(device)}
+            timed = [r for r in rows if "solve_ms" in r and r["kernel"] == kernel]
+            left = args.budget_s - (time.perf_counter() - start)
+            predicted = predict_s(timed, b * m)
             if b * m > args.max_work:
                 rows.append({**base, "skipped": f"B M > --max-work {args.max_work:.3g}"})
-            elif any("solve_ms" in r for r in rows) and time.perf_counter() - start > args.budget_s:
-                rows.append({**base, "skipped": "over --budget-s"})
+            elif any("solve_ms" in r for r in rows) and (left <= 0 or predicted > left):
+                rows.append({**base, "skipped": "over --budget-s" if left <= 0 else
+                             f"predicted {predicted:.0f} s > the {left:.0f} s left of --budget-s"})
             else:
                 try:
                     rows.append(time_point(b, m, args.horizon, kernel, device, model, args.solves, args.point_s))

@@ -56,14 +56,10 @@ def _fields(b: int, n: int, dim: int) -> tuple[dict, dict, dict]:
 
 
 def _views(flat: torch.Tensor, shapes: dict) -> dict[str, torch.Tensor]:
-    out, start = {}, 0
-    for name, shape in shapes.items():
-        size = 1
-        for s in shape:
-            size *= s
-        out[name] = flat[start:start + size].view(shape)
-        start += size
-    return out
+    """{name: the field's view of ``flat``}: one split, then a view where the field is not one-dimensional."""
+    parts = torch.split(flat, [torch.Size(s).numel() for s in shapes.values()])
+    return {name: part if len(shape) == 1 else part.view(shape)
+            for (name, shape), part in zip(shapes.items(), parts, strict=True)}
 
 
 def _size(shapes: dict) -> int:

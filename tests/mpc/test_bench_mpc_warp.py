@@ -12,7 +12,7 @@ import pytest
 
 pytest.importorskip("warp")
 
-from dls_quadruped.bench import mpc_warp  # noqa: E402
+from dls_quadruped.bench import mpc_warp
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -83,3 +83,10 @@ def test_runs_without_mujoco_yaml_or_rsl_rl(tmp_path):
 
 def _flat(model) -> list[float]:
     return [model.mass, *(v for row in model.inertia_b for v in row), *model.com_offset_b, model.gravity]
+
+
+def test_prediction_is_fixed_cost_plus_cost_per_sample():
+    rows = [{"B": 1, "M": 1000, "solve_ms": 0.2}, {"B": 1, "M": 11000, "solve_ms": 0.3}]  # 1e-5 ms per sample
+    assert mpc_warp.predict_s([], 10**9) == 0.0
+    assert mpc_warp.predict_s(rows[:1], 10**6) == pytest.approx(8 * 0.2e-3)  # one point: its time, no growth
+    assert mpc_warp.predict_s(rows, 1_011_000) == pytest.approx(8e-3 * (0.3 + 1e-5 * 1_000_000))
