@@ -29,40 +29,40 @@ def plan(m: int) -> tuple[int, ...]:
     return tuple(widths)
 
 
+_F2 = wp.array2d(dtype=wp.float32)
+_I2 = wp.array2d(dtype=wp.int32)
+
+
 @wp.kernel(enable_backward=False)
-def argmin_reduce(cost_in: wp.array(dtype=wp.float32), index_in: wp.array(dtype=wp.int32), first: int, n_in: int,
-                  n_out: int, cost_out: wp.array(dtype=wp.float32), index_out: wp.array(dtype=wp.int32)):
-    """Thread (b, t): the first minimum of robot b's entries t, t + n_out, ... of n_in (``first`` = 1: the entries
-    are the costs themselves, their index their position; else partials with their sample index)."""
+def argmin_reduce(cost_in: _F2, index_in: _I2, first: int, n_out: int, cost_out: _F2, index_out: _I2):
+    """Thread (b, t): the first minimum of robot b's entries t, t + n_out, ... of its row of ``cost_in`` (``first``
+    = 1: the (B, M) costs themselves, an entry's index its column; else partials with their sample index)."""
     b, t = wp.tid()
     best = wp.float32(wp.inf)
     arg = wp.int32(-1)
-    row = wp.int64(b) * wp.int64(n_in)
-    for j in range(t, n_in, n_out):
-        c = cost_in[row + wp.int64(j)]
+    for j in range(t, cost_in.shape[1], n_out):
+        c = cost_in[b, j]
         i = j
         if first == 0:
-            i = wp.int32(index_in[row + wp.int64(j)])
+            i = wp.int32(index_in[b, j])
         if arg < 0 or c < best or (c == best and i < arg):
             best = c
             arg = i
-    cost_out[b * n_out + t] = best
-    index_out[b * n_out + t] = arg
+    cost_out[b, t] = best
+    index_out[b, t] = arg
 
 
 @wp.func
-def argmin_final(cost: wp.array(dtype=wp.float32), index: wp.array(dtype=wp.int32), first: int, n: int,
-                 b: int) -> int:
-    """Robot b's first minimum from its last ``n`` (<= :data:`FAN_IN`) entries (``first`` as in
+def argmin_final(cost: _F2, index: _I2, first: int, n: int, b: int) -> int:
+    """Robot b's first minimum from the ``n`` (<= :data:`FAN_IN`) entries of its row (``first`` as in
     :func:`argmin_reduce`)."""
     best = wp.float32(wp.inf)
     arg = wp.int32(-1)
-    row = wp.int64(b) * wp.int64(n)
     for j in range(n):
-        c = cost[row + wp.int64(j)]
+        c = cost[b, j]
         i = j
         if first == 0:
-            i = wp.int32(index[row + wp.int64(j)])
+            i = wp.int32(index[b, j])
         if arg < 0 or c < best or (c == best and i < arg):
             best = c
             arg = i
@@ -70,14 +70,13 @@ def argmin_final(cost: wp.array(dtype=wp.float32), index: wp.array(dtype=wp.int3
 
 
 @wp.kernel(enable_backward=False)
-def argmin_rows(cost: wp.array(dtype=wp.float32), index: wp.array(dtype=wp.int32), first: int, n: int,
-                costs: wp.array(dtype=wp.float32), m_total: int, best_cost: wp.array(dtype=wp.float32),
+def argmin_rows(cost: _F2, index: _I2, first: int, n: int, costs: _F2, best_cost: wp.array(dtype=wp.float32),
                 best_index: wp.array(dtype=wp.int64)):
     """Thread b: robot b's first minimum (:func:`argmin_final`) and its cost in the (B, M) ``costs``."""
     b = wp.tid()
     arg = argmin_final(cost, index, first, n, b)
     best_index[b] = wp.int64(arg)
-    best_cost[b] = costs[wp.int64(b) * wp.int64(m_total) + wp.int64(arg)]
+    best_cost[b] = costs[b, arg]
 
 
 class ArgminTree:
@@ -87,16 +86,16 @@ class ArgminTree:
 
     def __init__(self, b: int, m: int, device: torch.device) -> None:
         self.b, self.m, self.widths = b, m, plan(m)
-        self.levels = [(torch.empty(b * w, dtype=torch.float32, device=device),
-                        torch.empty(b * w, dtype=torch.int32, device=device)) for w in self.widths]
+        self.levels = [(torch.empty(b, w, dtype=torch.float32, device=device),
+                        torch.empty(b, w, dtype=torch.int32, device=device)) for w in self.widths]
         self._wp = [(wp.from_torch(c), wp.from_torch(i)) for c, i in self.levels]
-        self._dummy = wp.from_torch(torch.zeros(1, dtype=torch.int32, device=device))
+        self._dummy = wp.from_torch(torch.zeros(1, 1, dtype=torch.int32, device=device))
 
     def launch(self, costs: wp.array, device: str, stream=None) -> tuple:
-        """Launch the levels on the flat (B M) ``costs``; returns :attr:`last`."""
+        """Launch the levels on the (B, M) ``costs``; returns :attr:`last`."""
         src, index, first, n = costs, self._dummy, 1, self.m
         for width, (c, i) in zip(self.widths, self._wp, strict=True):
-            wp.launch(argmin_reduce, dim=(self.b, width), inputs=[src, index, first, n, width, c, i], device=device,
+            wp.launch(argmin_reduce, dim=(self.b, width), inputs=[src, index, first, width, c, i], device=device,
                       stream=stream)
             src, index, first, n = c, i, 0, width
         self.last = (src, index, first, n)
@@ -116,8 +115,8 @@ def warp_argmin(costs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     best_cost = torch.empty(b, dtype=torch.float32, device=costs.device)
     best_index = torch.empty(b, dtype=torch.int64, device=costs.device)
     stream = wp.stream_from_torch(torch.cuda.current_stream(costs.device)) if costs.is_cuda else None
-    flat = wp.from_torch(costs.view(-1))
-    last = tree.launch(flat, dev, stream)
-    wp.launch(argmin_rows, dim=b, inputs=[*last, flat, m, wp.from_torch(best_cost), wp.from_torch(best_index)],
+    table = wp.from_torch(costs)
+    last = tree.launch(table, dev, stream)
+    wp.launch(argmin_rows, dim=b, inputs=[*last, table, wp.from_torch(best_cost), wp.from_torch(best_index)],
               device=dev, stream=stream)
     return best_cost, best_index

@@ -171,7 +171,8 @@ def decode_kernel(size: int):
                prm: _F32, sigma: _F32, lo: _F32, hi: _F32, dec_idx: wp.array(dtype=wp.int32), dec_w: _F32,
                warm: _F32, group: wp.array(dtype=wp.int64), perturb: _F32, x0: _F32, phase: _F32, base_xy: _F32,
                base_yaw: _F32, terrain_z: _F32, h_ref: _F32, vel_ref: _F32, wz_ref: _F32, foothold: _F32,
-               costs: _F32, last_cost: _F32, last_index: wp.array(dtype=wp.int32), last_first: int, last_n: int,
+               costs: wp.array2d(dtype=wp.float32), last_cost: wp.array2d(dtype=wp.float32),
+               last_index: wp.array2d(dtype=wp.int32), last_first: int, last_n: int,
                flags: _U8, out: Outputs):
         b = wp.tid()
         arg = argmin_final(last_cost, last_index, last_first, last_n, b)
@@ -244,7 +245,7 @@ def decode_kernel(size: int):
                 + x0[xb + 6] * x0[xb + 6] * prm[41] + x0[xb + 7] * x0[xb + 7] * prm[42]
                 + x0[xb + 9] * x0[xb + 9] * prm[43] + x0[xb + 10] * x0[xb + 10] * prm[44] + ewz * ewz * prm[45])
         out.initial_cost[b] = wp.where(bad or wp.isnan(init), inf, init)
-        out.best_cost[b] = wp.where(bad, inf, costs[wp.int64(b) * wp.int64(m_total) + wp.int64(arg)])
+        out.best_cost[b] = wp.where(bad, inf, costs[b, arg])
         out.best_input_cost[b] = wp.where(bad, inf, input_total)
         out.best_index[b] = wp.where(bad, wp.int64(-1), wp.int64(arg))
         out.warm_start_index[b] = wp.where(bad, wp.int64(-1), group[arg])

@@ -77,7 +77,7 @@ def rollout_kernel(size: int):
                 base_yaw: wp.array(dtype=wp.float32), terrain_z: wp.array(dtype=wp.float32),
                 h_ref: wp.array(dtype=wp.float32), vel_ref: wp.array(dtype=wp.float32),
                 wz_ref: wp.array(dtype=wp.float32), foothold: wp.array(dtype=wp.float32),
-                costs: wp.array(dtype=wp.float32)):
+                costs: wp.array2d(dtype=wp.float32)):
         b, m = wp.tid()
         key = seed_key(seed[0])
         dt, mass, grav = prm[0], prm[1], prm[2]
@@ -191,8 +191,7 @@ def rollout_kernel(size: int):
             total += (prm[37] * ez * ez + prm[38] * evx * evx + prm[39] * evy * evy + prm[40] * vz * vz
                       + prm[41] * ro * ro + prm[42] * pi * pi + prm[43] * wx * wx + prm[44] * wy * wy
                       + prm[45] * ewz * ewz + prm[46] * rcost)
-        # NaN cost = +inf; the (B, M) index in int64: B M passes 2^31 at B = 4 096, M = 10^6
-        costs[wp.int64(b) * wp.int64(m_total) + wp.int64(m)] = wp.where(wp.isnan(total), wp.inf, total)
+        costs[b, m] = wp.where(wp.isnan(total), wp.inf, total)  # NaN cost = +inf
 
     return rollout
 
@@ -237,6 +236,6 @@ def warp_costs(inp, cfg: SamplerConfig, model: SRBDModel) -> torch.Tensor:
     consts = [wp.from_torch(t) for t in device_constants(cfg, model, str(device))]
     stream = wp.stream_from_torch(torch.cuda.current_stream(device)) if device.type == "cuda" else None
     launch_rollout(cfg, b, m, g, dev, wp.from_torch(seed), consts, [wp.from_torch(t) for t in tensors],
-                   wp.from_torch(costs.view(-1)), stream)
+                   wp.from_torch(costs), stream)
     return costs
 

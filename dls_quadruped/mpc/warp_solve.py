@@ -128,7 +128,7 @@ class DeviceSolve:
         kernel_inputs = [c["warm"], wp.from_torch(self.group), wp.from_torch(self.perturb),
                          *(c[k] for k in ("x", "phase", "base_xy", "base_yaw", "terrain_z", "h_ref", "vel_ref",
                                           "wz_ref", "foothold"))]
-        costs = a(self.costs)
+        costs = wp.from_torch(self.costs)  # (B, M): a flat array's 32-bit length would stop at B M = 2^31
         warp_kernel.launch_rollout(self.cfg, b, m, g, dev, seed, self.consts, kernel_inputs, costs)
         last = self.argmin.launch(costs, dev)
         wp.launch(decode_kernel(warp_kernel.bucket(dim)), dim=b, device=dev, inputs=[
