@@ -37,6 +37,18 @@ from dls_quadruped.mpc import SamplerConfig, SamplingMPC, warm_start
 from dls_quadruped.mpc.cost import Refs
 from dls_quadruped.mpc.srbd import SRBDModel, SRBDState
 
+try:  # the package's command-line conventions; cli.py imports YAML, which a bare GPU node may lack
+    from dls_quadruped.cli import ArgumentParser, run_cli
+except ImportError:
+    run_cli = None
+
+    class ArgumentParser(argparse.ArgumentParser):  # type: ignore[no-redef]
+        """cli.ArgumentParser's one-line usage errors, without YAML."""
+
+        def error(self, message: str):
+            self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
 GPU_SAMPLES = (1000, 10000, 100000, 1000000)
 GPU_ROBOTS = (1, 64, 1024, 4096)
 CPU_SAMPLES = (1000, 10000)
@@ -217,7 +229,7 @@ def machine(device: torch.device) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m dls_quadruped.bench.mpc_warp", description=__doc__.split("\n\n")[0])
+    p = ArgumentParser(prog="dls_quadruped.bench.mpc_warp", description=__doc__.split("\n\n")[0])
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu", help="cpu or cuda[:k]")
     p.add_argument("--samples", type=int, nargs="+", default=None, help="M grid (default: 10^3 ... 10^6 on CUDA)")
     p.add_argument("--robots", type=int, nargs="+", default=None, help="B grid (default: 1 64 1024 4096 on CUDA)")
@@ -285,4 +297,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    if run_cli is not None:
+        run_cli(main)  # a bad flag or a user error: one line, exit 2; Ctrl-C: one line, exit 130
+    else:
+        sys.exit(main())
