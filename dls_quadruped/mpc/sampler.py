@@ -180,7 +180,8 @@ class SamplingMPC:
     def solve_counter(self) -> torch.Tensor:
         """(1,) int64 on the device: solves so far on the device path (each derives its noise seed from it there)."""
         if self._solve_counter is None:
-            self._solve_counter = torch.zeros(1, dtype=torch.int64, device=self.device)
+            with torch.inference_mode(False):  # advanced in place by every later solve, in inference mode or not
+                self._solve_counter = torch.zeros(1, dtype=torch.int64, device=self.device)
         return self._solve_counter
 
     def fallback_report(self) -> str:

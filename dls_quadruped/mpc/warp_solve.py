@@ -76,6 +76,10 @@ class DeviceSolve:
     """
 
     def __init__(self, mpc, b: int, g: int, props: tuple[float, ...], frame: tuple[bool, bool, bool]) -> None:
+        with torch.inference_mode(False):  # buffers written in place by later solves, in inference mode or not
+            self._build(mpc, b, g, props, frame)
+
+    def _build(self, mpc, b: int, g: int, props: tuple[float, ...], frame: tuple[bool, bool, bool]) -> None:
         warp_kernel.init()
         cfg, dev = mpc.cfg, mpc.device
         self.cfg, self.model, self.b, self.g = cfg, mpc.model, b, g

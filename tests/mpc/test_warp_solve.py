@@ -161,3 +161,17 @@ def test_arbitration_and_step_costs_take_the_torch_path():
     mpc.record_step_costs = True
     assert not mpc.uses_device_solve(1)
     assert not SamplingMPC(SamplerConfig(num_samples=100)).uses_device_solve(1)  # cpp on the CPU
+
+
+def test_inference_mode_then_not(perturbed_standing):
+    """The closed loop solves in inference mode, a test or a training step outside it: the same workspace serves
+    both (its buffers are made outside inference mode)."""
+    cfg = SamplerConfig(num_samples=100, horizon=10, kernel="warp")
+    state, refs, phase = perturbed_standing(2, 3)
+    mpc = SamplingMPC(cfg)
+    ws = warm_start.nominal_trot(2, cfg)
+    with torch.inference_mode():
+        first = mpc.solve(state, refs, [ws], phase=phase)
+    second = mpc.solve(state, refs, [ws], phase=phase)
+    assert len(mpc._device_solves) == 1 and not first.fallback.any() and not second.fallback.any()
+    assert not torch.equal(first.best_encoded, second.best_encoded)  # the counter moved: another draw
