@@ -14,7 +14,8 @@ launched and a captured warm-up solve:
 
 On the CPU (Warp's CPU device) the ``cpp`` kernel's fused solve is timed on the same problems, side by side. First,
 unless ``--no-check``, the kernel's costs against the eager ``reference`` kernel on the same device and a captured
-device solve against a launched one (:func:`check`, recorded in the JSON's ``machine.check``).
+device solve against a launched one, and on CUDA three solves under ``torch.cuda.set_sync_debug_mode("error")``
+(:func:`check`, recorded in the JSON's ``machine.check``).
 Writes JSON (``--out``, atomically) and prints a table. Imports neither MuJoCo nor YAML: the SRBD model comes from
 the MJCF when MuJoCo is installed, else :data:`ALIENGO_SRBD` (the same model, computed once from the MJCF), so the
 command runs on a GPU node that has only torch, numpy and Warp.
@@ -164,7 +165,8 @@ def _per_call_ms(fn, count: int, device: torch.device) -> float:
 
 def check(device: torch.device, model: SRBDModel) -> dict:
     """The kernel against the eager ``reference`` kernel on ``device`` (B = 8, M = 512, N = 10, two warm-start groups)
-    and a captured device solve against a launched one: a few seconds, before any timing."""
+    and a captured device solve against a launched one; on CUDA, whether torch counts a synchronising op in three
+    captured solves: a few seconds, before any timing."""
     from dls_quadruped.mpc.kernel import KernelInputs, reference_costs
     from dls_quadruped.mpc.samples import group_layout
     from dls_quadruped.mpc.warp_argmin import warp_argmin
@@ -183,15 +185,27 @@ def check(device: torch.device, model: SRBDModel) -> dict:
     _, index = warp_argmin(costs)
     out = {"max_rel_vs_reference": float(rel.max()), "median_rel_vs_reference": float(rel.median()),
            "argmin_same_as_reference": float((index == ref.min(dim=1).indices).float().mean())}
-    results = []
+    results, mpcs = [], []
     for capture in (True, False):
         mpc = SamplingMPC(SamplerConfig(num_samples=512, horizon=10, kernel="warp"), model=model, device=device)
         mpc.capture = capture
         for _ in range(3):
             r = mpc.solve(state, refs, [mpc.naive_warm_start(ws0)], phase=phase)
         results.append(r)
+        mpcs.append(mpc)
     out["captured_equals_launched"] = bool(torch.equal(results[0].best_encoded, results[1].best_encoded)
                                            and torch.equal(results[0].best_index, results[1].best_index))
+    if device.type == "cuda":  # torch's own count of synchronising ops in 3 solves (naive warm start included)
+        mpc = mpcs[0]  # the captured one
+        torch.cuda.set_sync_debug_mode("error")
+        try:
+            for _ in range(3):
+                mpc.solve(state, refs, [mpc.naive_warm_start(ws0)], phase=phase)
+            out["torch_sync_in_solve"] = "none"
+        except RuntimeError as err:
+            out["torch_sync_in_solve"] = str(err).splitlines()[0][:300]
+        finally:
+            torch.cuda.set_sync_debug_mode("default")
     return out
 
 
