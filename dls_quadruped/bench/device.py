@@ -7,9 +7,10 @@ Three measurements on one simulator backend (``sim/interface.py``) and torch dev
   each task (base, rough) and number of robots (256 ... 16 384 on a GPU); a size that does not fit in memory
   is recorded as such and the next task goes on;
 * **mpc**: the sampling MPC's solve for one robot at M samples (10 000 and 100 000), N = 10 (first-spline, forces
-  only), the median of ``--solves`` solves after warm-up, with the cost kernel's share (``torch`` kernels
-  ``fast``/``reference`` on the device; ``cpp`` only on the CPU); on CUDA each solve ends with a
-  synchronisation, so the time is what the argmin's host read-out waits for;
+  only), the median of ``--solves`` solves after warm-up, with the cost kernel's share (``warp``, the GPU default,
+  or the torch kernels ``fast``/``reference`` on the device; ``cpp`` only on the CPU); on CUDA each solve ends
+  with a synchronisation, so the time is what the action's host read-out waits for (the ``warp`` kernel's share
+  is the host's time for its graph launch: its cost against work is ``bench/mpc_warp.py``);
 * **closed loop**: the naive-warm-start MPC driving B robots of the simple task on the same backend and device,
   simulated robot-seconds per wall second with the kernel's share.
 
@@ -175,7 +176,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--warmup", type=int, default=3, help="env steps before timing (Warp compiles on the first)")
     p.add_argument("--samples", nargs="+", type=int, default=[10000, 100000], help="MPC samples M")
     p.add_argument("--horizon", type=int, default=10)
-    p.add_argument("--kernel", default=None, help="MPC kernel (default: fast on a GPU, cpp on the CPU)")
+    p.add_argument("--kernel", default=None, help="MPC kernel (default: warp on a GPU, cpp on the CPU)")
     p.add_argument("--solves", type=int, default=30)
     p.add_argument("--closed-loop-robots", nargs="*", type=int, default=None,
                    help="robots of the closed-loop rows (default 256 4096 on a GPU, 16 on the CPU; none: skip)")
@@ -197,7 +198,7 @@ def main(argv: list[str] | None = None) -> None:
         check_backend(backend)
     except ValueError as err:
         p.error(str(err))
-    kernel = args.kernel or ("fast" if gpu else "cpp")
+    kernel = args.kernel or ("warp" if gpu else "cpp")
     sizes = args.sizes or list(GPU_SIZES if gpu else CPU_SIZES)
     loop_robots = args.closed_loop_robots if args.closed_loop_robots is not None else ([256, 4096] if gpu else [16])
     result = {"machine": machine(device), "backend": backend, "kernel": kernel, "env": [], "mpc": [], "closed_loop": []}

@@ -18,7 +18,7 @@ from dls_quadruped.mpc.kernel_registry import KERNEL_REGISTRY
 
 ENCODING_KINDS = ("discrete", "spline", "first")
 KERNELS = KERNEL_REGISTRY.as_mapping()
-"""The cost kernels by name (a live view of ``KERNEL_REGISTRY``): ``fast``, ``reference``, ``cpp``."""
+"""The cost kernels by name (a live view of ``KERNEL_REGISTRY``): ``fast``, ``reference``, ``cpp``, ``warp``."""
 
 
 def _check_from_dict(cls: type, values: dict) -> None:
@@ -126,9 +126,10 @@ class SamplerConfig:
         sigma_F: [N] std of the force noise (per encoded parameter).
         mpc_period: [s] time between two solves (100 Hz); the naive warm start is shifted by
             mpc_period / dt horizon steps.
-        kernel: "cpp" (default: hand-written C++/OpenMP kernel built at first use; CPU only, falls
-            back to "fast" on other devices or if it cannot be built), "fast" (torch.compile'd fused
-            kernel, eager fallback) or "reference" (plain eager).
+        kernel: "cpp" (default: hand-written C++/OpenMP kernel built at first use; CPU only: on CUDA the solve
+            runs "warp" when Warp is installed, else "fast"; "fast" too if it cannot be built), "warp" (one Warp
+            kernel, a thread per sample, and the solve without host reads, ``mpc/warp_solve.py``; CUDA or Warp's
+            CPU device), "fast" (torch.compile'd fused kernel, eager fallback) or "reference" (plain eager).
         weights: cost weights.
         action: latent-action limits (Table 1), nominal footholds, mass, mu.
         switching_cost: [cost units of eq. 3.2.1] with several warm starts, added to the cost of every sample

@@ -88,15 +88,24 @@ def fit_spline(values: torch.Tensor, constrained: bool) -> torch.Tensor:
         raise ValueError(f"fit_spline needs a horizon H >= 4 to fit 4 parameters, got H = {horizon}")
     basis = spline_basis(horizon, torch.float64, values.device)  # fit in float64: X^T X is ill-conditioned-ish
     y = values.to(torch.float64).transpose(-1, -2).unsqueeze(-1)  # (..., n, H, 1)
+    fit = _fit_matrix(horizon, constrained, values.device)
     if not constrained:
-        theta = torch.linalg.solve(basis.T @ basis, basis.T @ y)  # eq. A.2.9
-        return theta.squeeze(-1).to(values.dtype)
-    free = basis[:, [0, 2, 3]]  # columns of theta_-1, theta_1, theta_2
+        return (fit @ y).squeeze(-1).to(values.dtype)  # eq. A.2.9
     y0 = y[..., :1, :]  # (..., n, 1, 1)
     y_free = y - basis[:, 1:2] * y0  # remove theta_0 = y_0's contribution (A.3's y')
-    theta_free = torch.linalg.solve(free.T @ free, free.T @ y_free).squeeze(-1)  # eq. A.3.2
+    theta_free = (fit @ y_free).squeeze(-1)  # eq. A.3.2
     theta = torch.cat([theta_free[..., :1], y0[..., 0, :], theta_free[..., 1:]], dim=-1)
     return theta.to(values.dtype)
+
+
+@constant_cache  # a constant per arguments (callers only read it): built once, not per solve
+def _fit_matrix(horizon: int, constrained: bool, device: torch.device | str) -> torch.Tensor:
+    """float64 least-squares operator of :func:`fit_spline`: (X^T X)^-1 X^T (4, H) of eq. A.2.9, or of the three
+    free columns (3, H) of eq. A.3.2. A constant per horizon: a fit is one matmul, with no linear solve whose error
+    check would read the device (``torch.linalg.solve`` on CUDA waits for its status)."""
+    basis = spline_basis(horizon, torch.float64, device)
+    design = basis if not constrained else basis[:, [0, 2, 3]]  # the columns of theta_-1, theta_1, theta_2
+    return torch.linalg.solve(design.T @ design, design.T)
 
 
 def _encode_block(seq: torch.Tensor, kind: str, constrained: bool) -> torch.Tensor:

@@ -1,7 +1,7 @@
 """The MPC's rollout + cost kernels by name: ``SamplerConfig.kernel`` -> the function that costs every sample.
 
 A kernel maps one solve's inputs to the (B, M) rollout costs of all samples, ``costs(inp: KernelInputs,
-cfg: SamplerConfig, model: SRBDModel) -> Tensor[(B, M)]``; the three built in have identical semantics
+cfg: SamplerConfig, model: SRBDModel) -> Tensor[(B, M)]``; the four built in have identical semantics
 (``mpc/kernel.py``)::
 
     KERNEL_REGISTRY.get("cpp")(inp, cfg, model)    # (B, M) costs
@@ -50,4 +50,6 @@ KERNEL_REGISTRY.register("fast", lazy_kernel("dls_quadruped.mpc.kernel:fast_cost
 KERNEL_REGISTRY.register("reference", lazy_kernel("dls_quadruped.mpc.kernel:reference_costs"),
                          "eager batched torch, the correctness anchor")
 KERNEL_REGISTRY.register("cpp", lazy_kernel("dls_quadruped.mpc.kernel:cpp_costs"),
-                         "hand-written C++/OpenMP built at first use, the CPU default; fast elsewhere")
+                         "hand-written C++/OpenMP built at first use, the CPU default; warp on CUDA (SamplingMPC)")
+KERNEL_REGISTRY.register("warp", lazy_kernel("dls_quadruped.mpc.warp_kernel:warp_costs"),
+                         "one Warp kernel, a thread per sample; CUDA or Warp's CPU device; the solve without host reads")

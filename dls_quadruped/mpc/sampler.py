@@ -16,6 +16,7 @@ finite action.
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import time
 from collections.abc import Sequence
@@ -49,6 +50,14 @@ from dls_quadruped.mpc.srbd import (
     robot_srbd_model,
     rotation_from_euler,
 )
+
+
+def resolved_kernel(name: str, device: torch.device) -> str:
+    """The kernel that runs for ``SamplerConfig.kernel`` = ``name`` on ``device``: ``cpp`` (the default) is ``warp`` on
+    CUDA when Warp is installed (the ``cpp`` kernel is CPU only), otherwise the name itself."""
+    if name == "cpp" and device.type == "cuda" and importlib.util.find_spec("warp") is not None:
+        return "warp"
+    return name
 
 
 class SamplingMPC:
@@ -87,6 +96,13 @@ class SamplingMPC:
         argmin and the winner's decoding in C++ calls, preallocated buffers); the same result bit for bit as the
         torch path that ``fused = False`` runs (and any other kernel or device)."""
         self._workspaces: dict[tuple[int, int], solve_glue.Workspace] = {}
+        self.capture = True
+        """With the ``warp`` kernel (:mod:`warp_solve`), replay each solve from a captured Warp graph (False: launch
+        its four kernels one by one; the same numbers)."""
+        self._device_solves: dict[tuple, object] = {}
+        self._solve_counter: torch.Tensor | None = None
+        self.last_device_solve = None
+        """The :class:`warp_solve.DeviceSolve` of the last device solve (its flags: :meth:`fallback_report`)."""
 
     # ------------------------------------------------------------------ warm starts
 
@@ -161,15 +177,46 @@ class SamplingMPC:
         average[result.fallback] = float("nan")
         self._arbitration = arbitration.Memory(result.warm_start_index.clone(), average)
 
+    def solve_counter(self) -> torch.Tensor:
+        """(1,) int64 on the device: solves so far on the device path (each derives its noise seed from it there)."""
+        if self._solve_counter is None:
+            with torch.inference_mode(False):  # advanced in place by every later solve, in inference mode or not
+                self._solve_counter = torch.zeros(1, dtype=torch.int64, device=self.device)
+        return self._solve_counter
+
+    def fallback_report(self) -> str:
+        """The last device solve's fallbacks in words (one host read; the torch path's ``reason``), "" if none."""
+        return self.last_device_solve.fallback_report() if self.last_device_solve is not None else ""
+
+    def uses_device_solve(self, num_warm_starts: int) -> bool:
+        """Whether a solve runs on the device path (:mod:`warp_solve`): the ``warp`` kernel (or ``cpp`` on CUDA with
+        Warp installed), ``fused`` on, no step-cost recording, no arbitration between several warm starts."""
+        kernel = resolved_kernel(self.cfg.kernel, self.device)
+        return (kernel == "warp" and self.fused and not self.record_step_costs
+                and not (self.cfg.arbitrates and num_warm_starts > 1))
+
+    def validate_shapes(self, state: SRBDState, refs: Refs, warm_starts: Sequence[torch.Tensor],
+                        proportions: Sequence[float] | None, phase: torch.Tensor,
+                        frame: tuple = (None, None, None)) -> tuple[torch.Tensor, tuple[float, ...]]:
+        """The argument checks that read no tensor data: types, shapes, proportions, M >= G. Returns the (B, G, D)
+        warm starts on the device and the proportions."""
+        return self._validate(state, refs, warm_starts, proportions, phase, read_data=False, frame=frame)
+
     def _validate(self, state: SRBDState, refs: Refs, warm_starts: Sequence[torch.Tensor],
-                  proportions: Sequence[float] | None, phase: torch.Tensor) -> tuple[torch.Tensor, tuple[float, ...]]:
+                  proportions: Sequence[float] | None, phase: torch.Tensor, read_data: bool = True,
+                  frame: tuple = (None, None, None)) -> tuple[torch.Tensor, tuple[float, ...]]:
         if not isinstance(state, SRBDState):
             raise ValueError(f"state must be an SRBDState, got {type(state).__name__}")  # noqa: TRY004
         state.validate()
         b = state.batch_size
         refs.validate(b)
         check_tensor("phase", phase, (b, 4))
-        check_phase(phase)
+        for name, value, shape in zip(("base_xy_w", "base_yaw", "terrain_z_w"), frame, ((b, 2), (b,), (b, 4)),
+                                      strict=True):
+            if value is not None:
+                check_tensor(name, value, shape)
+        if read_data:
+            check_phase(phase)
         if isinstance(warm_starts, torch.Tensor) or len(warm_starts) == 0:
             raise ValueError("warm_starts must be a non-empty list of (B, D) or (D,) encoded actions "
                              f"(D = {self.dim} for encoding p={self.cfg.encoding_p!r}, F={self.cfg.encoding_F!r})")
@@ -182,7 +229,7 @@ class SamplingMPC:
                     f"p={self.cfg.encoding_p!r}, F={self.cfg.encoding_F!r}, H={self.cfg.horizon}; "
                     f"got {tuple(getattr(ws, 'shape', ()))}"
                 )
-            if not solve_glue.all_finite(ws):
+            if read_data and not solve_glue.all_finite(ws):
                 raise ValueError(f"warm_starts[{g}] contains NaN/inf; every entry must be finite")
             rows.append(ws.to(self.device, torch.float32).expand(b, self.dim))
         if self.cfg.num_samples < num_ws:
@@ -232,6 +279,11 @@ class SamplingMPC:
         """
         if phase is None:
             raise ValueError("phase must be given: (B, 4) gait phase in [0, 1)")
+        if isinstance(warm_starts, Sequence) and self.uses_device_solve(len(warm_starts)):
+            from dls_quadruped.mpc import warp_solve  # imports Warp: only on this path
+
+            return warp_solve.solve(self, state, refs, warm_starts, proportions, phase, base_xy_w, base_yaw,
+                                    terrain_z_w)
         ws, props = self._validate(state, refs, warm_starts, proportions, phase)
         if self.fused and self.cfg.kernel == "cpp" and self.device.type == "cpu":
             kernel_lib = cpp_kernel.load()
@@ -274,7 +326,7 @@ class SamplingMPC:
         inp = KernelInputs(seed, ws, group, perturb, x0, clean["phase"], clean["base_xy_w"], clean["base_yaw"],
                            clean["terrain_z_w"], refs)
         tic = time.perf_counter()
-        costs = KERNEL_REGISTRY.get(self.cfg.kernel)(inp, self.cfg, self.model)
+        costs = KERNEL_REGISTRY.get(resolved_kernel(self.cfg.kernel, dev))(inp, self.cfg, self.model)
         if costs.is_cuda:
             torch.cuda.synchronize(costs.device)
         self.kernel_seconds += time.perf_counter() - tic

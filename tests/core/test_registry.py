@@ -87,8 +87,8 @@ def test_the_mpc_kernels_are_a_registry_and_the_sampler_calls_the_registered_one
     from dls_quadruped.mpc.kernel import reference_costs
     from dls_quadruped.mpc.kernel_registry import KERNEL_REGISTRY
 
-    assert tuple(KERNELS) == ("fast", "reference", "cpp") == KERNEL_REGISTRY.names()
-    with pytest.raises(ValueError, match=r"kernel must be one of \('fast', 'reference', 'cpp'\), got 'gpu'"):
+    assert tuple(KERNELS) == ("fast", "reference", "cpp", "warp") == KERNEL_REGISTRY.names()
+    with pytest.raises(ValueError, match=r"kernel must be one of \('fast', 'reference', 'cpp', 'warp'\), got 'gpu'"):
         SamplerConfig(kernel="gpu")
     calls = []
 
