@@ -6,7 +6,8 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 # torch is installed first and pinned, from PyTorch's CPU index by default: PyPI's Linux torch is the CUDA build,
 # several GB of CUDA libraries a CPU machine never uses (pip still takes a local wheel of the same version first,
-# e.g. from a find-links folder). On a GPU machine name a CUDA index (docs/install.md), e.g.
+# e.g. from a find-links folder; one retry, so an index out of reach costs seconds). On a GPU machine name a CUDA
+# index (docs/install.md), e.g.
 # `make TORCH_INDEX="--index-url https://download.pytorch.org/whl/cu128" install-gpu`; TORCH_INDEX= uses pip's own.
 TORCH_SPEC ?= torch==2.13.0
 TORCH_INDEX ?= --index-url https://download.pytorch.org/whl/cpu
@@ -25,7 +26,7 @@ TORCH_STAMP := $(VENV)/.torch-$(shell printf '%s|%s' '$(TORCH_SPEC)' '$(TORCH_IN
 $(TORCH_STAMP):
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	rm -f $(VENV)/.torch-*
-	$(PY) -m pip install -q --force-reinstall $(TORCH_INDEX) "$(TORCH_SPEC)"
+	$(PY) -m pip install -q --retries 1 --force-reinstall $(TORCH_INDEX) "$(TORCH_SPEC)"
 	touch $@
 
 $(STAMP): setup.py $(TORCH_STAMP)

@@ -57,7 +57,7 @@ def test_the_site_builds_strict(tmp_path):
         assert (site / page).is_file(), page
 
 
-LONG_USAGE_PAGES = {"env.md", "gpu.md", "mpc.md"}
+LONG_USAGE_PAGES = {"env.md", "mpc.md"}
 """Usage pages still over the limit: each holds measurements or history that belong on a report page (a split
 like train.md's and benchmarks.md's); this set only shrinks."""
 
