@@ -293,7 +293,7 @@ def _train(args: argparse.Namespace, ranks: Ranks) -> Path:
                 torch.manual_seed(int(torch.randint(2**62, (1,))) + ranks.rank)
             restored = "env state restored" if "env_state" in ckpt else "no env state in it: curricula start afresh"
             print(f"[train] resumed from {path} at iteration {runner.current_learning_iteration} ({restored}; "
-                  f"curriculum {dict(env.curriculum_manager.values)})", flush=True)
+                  f"curriculum {env.curriculum_manager.values_as_floats()})", flush=True)
         elif source is not None:
             path, ckpt = source
             try:
@@ -305,7 +305,7 @@ def _train(args: argparse.Namespace, ranks: Ranks) -> Path:
             print(f"[train] initialised actor and critic from {path} (its iteration {ckpt['iter']}; action std "
                   f"{'set to ' + str(args.init_std) if args.init_std is not None else 'kept'}); "
                   f"optimiser, iteration and env state start afresh (curriculum "
-                  f"{dict(env.curriculum_manager.values)}); normalisers go on from its statistics", flush=True)
+                  f"{env.curriculum_manager.values_as_floats()}); normalisers go on from its statistics", flush=True)
             if ranks.is_main:
                 write_yaml({"init_from": str(path), "iteration": int(ckpt["iter"]),
                             "sha256": sha256_file(path), "init_std": args.init_std}, run_dir / "init_from.yaml")

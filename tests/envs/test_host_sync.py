@@ -132,6 +132,23 @@ def test_cpu_step_reads_the_host_only_at_allowed_sites(overrides, interval_terms
     _check(report, steps, set(PER_STEP) | ON_RESET, interval_terms)
 
 
+def test_the_terrain_curriculum_reads_nothing_back_during_the_step():
+    """Rough (terrain levels moved at every reset): the curriculum's logged mean level stays on the device, so a step
+    with resets reads the host only where base's does."""
+    env = LocomotionEnv(load_task("rough", overrides={**SMALL, "env": {"episode_length_s": 0.2},
+                                                      "scene": {"backend": "cpu", "num_workers": 0}}),
+                        num_envs=4, seed=0, verbose=False)
+    try:
+        steps = 12
+        report, resets = _run(env, steps, exclude=CPU_BACKEND_FILES)
+        logged = env.curriculum_manager.values["terrain_levels"]
+    finally:
+        env.close()
+    assert resets > 4
+    assert isinstance(logged, torch.Tensor) and logged.dim() == 0
+    _check(report, steps, set(PER_STEP) | ON_RESET, 0)
+
+
 def test_pushes_read_with_the_resets_are_the_pushes_found_after_them(monkeypatch):
     """The robots a push term fires on, read before the resets (``EventManager.due``), are the ones ``apply``
     finds itself after them: two envs, one with ``due`` disabled, push the same robots at the same steps and give

@@ -46,7 +46,7 @@ def test_init_from_loads_networks_only(source, tmp_path, capsys, write_task, tra
     # env state afresh: the curriculum a new env of the task starts with, not the source's
     env = LocomotionEnv(load_task(write_task(tmp_path)), num_envs=ENVS, verbose=False)
     try:
-        start = dict(env.curriculum_manager.values)
+        start = env.curriculum_manager.values_as_floats()
     finally:
         env.close()
     assert printed_curriculum(line) == pytest.approx(start)

@@ -1,5 +1,7 @@
-"""Curriculum manager: terms ``term(env, env_ids, **params) -> float`` run for the envs being reset
-(before the other managers clear their episode data); values are logged as ``Curriculum/<term>``."""
+"""Curriculum manager: terms ``term(env, env_ids, **params) -> float | Tensor`` run for the envs being reset
+(before the other managers clear their episode data); values are logged as ``Curriculum/<term>``. A term may
+return a 0-dim tensor on the env's device so that logging it reads nothing back during the step (the logger
+reads once per iteration); ``values_as_floats`` and checkpoints convert."""
 
 from __future__ import annotations
 
@@ -50,20 +52,24 @@ class CurriculumManager(ManagerBase):
         self.terms = resolve_curriculum(task)
         check_reward_names(task, self.terms, list(env.reward_manager.weights))
         self.state: dict = {}
-        self.values: dict[str, float] = {}
+        self.values: dict[str, float | torch.Tensor] = {}
 
     def start(self) -> None:
         """Build-time call with no env (terms set their initial state)."""
         self.compute(torch.zeros(0, dtype=torch.long, device=self.env.device))
 
-    def compute(self, env_ids: torch.Tensor) -> dict[str, float]:
+    def compute(self, env_ids: torch.Tensor) -> dict[str, float | torch.Tensor]:
         for t in self.terms:
             self.values[t.name] = t(self.env, env_ids)
         return {f"Curriculum/{k}": v for k, v in self.values.items()}
 
+    def values_as_floats(self) -> dict[str, float]:
+        """The last value of each term as a Python float (reads tensors back: not for the step)."""
+        return {k: float(v) for k, v in self.values.items()}
+
     def state_dict(self) -> dict[str, Any]:
-        """``{"state": terms' state, "values": last value per term}``."""
-        return {"state": copy.deepcopy(self.state), "values": dict(self.values)}
+        """``{"state": terms' state, "values": last value per term}`` (floats)."""
+        return {"state": copy.deepcopy(self.state), "values": self.values_as_floats()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.check_state_dict(state)

@@ -1,4 +1,4 @@
-"""Curriculum terms (thesis 4.3.3): ``term(env, env_ids, **params) -> float`` (logged), called for the
+"""Curriculum terms (thesis 4.3.3): ``term(env, env_ids, **params) -> float | Tensor`` (logged), called for the
 envs being reset, before their episode sums are cleared. Each term is also called once when the
 env is built, with empty ``env_ids``, so it can set its initial state.
 """
@@ -19,7 +19,8 @@ def terrain_levels(env, env_ids: torch.Tensor, up_fraction: float = 0.5, down_fr
     so the straight-line rule demoted a perfect tracker on two thirds of the rough task's commands
     (omega ~ U[-0.8, 0.8]). A fall (the episode ended before its time-out) demotes unless the robot
     had already walked far enough to go up. A robot that solves the hardest row is sent to a random
-    row (keeps the hardest rows in use without forgetting). Returns the mean level.
+    row (keeps the hardest rows in use without forgetting). Returns the mean level, a 0-dim tensor on the env's
+    device (logging it reads nothing back during the step).
     """
     scene = env.scene
     if len(env_ids) > 0:
@@ -29,7 +30,7 @@ def terrain_levels(env, env_ids: torch.Tensor, up_fraction: float = 0.5, down_fr
         up = dist > up_fraction * scene.terrain.cfg.tile_size
         down = ((dist < down_fraction * asked) | fell) & ~up
         scene.update_levels(env_ids, up.long() - down.long())
-    return float(scene.terrain_levels.float().mean())
+    return scene.terrain_levels.float().mean()
 
 
 def command_speed_growth(env, env_ids: torch.Tensor, reward_term: str, threshold: float, step: float,
