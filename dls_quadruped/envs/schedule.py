@@ -171,10 +171,14 @@ class EpisodeSchedule:
             self._hashes[key] = hash32(torch.arange(size, device=self.device, dtype=torch.long))
         return self._hashes[key]
 
-    def uniform(self, env_ids: torch.Tensor, shape: tuple[int, ...] = (), low: float = 0.0, high: float = 1.0,
-                stream: str = "default") -> torch.Tensor:
-        """(n, *shape) float32 U[low, high) for the envs ``env_ids`` (n,), one draw of ``stream`` each."""
+    def uniform(self, env_ids: torch.Tensor, shape: tuple[int, ...] = (), low: float | torch.Tensor = 0.0,
+                high: float | torch.Tensor = 1.0, stream: str = "default") -> torch.Tensor:
+        """(n, *shape) float32 U[low, high) for the envs ``env_ids`` (n,), one draw of ``stream`` each. ``low`` and
+        ``high`` are numbers or 0-dim float64 tensors on the device (read by compiled code without a host read or
+        a recompile when they change; the same float32 result as the numbers)."""
         u = (self._bits(env_ids, tuple(shape), stream) >> 8).to(torch.float32) * (1.0 / 16777216.0)  # 24 bits / 2^24
+        if isinstance(low, torch.Tensor) or isinstance(high, torch.Tensor):
+            return low + (high - low) * u  # the span in float64, then float32 as with Python numbers
         return float(low) + (float(high) - float(low)) * u
 
     def integers(self, env_ids: torch.Tensor, low: int, high: int, shape: tuple[int, ...] = (),

@@ -66,14 +66,18 @@ def test_compiled_managers_run_under_inference_mode():
         fused = (env.reward_manager._compute, env.observation_manager._groups, env.termination_manager._compute,
                  env.action_manager._convert, env.fused(_placement))
         assert all(f.compiled for f in fused)
-        # a curriculum switching a weight on is a write into the tensor the compiled compute reads: no recompile
+        # a curriculum switching a weight on, or widening a command range, writes into tensors the compiled code
+        # reads: no recompile
         from torch._dynamo.utils import counters
 
         graphs = counters["stats"]["unique_graphs"]
         env.reward_manager.weights["action_rate"] = -1.0
+        env.command_manager.params["ang_vel_z"] = [-0.5, 0.5]  # as the speed curriculum widens a range
         with torch.inference_mode():
-            env.step(torch.randn(4, 28, generator=g))
+            for _ in range(3):
+                env.step(torch.randn(4, 28, generator=g))
         assert counters["stats"]["unique_graphs"] == graphs
+        assert env.command_manager._ranges["ang_vel_z"].tolist() == [-0.5, 0.5]
         assert env.reward_manager.step_reward[:, env.reward_manager.weights.index["action_rate"]].ne(0).any()
     finally:
         env.close()

@@ -268,6 +268,14 @@ def test_speed_curriculum_widens_forward_range():
         # 500 draws: successive draws of the 4 envs' schedules (each call advances their command stream)
         cmd = torch.cat([env.command_manager.term.func(env, ids, **cm.params) for _ in range(125)])
         assert cmd[:, 0].min() >= 0.0 and cmd[:, 0].max() <= 2.1 and cmd[:, 0].max() > 1.5
+        # what the (compiled) samplers read: the range's device tensor, synced from params outside compiled code
+        cm.sync_ranges()
+        assert cm._ranges["lin_vel_x"].tolist() == [0.0, pytest.approx(2.1)]
+        # the same numbers from the tensor ranges as from the Python lists, on the same schedule state
+        state = env.schedule.state_dict()
+        from_lists = env.command_manager.term.func(env, ids, **cm.params)
+        env.schedule.load_state_dict(state)
+        assert torch.equal(env.command_manager.term.func(env, ids, **cm._sampler_params()), from_lists)
     finally:
         env.close()
 

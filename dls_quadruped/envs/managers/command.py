@@ -34,6 +34,12 @@ from dls_quadruped.envs.managers.base import (
 from dls_quadruped.envs.mdp import commands as cmd_mdp
 
 
+def _is_range(value: Any) -> bool:
+    """A ``[low, high]`` parameter (two numbers)."""
+    return (isinstance(value, (list, tuple)) and len(value) == 2
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value))
+
+
 def resolve_command(task: TaskConfig) -> Term:
     """The ``commands`` section checked and resolved: exactly one term; ``resampling_time_s`` ordered, >= 0."""
     terms = resolve_terms(task, "commands", cmd_mdp, {"resampling_time_s": [10.0, 10.0]},
@@ -56,14 +62,31 @@ class CommandManager(ManagerBase):
         self.commanded_yaw = torch.zeros(env.num_envs, device=env.device)
         """(B,) [rad] that tracker's heading (the robot's at reset, then the integrated yaw rate)."""
         self._all_ids = torch.arange(env.num_envs, device=env.device)
+        # the [low, high] ranges as float64 device tensors the (compiled) samplers read: a curriculum that widens a
+        # range writes into them (sync_ranges) instead of changing a Python value the compiled code was traced with
+        self._ranges = {k: torch.tensor([float(x) for x in v], dtype=torch.float64, device=env.device)
+                        for k, v in self.params.items() if _is_range(v)}
+        self._range_values = {k: tuple(float(x) for x in self.params[k]) for k in self._ranges}
         compile_ = getattr(env, "compile", False)
         self._compute = Fused(self._compute_eager, compile_, "CommandManager.compute")
         self._integrate = Fused(self._integrate_eager, compile_, "CommandManager.integrate")
 
+    def sync_ranges(self) -> None:
+        """Copy ranges changed in ``params`` (by a curriculum, a checkpoint) into their device tensors: compares
+        Python values, uploads only a changed range. Called outside the compiled functions."""
+        for k, t in self._ranges.items():
+            value = tuple(float(x) for x in self.params[k])
+            if value != self._range_values[k]:
+                t.copy_(torch.tensor(value, dtype=torch.float64))
+                self._range_values[k] = value
+
+    def _sampler_params(self) -> dict[str, Any]:
+        return {k: self._ranges.get(k, v) for k, v in self.params.items()}
+
     def resample(self, env_ids: torch.Tensor) -> None:
         if len(env_ids) == 0:
             return
-        self.command[env_ids] = self.term.func(self.env, env_ids, **self.params).to(self.command)
+        self.command[env_ids] = self.term.func(self.env, env_ids, **self._sampler_params()).to(self.command)
         lo, hi = self.resampling_time_s
         self.time_left[env_ids] = self.env.schedule.uniform(env_ids, (), lo, hi, stream="command_time")
 
@@ -72,7 +95,9 @@ class CommandManager(ManagerBase):
 
         Masked, without reading on the host which expired: every env draws, only the expired ones keep
         their draws and advance their schedule streams (``EpisodeSchedule.only``), so the numbers are those of
-        resampling the expired envs alone. Compiled with ``scene.compile`` (a range a curriculum widens recompiles)."""
+        resampling the expired envs alone. Compiled with ``scene.compile``; the ranges are device tensors, so a
+        curriculum widening one does not recompile it."""
+        self.sync_ranges()
         self._compute(dt)
 
     def _compute_eager(self, dt: float) -> None:
@@ -80,7 +105,7 @@ class CommandManager(ManagerBase):
         expired = self.time_left <= 0.0
         ids = self._all_ids
         with self.env.schedule.only(expired):
-            command = self.term.func(self.env, ids, **self.params).to(self.command)
+            command = self.term.func(self.env, ids, **self._sampler_params()).to(self.command)
             lo, hi = self.resampling_time_s
             time_left = self.env.schedule.uniform(ids, (), lo, hi, stream="command_time")
         self.command.copy_(torch.where(expired[:, None], command, self.command))
@@ -117,6 +142,7 @@ class CommandManager(ManagerBase):
         self.check_state_dict(state)
         self.params.clear()
         self.params.update(copy.deepcopy(state["params"]))  # in place: the term holds this dict
+        self.sync_ranges()
 
     def summary(self) -> str:
         return format_table("commands", ("term", "function", "resampling_time_s", "params"),

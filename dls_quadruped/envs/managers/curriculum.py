@@ -61,6 +61,9 @@ class CurriculumManager(ManagerBase):
     def compute(self, env_ids: torch.Tensor) -> dict[str, float | torch.Tensor]:
         for t in self.terms:
             self.values[t.name] = t(self.env, env_ids)
+        command_manager = getattr(self.env, "command_manager", None)
+        if command_manager is not None:  # a range a term widened reaches the samplers before the reset resamples
+            command_manager.sync_ranges()
         return {f"Curriculum/{k}": v for k, v in self.values.items()}
 
     def values_as_floats(self) -> dict[str, float]:

@@ -11,8 +11,11 @@ from __future__ import annotations
 import torch
 
 
-def _uniform(env, env_ids: torch.Tensor, rng: tuple[float, float], width: int = 1) -> torch.Tensor:
-    """(n, width) U[rng) from the env's episode schedule (one draw of stream "command" per env)."""
+def _uniform(env, env_ids: torch.Tensor, rng: tuple[float, float] | torch.Tensor, width: int = 1) -> torch.Tensor:
+    """(n, width) U[rng) from the env's episode schedule (one draw of stream "command" per env); ``rng`` two numbers
+    or the command manager's (2,) float64 device tensor of a range a curriculum may widen."""
+    if isinstance(rng, torch.Tensor):
+        return env.schedule.uniform(env_ids, (width,), rng[0], rng[1], stream="command")
     return env.schedule.uniform(env_ids, (width,), float(rng[0]), float(rng[1]), stream="command")
 
 
