@@ -44,6 +44,7 @@ import torch
 from dls_quadruped.bench.device import env_steps, machine, mpc_solve
 from dls_quadruped.bench.gpu_probes import (
     WARMUP_STEPS,
+    faults,
     gpu_busy,
     launches,
     sync_device,
@@ -52,7 +53,8 @@ from dls_quadruped.bench.gpu_probes import (
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
 
-SECTIONS = ("versions", "compile", "trajectories", "syncs", "launches", "env", "gpu_busy", "mpc", "rough", "train")
+SECTIONS = ("versions", "compile", "trajectories", "syncs", "launches", "faults", "env", "gpu_busy", "mpc", "rough",
+            "train")
 
 
 class Report:
@@ -275,6 +277,7 @@ def main(argv: list[str] | None = None) -> None:
         ("syncs", lambda: syncs(backend, device, 256 if gpu else 4, 40 if gpu else 4, warmup)),
         ("launches", lambda: {"compiled": launches(backend, device, 4, 12, compile=True),
                               "eager": launches(backend, device, 4, 12, compile=False)}),
+        ("faults", lambda: faults(backend, device, 64 if gpu else 8)),
         ("env", lambda: {"rows": env_throughput(backend, device, big, steps, report,
                                                  reserve_s=0.35 * args.budget_s, warmup=warmup)}),
         ("gpu_busy", lambda: gpu_busy(backend, device, 4096, 10, warmup)),

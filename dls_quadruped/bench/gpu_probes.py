@@ -229,3 +229,51 @@ def gpu_busy(backend: str, device: torch.device, num_envs: int, steps: int, warm
             "kernel_s_per_step": kernel_s / steps, "busy_fraction": kernel_s / wall,
             "kernels_per_step": len(kernels) / steps,
             "note": "wall time from an unprofiled window, kernel time from a profiled one of as many steps"}
+
+
+FAULTY = {"nan_action": 1, "posinf_action": 2, "neginf_action": 3, "diverged_push": 4}
+"""The fault trials' robots: a NaN, a +inf and a -inf action row at one step, and a push at 5 km/s (beyond the
+backends' velocity bound) into the same step."""
+
+
+def faults(backend: str, device: torch.device, num_envs: int = 8, steps: int = 8, fault_step: int = 4) -> dict:
+    """Fault trials: the robots of ``FAULTY`` get their fault at policy step ``fault_step``; each must be reset
+    (done) at that step or the next, every observation must stay finite, and the other robots must run as in
+    the same env without faults (max |difference| of their observations; 0 on the CPU devices, where worlds do
+    not interact)."""
+    from dls_quadruped.envs.config import load_task
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    if num_envs <= max(FAULTY.values()):
+        raise ValueError(f"faults: num_envs must be > {max(FAULTY.values())}, got {num_envs}")
+    overrides = {"env": {"episode_length_s": 100.0}, "events": {},
+                 "commands": {"base_velocity": {"resampling_time_s": [100.0, 100.0]}},
+                 "scene": {"backend": backend, "num_workers": 0}}
+    g = torch.Generator().manual_seed(0)
+    actions = [0.3 * torch.randn(num_envs, 28, generator=g) for _ in range(steps)]
+    runs = []
+    for faulty in (False, True):
+        env = LocomotionEnv(load_task("base", overrides=overrides), num_envs=num_envs, device=str(device), seed=0,
+                            verbose=False)
+        try:
+            obs, dones = [], []
+            for k, a in enumerate(actions):
+                a = a.to(device)
+                if faulty and k == fault_step:
+                    a = a.clone()
+                    for row, v in zip((1, 2, 3), (float("nan"), float("inf"), float("-inf"))):
+                        a[row] = v
+                    ids = torch.tensor([FAULTY["diverged_push"]], device=device)
+                    env.scene.sim.set_base_velocity(ids, torch.tensor([[0.0, 0.0, 5.0e3]], device=device))
+                o, _, d, _ = env.step(a)
+                obs.append(o["policy"].cpu())
+                dones.append(d.bool().cpu())
+        finally:
+            env.close()
+        runs.append((torch.stack(obs), torch.stack(dones)))
+    (ref_obs, _), (obs, dones) = runs
+    others = [i for i in range(num_envs) if i not in FAULTY.values()]
+    reset = {name: bool(dones[fault_step:fault_step + 2, i].any()) for name, i in FAULTY.items()}
+    return {"num_envs": num_envs, "fault_step": fault_step, "reset": reset, "all_reset": all(reset.values()),
+            "others_reset": int(dones[:, others].sum()), "finite": bool(torch.isfinite(obs).all()),
+            "others_max_abs_diff": float((obs[:, others] - ref_obs[:, others]).abs().max())}

@@ -36,7 +36,7 @@ def test_a_failing_section_is_recorded_and_the_next_one_runs(tmp_path: Path, mon
     monkeypatch.setattr(G, "compile_times", boom)
     monkeypatch.setattr(G, "trajectories", lambda backend: {"standing": {"ok": True}})
     (tmp_path / "report.json").write_text(json.dumps({"sections": {}}))
-    G.main(["--device", "cpu", "--out", str(tmp_path), "--skip", "syncs,launches,env,gpu_busy,mpc,rough,train"])
+    G.main(["--device", "cpu", "--out", str(tmp_path), "--skip", "syncs,launches,faults,env,gpu_busy,mpc,rough,train"])
     rep = json.loads((tmp_path / "report.json").read_text())
     assert seen == ["versions", "compile"]
     assert rep["device"] == "cpu" and rep["backend"] == "warp-cpu"
@@ -78,6 +78,8 @@ def test_the_check_runs_on_warp_cpu(tmp_path: Path):
                                                                           ("rough", True, None)]
     assert all(r["steps_per_s"] > 0 and "capture_errors" not in r for r in rows)
     assert rep["syncs"]["warmup"] == 3
+    assert rep["faults"]["all_reset"] and rep["faults"]["finite"] and rep["faults"]["others_reset"] == 0
+    assert rep["faults"]["others_max_abs_diff"] <= 1e-5  # the worlds share MuJoCo Warp's contact buffer
 
 
 def test_without_mujoco_warp_it_is_a_one_line_usage_error(tmp_path: Path, capsys, monkeypatch):
@@ -97,3 +99,25 @@ def test_ppo_throughput_is_the_median_iteration_after_the_first():
     # iterations 1-4: 0.75, 0.8, 30.2, 0.8 -> median (0.8 + 0.8) / 2 = 0.8 s; 4096 x 24 / 0.8 = 122 880 samples/s
     assert got["iteration_s_median"] == pytest.approx(0.8)
     assert got["samples_per_s"] == pytest.approx(122880.0)
+
+
+def test_fault_trials_reset_the_faulty_robots_and_leave_the_others_bit_identical():
+    """On the CPU backend (the same function the GPU check runs on cuda and warp-cpu): NaN, +inf and -inf action
+    rows and a 5 km/s push each reset their robot, nothing non-finite reaches an observation, and the four other
+    robots' observations equal those of the same env without faults, bit for bit."""
+    import torch
+
+    from dls_quadruped.bench.gpu_probes import FAULTY, faults
+
+    rep = faults("cpu", torch.device("cpu"))
+    assert rep["reset"] == {name: True for name in FAULTY}
+    assert rep["finite"] and rep["others_reset"] == 0 and rep["others_max_abs_diff"] == 0.0
+
+
+def test_fault_trials_need_more_robots_than_faults():
+    import torch
+
+    from dls_quadruped.bench.gpu_probes import faults
+
+    with pytest.raises(ValueError, match="num_envs must be > 4, got 4"):
+        faults("cpu", torch.device("cpu"), num_envs=4)
