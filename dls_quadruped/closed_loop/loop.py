@@ -177,7 +177,7 @@ PROBES = {
     "power": lambda env: _cpu(motor_power(env.state.joint_torque, env.state.joint_vel)),
     "speed": lambda env: _cpu(torch.linalg.vector_norm(env.state.base_lin_vel_w[:, :2], dim=-1)),
 }
-"""What the runner reads after every step, (E, ...) per robot (kept where the state is the episode's)."""
+"""What the loop reads after every step, (E, ...) per robot (kept where the state is the episode's)."""
 
 
 SOLVE_FIELDS = ("best_cost", "input_cost", "initial_cost", "step_costs", "step_input_costs", "state_terms",
