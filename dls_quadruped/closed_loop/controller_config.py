@@ -32,7 +32,8 @@ class ControllerConfig:
 
     Attributes:
         name: one of ``CONTROLLERS`` (``closed_loop/registry.py``).
-        policy: the RL expert (an exported actor, ``learning.policy_file``, or an rsl-rl checkpoint), for ``rl_baseline``.
+        policy: the RL expert (an exported actor, ``learning.policy_file``, or an rsl-rl checkpoint), for
+            ``rl_baseline``.
         student: a distilled student export (``make distill``), for ``rl_warm_start`` and ``student``;
             for ``rl_warm_start`` also a tuple of exports (several policies warm-start one MPC).
         shares: ``rl_warm_start`` with several students: each student group's share of the samples that
@@ -46,7 +47,8 @@ class ControllerConfig:
         seed: seed of the MPC's noise.
         horizon_cost_every: record the chosen sample's cost per horizon step (Fig. 28) at every k-th solve
             (an eager re-rollout, ~1.5 ms per solve).
-        ground: MPC controllers: the ground the MPC plans on, one of ``mpc.inputs.GROUNDS`` (``terrain``: the env's map).
+        ground: MPC controllers: the ground the MPC plans on, one of ``mpc.inputs.GROUNDS`` (``terrain``: the
+            env's map).
         naive_gait: ``naive_warm_start`` only: its trot's (frequency [Hz], duty), else ``BaselineConfig``'s.
         com_height: the CoM height reference [m] above the ground of an MPC controller's cost and of every
             controller's initial-cost metric, else ``BaselineConfig``'s.

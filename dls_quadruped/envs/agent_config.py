@@ -34,6 +34,16 @@ PROJECT_KEYS: dict[str, Any] = {"max_iterations": int, "seed": int, "experiment_
 INJECTED = {"device", "multi_gpu_cfg"}
 """Algorithm arguments rsl-rl passes itself (setting them in the task would clash)."""
 
+POSITIVE_INTS = ("num_steps_per_env", "save_interval", "max_iterations", "num_learning_epochs", "num_mini_batches")
+UNIT_INTERVAL = ("gamma", "lam")
+POSITIVE = ("learning_rate", "clip_param")
+NON_NEGATIVE = ("entropy_coef", "value_loss_coef")
+SCHEDULES = ("adaptive", "fixed")
+"""rsl-rl's PPO adapts the learning rate to ``desired_kl`` with ``adaptive``; any other string is silently fixed."""
+STD_TYPES = ("scalar", "log")
+CUDA_GRAPH_COMPILE_MODES = ("reduce-overhead", "max-autotune")
+"""``torch_compile_mode`` values rsl-rl refuses once the env is built (CUDA graphs clash with its algorithms)."""
+
 RUNNER_KEYS: dict[str, Any] = {
     "num_steps_per_env": int, "save_interval": int, "check_for_nan": bool, "obs_groups": dict[str, list[str]],
     "logger": str | dict, "run_name": str, "wandb_project": str, "neptune_project": str,
@@ -88,15 +98,6 @@ def _schema(task: TaskConfig, spec: Any, alg_cls: Callable | None) -> AlgorithmS
                      f"project knows the agent keys of; allowed: {[c.__name__ for c in schemas]} or a subclass "
                      f"('module:Class')")
 
-POSITIVE_INTS = ("num_steps_per_env", "save_interval", "max_iterations", "num_learning_epochs", "num_mini_batches")
-UNIT_INTERVAL = ("gamma", "lam")
-POSITIVE = ("learning_rate", "clip_param")
-NON_NEGATIVE = ("entropy_coef", "value_loss_coef")
-SCHEDULES = ("adaptive", "fixed")
-"""rsl-rl's PPO adapts the learning rate to ``desired_kl`` with ``adaptive``; any other string is silently fixed."""
-STD_TYPES = ("scalar", "log")
-CUDA_GRAPH_COMPILE_MODES = ("reduce-overhead", "max-autotune")
-"""``torch_compile_mode`` values rsl-rl refuses once the env is built (CUDA graphs clash with its algorithms)."""
 
 def _resolve(task: TaskConfig, key: str, spec: Any) -> Callable:
     from rsl_rl.utils import resolve_callable
@@ -113,8 +114,9 @@ def distribution_classes() -> list[str]:
     """The names of rsl-rl's action distributions (``rsl_rl.modules.distribution``)."""
     from rsl_rl.modules import distribution
 
+    base = distribution.Distribution
     return sorted(n for n, c in vars(distribution).items()
-                  if isinstance(c, type) and issubclass(c, distribution.Distribution) and c is not distribution.Distribution)
+                  if isinstance(c, type) and issubclass(c, base) and c is not base)
 
 
 def _resolve_distribution(task: TaskConfig, key: str, spec: dict) -> Callable:
