@@ -38,7 +38,7 @@ from dls_quadruped.closed_loop.episodes import (
     commands,
     make_env,
 )
-from dls_quadruped.closed_loop.runner import run_closed_loop
+from dls_quadruped.closed_loop.loop import run_closed_loop
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.core.machine import cpu_model
 from dls_quadruped.core.progress import progress

@@ -134,7 +134,7 @@ def closed_loop(robots: int, seconds: float, samples: int, device: torch.device,
     """Naive-warm-start MPC on the simple task: simulated robot-seconds per wall second."""
     from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
     from dls_quadruped.closed_loop.episodes import commands, make_env
-    from dls_quadruped.closed_loop.runner import run_closed_loop
+    from dls_quadruped.closed_loop.loop import run_closed_loop
     from dls_quadruped.mpc.config import SamplerConfig
 
     env = make_env(commands(robots, 0, None), seconds, seed=0, num_workers=0, device=str(device), backend=backend)

@@ -52,12 +52,8 @@ from dls_quadruped.cli import (
     run_cli,
     set_overrides,
 )
-from dls_quadruped.closed_loop.controllers import (
-    CONTROLLERS,
-    NEEDS_POLICY,
-    NEEDS_STUDENT,
-    ControllerConfig,
-)
+from dls_quadruped.closed_loop.controller_config import NEEDS_POLICY, NEEDS_STUDENT
+from dls_quadruped.closed_loop.controllers import CONTROLLERS, ControllerConfig
 from dls_quadruped.closed_loop.episodes import (
     DEFAULT_POLICY,
     DEFAULT_STUDENT,

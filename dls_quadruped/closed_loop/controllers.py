@@ -17,7 +17,8 @@
 The MPC controllers optimise the forces only by default (7.3.1); ``optimise`` adds f, d or p.
 Their action reaches the simulator through the env's own action path: the MPC's first action
 ``(f, d, p_0, F_0)`` (frame H) is normalised with the current stance count (Table 5, the exact
-inverse of what the action manager applies) and handed to ``env.apply_action`` inside
+inverse of what the action manager applies: the MPC's latent-action configuration is the env's,
+``ControllerConfig.for_env``) and handed to ``env.apply_action`` inside
 ``env.step_controlled`` (the action manager, then the backend's physics steps), so the
 observation's last action, the action rewards and the terrain height of the touch-down targets see
 what was applied. The MPC runs where its kernel runs (``cpp``: the CPU; the torch kernels: the env's
@@ -27,126 +28,20 @@ device); inputs are moved there and the action back to the env's device.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from tensordict import TensorDict
 
+from dls_quadruped.closed_loop.controller_config import ControllerConfig
 from dls_quadruped.closed_loop.registry import CONTROLLER_REGISTRY
 from dls_quadruped.control import gait
 from dls_quadruped.control.latent_action import ACTION_DIM, LatentAction, normalise
 from dls_quadruped.mpc import warm_start
-from dls_quadruped.mpc.baseline import (
-    BaselineConfig,
-    ModelBasedBaseline,
-    check_optimise,
-    optimised,
-)
-from dls_quadruped.mpc.config import SamplerConfig
-from dls_quadruped.mpc.inputs import (
-    GROUNDS,
-    ground_inputs,
-    heuristic_footholds_h,
-    mpc_inputs,
-)
+from dls_quadruped.mpc.baseline import ModelBasedBaseline, optimised
+from dls_quadruped.mpc.inputs import ground_inputs, heuristic_footholds_h, mpc_inputs
 from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
-from dls_quadruped.mpc.warm_start import check_shares
-
-NEEDS_STUDENT = ("rl_warm_start", "student")
-NEEDS_POLICY = ("rl_baseline",)
-MPC_CONTROLLERS = ("rl_warm_start", "naive_warm_start")
-"""The controllers that run the sampling MPC (its settings and sampler seeds apply to them)."""
-
-
-@dataclass(frozen=True)
-class ControllerConfig:
-    """What to run.
-
-    Attributes:
-        name: one of ``CONTROLLERS`` (``closed_loop/registry.py``).
-        policy: the RL expert (an exported actor, ``learning.policy_file``, or an rsl-rl checkpoint), for ``rl_baseline``.
-        student: a distilled student export (``make distill``), for ``rl_warm_start`` and ``student``;
-            for ``rl_warm_start`` also a tuple of exports (several policies warm-start one MPC).
-        shares: ``rl_warm_start`` with several students: each student group's share of the samples that
-            are not the naive group's (positive, summing to 1); None = equal shares.
-        sampler: MPC settings (M, N, dt, encoding, kernel, sigmas); the student must match its
-            encoding, horizon and dt.
-        optimise: variables the MPC samples (sigma of the others set to 0): default forces only.
-        naive_share: ``rl_warm_start`` only: share of the M samples drawn around the naive warm start
-            (previous solution shifted), the rest around the student's horizon; 0 = student only.
-        seed: seed of the MPC's noise.
-        horizon_cost_every: record the chosen sample's cost per horizon step (Fig. 28) at every k-th solve
-            (an eager re-rollout, ~1.5 ms per solve).
-        ground: MPC controllers: the ground the MPC plans on, one of ``mpc.inputs.GROUNDS`` (``terrain``: the env's map).
-        naive_gait: ``naive_warm_start`` only: its trot's (frequency [Hz], duty), else ``BaselineConfig``'s.
-        com_height: the CoM height reference [m] above the ground of an MPC controller's cost and of every
-            controller's initial-cost metric, else ``BaselineConfig``'s.
-    """
-
-    name: str
-    policy: Path | None = None
-    student: Path | tuple[Path, ...] | None = None
-    sampler: SamplerConfig = field(default_factory=SamplerConfig)
-    optimise: tuple[str, ...] = ("F",)
-    naive_share: float = 0.0
-    shares: tuple[float, ...] | None = None
-    seed: int = 0
-    horizon_cost_every: int = 10
-    ground: str = "flat"
-    naive_gait: tuple[float, float] | None = None
-    com_height: float | None = None
-
-    def __post_init__(self) -> None:
-        CONTROLLER_REGISTRY.check(self.name)
-        if self.name in NEEDS_STUDENT and not self.students:
-            raise ValueError(f"controller {self.name!r} needs a student (--student, a `make distill` export)")
-        if self.name in NEEDS_POLICY and self.policy is None:
-            raise ValueError(f"controller {self.name!r} needs the RL expert (--policy)")
-        check_optimise(self.optimise)
-        if not 0.0 <= self.naive_share < 1.0:
-            raise ValueError(f"naive_share must be in [0, 1), got {self.naive_share!r}")
-        if not isinstance(self.horizon_cost_every, int) or self.horizon_cost_every < 1:
-            raise ValueError(f"horizon_cost_every must be an int >= 1, got {self.horizon_cost_every!r}")
-        if self.naive_share > 0.0 and self.name != "rl_warm_start":
-            raise ValueError(f"naive_share applies to rl_warm_start only, got it for {self.name!r}")
-        if len(self.students) > 1 and self.name != "rl_warm_start":
-            raise ValueError(f"several students warm-start rl_warm_start only; {self.name!r} takes one, "
-                             f"got {len(self.students)}")
-        if self.shares is not None:
-            check_shares(self.shares, len(self.students))
-        if self.ground not in GROUNDS:
-            raise ValueError(f"ground must be one of {list(GROUNDS)}, got {self.ground!r}")
-        if self.naive_gait is not None and self.name != "naive_warm_start":
-            raise ValueError(f"naive_gait applies to naive_warm_start only, got it for {self.name!r}")
-        self.baseline_config()  # checks the gait and the height reference
-
-    def baseline_config(self) -> BaselineConfig:
-        """The MPC's gait and references (``BaselineConfig``) with ``naive_gait`` and ``com_height`` applied."""
-        kw = {} if self.naive_gait is None else {"freq": float(self.naive_gait[0]), "duty": float(self.naive_gait[1])}
-        kw.update({} if self.com_height is None else {"com_height": float(self.com_height)})
-        return BaselineConfig(optimise=self.optimise, sampler=self.sampler, **kw)
-
-    @property
-    def students(self) -> tuple[Path, ...]:
-        """The student exports, in group order (empty without a student)."""
-        if self.student is None:
-            return ()
-        if isinstance(self.student, (tuple, list)):
-            return tuple(Path(s) for s in self.student)
-        return (Path(self.student),)
-
-    def group_shares(self) -> tuple[float, ...]:
-        """``rl_warm_start``: the share of the M samples of every group, students first, then the naive
-        group if ``naive_share`` > 0."""
-        n = len(self.students)
-        shares = self.shares if self.shares is not None else (1.0 / n,) * n
-        out = tuple((1.0 - self.naive_share) * s for s in shares)
-        return out + ((self.naive_share,) if self.naive_share > 0.0 else ())
-
-    @property
-    def uses_mpc(self) -> bool:
-        return self.name in MPC_CONTROLLERS
 
 
 @dataclass
@@ -193,10 +88,11 @@ def _call(module_name: str, fn, obs: torch.Tensor) -> torch.Tensor:
 
 class Controller:
     """Common interface: ``step(obs)``, one policy step of its env under the controller (``act(obs)`` at the
-    policy rate; MPC controllers also run the physics); ``records`` / ``step_records``: the MPC solves."""
+    policy rate; MPC controllers also run the physics); ``records`` / ``step_records``: the MPC solves. ``cfg``:
+    the config it was given with the env's latent-action configuration (``ControllerConfig.for_env``)."""
 
     def __init__(self, cfg: ControllerConfig, env):
-        self.cfg = cfg
+        self.cfg = cfg.for_env(env)
         self.env = env
         self.records: list[SolveRecord] = []
         self.step_records: list[SolveRecord] = []
@@ -261,6 +157,7 @@ class MPCController(Controller):
 
     def __init__(self, cfg: ControllerConfig, env):
         super().__init__(cfg, env)
+        cfg = self.cfg  # with the env's action configuration
         b = env.num_envs
         period = cfg.sampler.mpc_period / env.physics_dt
         self.mpc_decimation = round(period)

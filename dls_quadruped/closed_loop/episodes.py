@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
+from dls_quadruped.closed_loop.loop import ClosedLoopTraces, run_closed_loop
 from dls_quadruped.closed_loop.metrics import compare, summarize
-from dls_quadruped.closed_loop.runner import ClosedLoopTraces, run_closed_loop
 
 DEFAULT_POLICY = Path("docs/policies/base_actor.pt")
 """The committed RL expert (``rl_baseline``)."""

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dls_quadruped.closed_loop.runner import ClosedLoopTraces
+from dls_quadruped.closed_loop.loop import ClosedLoopTraces
 from dls_quadruped.eval import metrics as M
 from dls_quadruped.mpc.cost import STATE_TERMS
 from dls_quadruped.robots.aliengo import constants as C

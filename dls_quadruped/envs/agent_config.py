@@ -1,28 +1,29 @@
-"""Check a task's ``agent`` section against what rsl-rl-lib accepts, when the task loads.
+"""Check a task's ``agent`` section against what rsl-rl-lib 5.x accepts, when the task loads.
 
-The allowed keys are read from rsl-rl itself, so an rsl-rl feature (e.g. the symmetry extension's
-``algorithm.symmetry_cfg``) is accepted as soon as rsl-rl has it, and a typo fails with the file,
-the dotted key and the allowed keys instead of deep inside rsl-rl three minutes later:
+rsl-rl-lib has no config classes: its runner reads a plain dict. What its classes take is read from their
+signatures (``inspect.signature``); what its runner, logger and ``construct_algorithm`` read from the dict
+around them is written here (:data:`RUNNER_KEYS`, :func:`algorithm_schemas`, ``tests/envs/test_agent_schema.py``
+holds the schema to the installed rsl-rl). A typo fails with the file, the dotted key and the allowed keys
+instead of deep inside rsl-rl three minutes later:
 
-* top level: the keys the runner, its logger and the algorithm's ``construct_algorithm`` read from
-  the train config (found in their source: ``cfg["key"]`` / ``cfg.get("key")``), plus ours
-  (``PROJECT_KEYS``);
-* ``actor`` / ``critic`` (and their ``distribution_cfg``): ``class_name`` plus the constructor's
-  keyword parameters with defaults (the others are passed by rsl-rl);
-* ``algorithm``: ``class_name`` plus the algorithm's keyword parameters (less ``INJECTED``, which
-  rsl-rl passes itself) plus what ``construct_algorithm`` pops from it;
+* top level: :data:`RUNNER_KEYS`, the model sections of the algorithm (``actor`` and ``critic`` for PPO) and
+  ours (:data:`PROJECT_KEYS`);
+* ``actor`` / ``critic`` (and their ``distribution_cfg``): ``class_name`` plus the constructor's keyword
+  parameters with defaults (the others are passed by rsl-rl);
+* ``algorithm``: ``class_name`` plus the algorithm's keyword parameters (less :data:`INJECTED`, which rsl-rl
+  passes itself) plus what its ``construct_algorithm`` pops from it (:attr:`AlgorithmSchema.popped`);
 * ``algorithm.<ext>_cfg``: the parameters of the extension class the algorithm builds from it
   (``Symmetry(**symmetry_cfg)``), less those rsl-rl fills in (``env``, ``device``, ...).
 
-Values are type-checked against the constructors' annotations (``learning_rate: fast`` fails).
-Where rsl-rl's source cannot be read the key check is skipped rather than guessed.
+Values are type-checked against the constructors' annotations and the schema's types (``learning_rate: fast``
+fails).
 """
 
 from __future__ import annotations
 
 import inspect
-import re
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 from dls_quadruped.envs.config import TaskConfig, type_hints, type_problem
@@ -40,18 +41,62 @@ NON_NEGATIVE = ("entropy_coef", "value_loss_coef")
 SCHEDULES = ("adaptive", "fixed")
 """rsl-rl's PPO adapts the learning rate to ``desired_kl`` with ``adaptive``; any other string is silently fixed."""
 STD_TYPES = ("scalar", "log")
+CUDA_GRAPH_COMPILE_MODES = ("reduce-overhead", "max-autotune")
+"""``torch_compile_mode`` values rsl-rl refuses once the env is built (CUDA graphs clash with its algorithms)."""
 
-_CFG_READ = re.compile(r"\bcfg(?:\[|\.get\()\s*[\"'](\w+)[\"']")
-_POPPED = re.compile(r"alg_cfg\.pop\(\s*[\"'](\w+)[\"']")
-_EXT_CALL = re.compile(r"(\w+)\(([^()]*)\*\*(\w+_cfg)\)")
-_ASSIGNED = re.compile(r"\[\s*[\"'](\w+)[\"']\s*\]\s*=[^=]")
+RUNNER_KEYS: dict[str, Any] = {
+    "num_steps_per_env": int, "save_interval": int, "check_for_nan": bool, "obs_groups": dict[str, list[str]],
+    "logger": str | dict, "run_name": str, "wandb_project": str, "neptune_project": str,
+    "torch_compile_mode": str | None, "multi_gpu": dict | None, "algorithm": Any}
+"""Top-level agent keys rsl-rl-lib 5.x's ``OnPolicyRunner``, its ``Logger`` and every algorithm's
+``construct_algorithm`` read, with their types (``algorithm`` is checked on its own). ``multi_gpu`` is written by
+the runner itself; a resolved task saved after the runner was built carries it."""
 
 
-def _source(obj: Any) -> str:
-    try:
-        return inspect.getsource(obj)
-    except (OSError, TypeError):
-        return ""
+@dataclass(frozen=True)
+class AlgorithmSchema:
+    """What an rsl-rl algorithm's ``construct_algorithm`` reads from the agent section beyond the constructor's
+    keywords.
+
+    Attributes:
+        models: the top-level sections it builds a model from (``class_name`` plus constructor keywords).
+        popped: ``algorithm`` keys it takes out before calling the constructor, with their types.
+        extensions: ``algorithm.<ext>_cfg`` -> (the extension class it builds from that mapping, the
+            constructor's parameters rsl-rl fills in itself).
+    """
+
+    models: tuple[str, ...]
+    popped: dict[str, Any] = field(default_factory=dict)
+    extensions: dict[str, tuple[type, frozenset[str]]] = field(default_factory=dict)
+
+
+def algorithm_schemas() -> dict[type, AlgorithmSchema]:
+    """rsl-rl-lib 5.x's algorithms and their schemas; a subclass takes its nearest listed base's."""
+    from rsl_rl.algorithms import PPO, Distillation
+    from rsl_rl.extensions import RandomNetworkDistillation, Symmetry
+
+    return {
+        PPO: AlgorithmSchema(
+            models=("actor", "critic"), popped={"share_cnn_encoders": bool},
+            # RandomNetworkDistillation(device=..., **rnd_cfg) after resolve_rnd_config adds the state size and
+            # the observation groups; Symmetry(**symmetry_cfg) after resolve_symmetry_config adds the env
+            extensions={"rnd_cfg": (RandomNetworkDistillation, frozenset({"device", "num_states", "obs_groups"})),
+                        "symmetry_cfg": (Symmetry, frozenset({"env"}))}),
+        Distillation: AlgorithmSchema(models=("student", "teacher")),
+    }
+
+
+def _schema(task: TaskConfig, spec: Any, alg_cls: Callable | None) -> AlgorithmSchema:
+    """The schema of ``alg_cls`` (None: no algorithm given, rsl-rl's PPO)."""
+    schemas = algorithm_schemas()
+    if alg_cls is None:
+        return next(iter(schemas.values()))
+    for base in getattr(alg_cls, "__mro__", ()):
+        if base in schemas:
+            return schemas[base]
+    raise task.error("agent.algorithm.class_name", f"{spec['class_name']!r} is not an rsl-rl algorithm this "
+                     f"project knows the agent keys of; allowed: {[c.__name__ for c in schemas]} or a subclass "
+                     f"('module:Class')")
 
 
 def _resolve(task: TaskConfig, key: str, spec: Any) -> Callable:
@@ -69,8 +114,9 @@ def distribution_classes() -> list[str]:
     """The names of rsl-rl's action distributions (``rsl_rl.modules.distribution``)."""
     from rsl_rl.modules import distribution
 
+    base = distribution.Distribution
     return sorted(n for n, c in vars(distribution).items()
-                  if isinstance(c, type) and issubclass(c, distribution.Distribution) and c is not distribution.Distribution)
+                  if isinstance(c, type) and issubclass(c, base) and c is not base)
 
 
 def _resolve_distribution(task: TaskConfig, key: str, spec: dict) -> Callable:
@@ -124,6 +170,9 @@ def _recipe_problem(name: str, value: Any, spec: dict) -> str | None:
     rate, ``std_range`` is a clamp (inverted, every std is its upper end), ``init_std`` outside it is
     clamped at the first sample.
     """
+    if name == "torch_compile_mode" and value in CUDA_GRAPH_COMPILE_MODES:
+        return (f"{value!r} uses CUDA graphs, which rsl-rl refuses; allowed: 'default', "
+                f"'max-autotune-no-cudagraphs' or null (no compile)")
     if name == "desired_kl" and value is not None and not value > 0.0:
         return f"must be > 0 (or null with schedule: fixed), got {value}"
     if name == "schedule" and value not in SCHEDULES:
@@ -167,40 +216,14 @@ def _check_model(task: TaskConfig, key: str, spec: Any) -> None:
                     {"class_name": str, **_keyword_params(dist, True, set())})
 
 
-def _extensions(alg_cls: Callable) -> dict[str, tuple[Callable, set[str]]]:
-    """{``<ext>_cfg``: (extension class, keys rsl-rl fills in)} read from the algorithm's source."""
-    module = inspect.getmodule(alg_cls)
-    out = {}
-    for cls_name, explicit, cfg_name in _EXT_CALL.findall(_source(alg_cls.__init__)):
-        cls = getattr(module, cls_name, None)
-        if cls is None:
-            continue
-        filled = set(re.findall(r"(\w+)\s*=", explicit))
-        resolver = getattr(module, f"resolve_{cfg_name.removesuffix('_cfg')}_config", None)
-        filled |= set(_ASSIGNED.findall(_source(resolver))) if resolver is not None else set()
-        out[cfg_name] = (cls, filled)
-    return out
-
-
-def _check_algorithm(task: TaskConfig, spec: Any) -> None:
+def _check_algorithm(task: TaskConfig, spec: Any, schema: AlgorithmSchema) -> None:
     cls = _resolve(task, "agent.algorithm", spec)
-    popped = set(_POPPED.findall(_source(getattr(cls, "construct_algorithm", None))))
-    allowed = {"class_name": str, **_keyword_params(cls, True, INJECTED), **dict.fromkeys(popped, Any)}
+    allowed = {"class_name": str, **_keyword_params(cls, True, INJECTED), **schema.popped}
     _check_keys(task, "agent.algorithm", spec, allowed)
-    for cfg_name, (ext_cls, filled) in _extensions(cls).items():
+    for cfg_name, (ext_cls, filled) in schema.extensions.items():
         ext = spec.get(cfg_name)
         if isinstance(ext, dict):
-            _check_keys(task, f"agent.algorithm.{cfg_name}", ext, _keyword_params(ext_cls, False, filled))
-
-
-def _top_level_keys(alg_cls: Callable | None) -> set[str]:
-    from rsl_rl.runners import OnPolicyRunner
-    from rsl_rl.utils.logger import Logger
-
-    sources = [_source(OnPolicyRunner), _source(Logger)]
-    if alg_cls is not None:
-        sources.append(_source(getattr(alg_cls, "construct_algorithm", None)))
-    return {k for src in sources for k in _CFG_READ.findall(src)}
+            _check_keys(task, f"agent.algorithm.{cfg_name}", ext, _keyword_params(ext_cls, False, set(filled)))
 
 
 def check_agent_section(task: TaskConfig) -> None:
@@ -211,14 +234,10 @@ def check_agent_section(task: TaskConfig) -> None:
     if not isinstance(agent, dict):
         raise task.error("agent", "must be a mapping (rsl-rl OnPolicyRunner config)")
     alg_cls = _resolve(task, "agent.algorithm", agent["algorithm"]) if "algorithm" in agent else None
-    read = _top_level_keys(alg_cls)
-    if read:  # rsl-rl's source is readable: check the top-level keys
-        allowed = {k: Any for k in read} | PROJECT_KEYS | {
-            "num_steps_per_env": int, "save_interval": int, "check_for_nan": bool, "obs_groups": dict[str, list[str]],
-            "logger": str | dict, "run_name": str}
-        _check_keys(task, "agent", agent, {k: v for k, v in allowed.items() if k in read or k in PROJECT_KEYS})
-    for model in ("actor", "critic"):
+    schema = _schema(task, agent.get("algorithm"), alg_cls)
+    _check_keys(task, "agent", agent, RUNNER_KEYS | dict.fromkeys(schema.models, Any) | PROJECT_KEYS)
+    for model in schema.models:
         if model in agent:
             _check_model(task, f"agent.{model}", agent[model])
     if "algorithm" in agent:
-        _check_algorithm(task, agent["algorithm"])
+        _check_algorithm(task, agent["algorithm"], schema)

@@ -15,8 +15,8 @@ import torch
 from dls_quadruped.closed_loop.__main__ import main
 from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
 from dls_quadruped.closed_loop.episodes import commands, make_env
+from dls_quadruped.closed_loop.loop import run_closed_loop
 from dls_quadruped.closed_loop.metrics import summarize
-from dls_quadruped.closed_loop.runner import run_closed_loop
 from dls_quadruped.control.latent_action import LatentAction, normalise
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.srbd import com_height_reference

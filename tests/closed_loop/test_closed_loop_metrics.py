@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
+from dls_quadruped.closed_loop.loop import ClosedLoopTraces, InitialCostProbe
 from dls_quadruped.closed_loop.metrics import cost_of_transport, summarize
-from dls_quadruped.closed_loop.runner import ClosedLoopTraces, InitialCostProbe
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.robots.aliengo import constants as C

@@ -18,8 +18,8 @@ from dls_quadruped.closed_loop.episodes import (
     run_controllers,
     stairs_rows,
 )
+from dls_quadruped.closed_loop.loop import ClosedLoopTraces
 from dls_quadruped.closed_loop.metrics import compare, stairs_episodes, summarize
-from dls_quadruped.closed_loop.runner import ClosedLoopTraces
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.eval import stairs as ST
 from dls_quadruped.eval.scenario import EvalOptions

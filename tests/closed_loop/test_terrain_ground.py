@@ -9,7 +9,7 @@ import pytest
 
 from dls_quadruped.closed_loop.controllers import ControllerConfig
 from dls_quadruped.closed_loop.episodes import commands, run_controllers
-from dls_quadruped.closed_loop.runner import InitialCostProbe
+from dls_quadruped.closed_loop.loop import InitialCostProbe
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.inputs import GROUNDS, ground_inputs
 from experiments.warm_start_common import Cell

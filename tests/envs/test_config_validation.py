@@ -81,6 +81,12 @@ CASES = [
      r"unknown distribution 'TanhGaussian'; allowed: \[.*'BetaDistribution'.*'GaussianDistribution'"),
     ({"agent": {"actor": {"distribution_cfg": {"class_name": "MLPModel"}}}},
      "agent.actor.distribution_cfg.class_name", "'MLPModel' is not an action distribution; allowed"),
+    ({"agent": {"algorithm": {"class_name": "torch.nn:Linear"}}}, "agent.algorithm.class_name",
+     r"'torch.nn:Linear' is not an rsl-rl algorithm .*; allowed: \['PPO', 'Distillation'\] or a subclass"),
+    ({"agent": {"torch_compile_mode": "reduce-overhead"}}, "agent.torch_compile_mode",
+     r"uses CUDA graphs, which rsl-rl refuses; allowed: 'default', 'max-autotune-no-cudagraphs' or null"),
+    ({"agent": {"torch_compile_mode": 3}}, "agent.torch_compile_mode", "must be"),
+    ({"agent": {"student": {"class_name": "MLPModel"}}}, "agent.student", r"unknown key; rsl-rl accepts: \[.*'actor'"),
 ]
 
 

@@ -194,7 +194,7 @@ def test_env_on_the_bare_protocol_is_bit_identical(strict_backend):
 def test_closed_loop_mpc_on_the_bare_protocol_is_bit_identical(strict_backend):
     """The naive-warm-start MPC acts through env.apply_action: same traces on the strict backend."""
     from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
-    from dls_quadruped.closed_loop.runner import run_closed_loop
+    from dls_quadruped.closed_loop.loop import run_closed_loop
     from dls_quadruped.mpc.config import SamplerConfig
 
     traces = {}

@@ -298,7 +298,7 @@ def test_closed_loop_mpc_on_the_warp_backend_follows_the_cpu_backend(mjw):
     base trajectories are compared within 1 mm and the base velocities within 1 cm/s."""
     from dls_quadruped.closed_loop.controllers import ControllerConfig, make_controller
     from dls_quadruped.closed_loop.episodes import commands, make_env
-    from dls_quadruped.closed_loop.runner import run_closed_loop
+    from dls_quadruped.closed_loop.loop import run_closed_loop
     from dls_quadruped.mpc.config import SamplerConfig
 
     cmds = commands(2, 0, 0.4)

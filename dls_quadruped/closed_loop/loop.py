@@ -177,7 +177,7 @@ PROBES = {
     "power": lambda env: _cpu(motor_power(env.state.joint_torque, env.state.joint_vel)),
     "speed": lambda env: _cpu(torch.linalg.vector_norm(env.state.base_lin_vel_w[:, :2], dim=-1)),
 }
-"""What the runner reads after every step, (E, ...) per robot (kept where the state is the episode's)."""
+"""What the loop reads after every step, (E, ...) per robot (kept where the state is the episode's)."""
 
 
 SOLVE_FIELDS = ("best_cost", "input_cost", "initial_cost", "step_costs", "step_input_costs", "state_terms",
@@ -252,7 +252,8 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
         controller=controller.name, command=rec.command, reward=rec.masked(rec.reward, rec.active),
         initial_cost=rec.masked(terms.sum(-1), rec.active), initial_cost_terms=rec.masked(terms, rec.active),
         vel_error=ok("vel_error"), power=ok("power"), speed=ok("speed"), base_vel=ok("base_vel"),
-        rollout_cost=_per_solve(rec, "best_cost", solves, n), rollout_input_cost=_per_solve(rec, "input_cost", solves, n),
+        rollout_cost=_per_solve(rec, "best_cost", solves, n),
+        rollout_input_cost=_per_solve(rec, "input_cost", solves, n),
         mpc_initial_cost=_per_solve(rec, "initial_cost", solves, n),
         step_costs=_per_solve(rec, "step_costs", solves, n, horizon),
         step_input_costs=_per_solve(rec, "step_input_costs", solves, n, horizon),
