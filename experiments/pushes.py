@@ -33,6 +33,7 @@ import numpy as np
 
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.metrics import paired_difference
+from dls_quadruped.eval.provenance import provenance
 from experiments.rl_common import student_file
 from experiments.warm_start_common import (
     REPO,
@@ -100,7 +101,7 @@ def calibrate(args) -> float | None:
               "survival": {f"{p:g}": rates[p] for p in sorted(rates)},
               "survival_text": {f"{p:g}": survival(results[f"base_alone_push{p:g}"]) for p in sorted(rates)},
               "chosen_push_speed": chosen}
-    write_json(record, out / "calibration.json", indent=1)
+    write_json({**record, **provenance()}, out / "calibration.json", indent=1)
     for p in sorted(rates):
         print(f"[pushes] push {p:g} m/s: base alone survives {record['survival_text'][f'{p:g}']}")
     print(f"[pushes] chosen push speed: {chosen}")
@@ -161,7 +162,7 @@ def report(args) -> dict:
            "primary": {"contrast": f"{PRIMARY[0]} - {PRIMARY[1]}, survival", **primary,
                        "verdict": verdict(primary["ci95"])},
            "wall_s": {a: results[a].get("seconds_wall") for a in ARMS}}
-    write_json(out, args.out / "report.json", indent=1)
+    write_json({**out, **provenance()}, args.out / "report.json", indent=1)
     title = (f"# MPC survival under pushes ({args.episodes} test episodes x {args.sampler_seeds} sampler seeds, "
              f"push speed {p:g} m/s)")
     lines = [title, "", "| arm | survival [95 % CI] | return per episode (median) |", "|---|---|---|"]

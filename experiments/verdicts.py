@@ -4,6 +4,9 @@ committed result files under ``docs/experiments/<experiment>/``.
     OMP_NUM_THREADS=1 .venv/bin/python experiments/verdicts.py            # the table, markdown
     OMP_NUM_THREADS=1 .venv/bin/python experiments/verdicts.py --check    # exit 1 if docs/experiments.md differs
 
+``--check`` also checks the prose (``experiments/verdict_prose.py``): each row's page states the table's verdict,
+no page claims an absence or convergence without a margin or a negation, and plan headers name their commits.
+
 Each row reads our number with its 95 % interval from a result file or recomputes it from the per-episode
 values with the experiments' own bootstrap (``distill_metrics.sp_difference``, ``eval.metrics.paired_difference``:
 seed 0, 2 000 resamples); :func:`verdict` applies the rules written at the top of ``docs/experiments.md``.
@@ -196,14 +199,20 @@ def sweep_gap(evaluation: str, a: str, b: str, folder: str = "table11_sweep_medi
     return Interval(v, lo, hi, _fmt(v, lo, hi, 1))
 
 
-def survival_gap(folder: str, scenario: str) -> Interval:
-    """Climb minus rough survival on the same episodes (the 7.1 figures pair every expert with base only)."""
+def expert_gap(folder: str, scenario: str, a: str, b: str, key: str = "survived") -> Interval:
+    """Expert ``a`` minus expert ``b`` on the same episodes, from the per-episode files ``<folder>/<task>/
+    <scenario>.json`` of a 7.1 figure (``eval.compare.per_episode_values``; ``key`` as there)."""
     from dls_quadruped.eval.compare import per_episode_values
     from dls_quadruped.eval.metrics import paired_difference
 
-    a, b = (per_episode_values(_json(f"{folder}/{t}", f"{scenario}.json"), "survived") for t in ("climb", "rough"))
-    d = paired_difference(a, b)
+    x, y = (per_episode_values(_json(f"{folder}/{t}", f"{scenario}.json"), key) for t in (a, b))
+    d = paired_difference(x, y)
     return Interval(d["mean"], *d["ci95"], f"{d['mean']:+.4f} [{d['ci95'][0]:+.4f}, {d['ci95'][1]:+.4f}]")
+
+
+def survival_gap(folder: str, scenario: str) -> Interval:
+    """Climb minus rough survival on the same episodes (the 7.1 figures pair every expert with base only)."""
+    return expert_gap(folder, scenario, "climb", "rough")
 
 
 def _per_episode(folder: str, name: str, key: str) -> np.ndarray:
@@ -479,7 +488,8 @@ def main(argv: list[str] | None = None) -> int:
     from dls_quadruped.cli import ArgumentParser
 
     p = ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--check", action="store_true", help="exit 1 if docs/experiments.md's table is not this one")
+    p.add_argument("--check", action="store_true",
+                   help="exit 1 if docs/experiments.md's table is not this one or a page's verdict differs from it")
     args = p.parse_args(argv)
     table = render()
     if args.check:
