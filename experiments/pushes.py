@@ -132,7 +132,8 @@ def push_speed_of(args) -> float:
 
 
 def verdict(ci: list[float]) -> str:
-    """The rules of docs/experiments.md for a claimed increase: reproduced above 0, contradicted below."""
+    """The plan's rule (pushes_plan.md) for a claimed increase: reproduced above 0, contradicted below. It tests
+    the direction only; the verdict table (``experiments/verdicts.py``) also tests the thesis's size."""
     if ci[0] > 0:
         return "reproduced"
     if ci[1] < 0:
@@ -173,7 +174,8 @@ def report(args) -> dict:
         lines.append(f"| {name} | {s['mean']:+.3f} [{s['ci95'][0]:+.3f}, {s['ci95'][1]:+.3f}] | "
                      f"{r['mean']:+.1f} [{r['ci95'][0]:+.1f}, {r['ci95'][1]:+.1f}] |")
     lines += ["", (f"Primary ({out['primary']['contrast']}): {primary['mean']:+.3f} [{primary['ci95'][0]:+.3f}, "
-                   f"{primary['ci95'][1]:+.3f}]: **{out['primary']['verdict']}**.")]
+                   f"{primary['ci95'][1]:+.3f}]: **{out['primary']['verdict']}** by the plan's rule (the direction; "
+                   "the verdict table of docs/experiments.md also tests the thesis's size).")]
     (args.out / "report.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     write_config(args, arm_cells(p, args.variant), {"results": results, "push_speed": p})
