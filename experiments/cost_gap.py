@@ -33,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import run_cli
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.mpc.cost import STATE_TERMS
 from experiments.distill_common import write_table
 from experiments.warm_start_common import (
@@ -158,7 +159,7 @@ def main() -> None:
                 *(f"student {k} - naive" for k in range(SEEDS))]
     write_table(write_gap, gap_cols, args.out / "gap", "RL - naive warm start, paired on the same episodes "
                 f"(mean [95 % CI]; height reference {args.com_height or 'default'})")
-    write_json({"gap": write_gap}, args.out / "gap.json", indent=1)
+    write_json({"gap": write_gap, **provenance()}, args.out / "gap.json", indent=1)
     cols = ["Controller", "cell", "RL reward", "RL return", "Initial cost", "Rollout cost (state)", "Survival"]
     finish(args, todo, results, cell_rows(todo, results, rows), cols,
            "Table 14's first-spline and discrete-discrete rows, 3 students each (M = 10 000, H = 10, dt = 0.02 s, "

@@ -36,7 +36,6 @@ import csv
 import hashlib
 import os
 import shutil
-import subprocess
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +45,7 @@ import torch
 
 from dls_quadruped.cli import ArgumentParser
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.learning.dataset import DiskDataset
 from dls_quadruped.learning.distill import distill_task, load_expert
 from dls_quadruped.learning.distill_batched import SeedGroupTrainer, gradient_steps
@@ -120,25 +120,6 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     if extra is not None:
         extra(p)
     return p.parse_args()
-
-
-def _git_commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
-                              check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
-def _uncommitted() -> list[str]:
-    """Files of the working tree that differ from the commit (another developer's edits in progress
-    change what the env runs, so they are recorded with the results)."""
-    try:
-        out = subprocess.run(["git", "status", "--short", "--untracked-files=no"], cwd=REPO, capture_output=True,
-                             text=True, check=True).stdout
-    except (OSError, subprocess.CalledProcessError):
-        return ["unknown"]
-    return [line.strip() for line in out.splitlines() if line.strip()]
 
 
 def select(runs: list[Run], only: list[str] | None) -> list[Run]:
@@ -453,8 +434,7 @@ def summary_row(trained: dict, ev: dict, name: str) -> dict:
 
 
 def write_config(args: argparse.Namespace, runs: list[Run], trained: dict, extra: dict | None = None) -> None:
-    write_json({"scale": args.scale, "scale_settings": SCALES[args.scale], "git_commit": _git_commit(),
-                "uncommitted_at_end": _uncommitted(),
+    write_json({"scale": args.scale, "scale_settings": SCALES[args.scale], **provenance(),
                 "expert": args.expert, "expert_sha256": hashlib.sha256(Path(args.expert).read_bytes()).hexdigest(),
                 "runs": {r.name: {"overrides": r.overrides, "data_from": r.data_from,
                                   "resolved": trained[r.name]["config"], "seeds": trained[r.name]["seeds"],

@@ -16,6 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import time
 
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.eval.provenance import provenance
 from experiments.distill_common import (
     Run,
     evaluate,
@@ -90,8 +91,8 @@ def main() -> None:
     cols = ["selector", "epoch", "beta", "MSE [95 % CI]", "SP [95 % CI]", "SP per seed [%]", "survival", "seeds",
             "SP episodes", "dataset"]
     write_table(rows, cols, args.out / "table", f"Fig. 24, scale {args.scale}: policy selector over epochs")
-    write_json({"rows": rows, "sp": ev["sp"], "mse": ev["mse"], "returns": ev["returns"], "test_set": ev["test_set"]},
-               args.out / "results.json")
+    write_json({"rows": rows, "sp": ev["sp"], "mse": ev["mse"], "returns": ev["returns"], "test_set": ev["test_set"],
+                **provenance()}, args.out / "results.json")
     figure(ev, args.out / "fig24.png")
     write_config(args, rs, trained, {"seconds": {"total": time.monotonic() - t0, "training_part": t_train,
                                                  "evaluation": ev["seconds"]}})

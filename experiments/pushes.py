@@ -33,6 +33,7 @@ import numpy as np
 
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.metrics import paired_difference
+from dls_quadruped.eval.provenance import provenance
 from experiments.rl_common import student_file
 from experiments.warm_start_common import (
     REPO,
@@ -100,7 +101,7 @@ def calibrate(args) -> float | None:
               "survival": {f"{p:g}": rates[p] for p in sorted(rates)},
               "survival_text": {f"{p:g}": survival(results[f"base_alone_push{p:g}"]) for p in sorted(rates)},
               "chosen_push_speed": chosen}
-    write_json(record, out / "calibration.json", indent=1)
+    write_json({**record, **provenance()}, out / "calibration.json", indent=1)
     for p in sorted(rates):
         print(f"[pushes] push {p:g} m/s: base alone survives {record['survival_text'][f'{p:g}']}")
     print(f"[pushes] chosen push speed: {chosen}")
@@ -131,7 +132,8 @@ def push_speed_of(args) -> float:
 
 
 def verdict(ci: list[float]) -> str:
-    """The rules of docs/experiments.md for a claimed increase: reproduced above 0, contradicted below."""
+    """The plan's rule (pushes_plan.md) for a claimed increase: reproduced above 0, contradicted below. It tests
+    the direction only; the verdict table (``experiments/verdicts.py``) also tests the thesis's size."""
     if ci[0] > 0:
         return "reproduced"
     if ci[1] < 0:
@@ -161,7 +163,7 @@ def report(args) -> dict:
            "primary": {"contrast": f"{PRIMARY[0]} - {PRIMARY[1]}, survival", **primary,
                        "verdict": verdict(primary["ci95"])},
            "wall_s": {a: results[a].get("seconds_wall") for a in ARMS}}
-    write_json(out, args.out / "report.json", indent=1)
+    write_json({**out, **provenance()}, args.out / "report.json", indent=1)
     title = (f"# MPC survival under pushes ({args.episodes} test episodes x {args.sampler_seeds} sampler seeds, "
              f"push speed {p:g} m/s)")
     lines = [title, "", "| arm | survival [95 % CI] | return per episode (median) |", "|---|---|---|"]
@@ -172,7 +174,8 @@ def report(args) -> dict:
         lines.append(f"| {name} | {s['mean']:+.3f} [{s['ci95'][0]:+.3f}, {s['ci95'][1]:+.3f}] | "
                      f"{r['mean']:+.1f} [{r['ci95'][0]:+.1f}, {r['ci95'][1]:+.1f}] |")
     lines += ["", (f"Primary ({out['primary']['contrast']}): {primary['mean']:+.3f} [{primary['ci95'][0]:+.3f}, "
-                   f"{primary['ci95'][1]:+.3f}]: **{out['primary']['verdict']}**.")]
+                   f"{primary['ci95'][1]:+.3f}]: **{out['primary']['verdict']}** by the plan's rule (the direction; "
+                   "the verdict table of docs/experiments.md also tests the thesis's size).")]
     (args.out / "report.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     write_config(args, arm_cells(p, args.variant), {"results": results, "push_speed": p})

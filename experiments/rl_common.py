@@ -36,9 +36,10 @@ from pathlib import Path
 from dls_quadruped.cli import ArgumentParser
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.compare import paired_vs
+from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.eval.scenario import EvalOptions
 from dls_quadruped.eval.scenarios import SCENARIOS
-from experiments.distill_common import _git_commit, _uncommitted, write_table
+from experiments.distill_common import write_table
 
 REPO = Path(__file__).resolve().parents[1]
 TASKS = ("base", "rough", "speed", "climb")
@@ -147,7 +148,7 @@ def evaluate_policies(scenario: str, args: argparse.Namespace) -> tuple[dict[str
         res["cpu_s"] = round(cpu_seconds() - cpu0, 1)  # this process + its finished simulator workers
         res["load_avg_1min_end"] = round(os.getloadavg()[0], 2)
         res["experiment_key"] = key
-        res["git_commit"] = _git_commit()  # of this evaluation (config.json's is of the table)
+        res.update(provenance())  # of this evaluation (config.json's is of the table)
         out.mkdir(parents=True, exist_ok=True)
         write_json(res, done, indent=1)
         sc.plot(res, out / f"{scenario}.png")
@@ -178,13 +179,13 @@ def finish(name: str, scenario: str, args: argparse.Namespace, results: dict, in
     if paired:
         write_table(paired, list(paired[0]), args.out / "paired",
                     f"{title}: paired differences on the same episodes (mean over episodes [95 % CI])")
-    write_json({"scenario": scenario, "rows": rows, "paired_vs_base": paired,
+    write_json({"scenario": scenario, "rows": rows, "paired_vs_base": paired, **provenance(),
                 "results": {t: without_episodes(r) for t, r in results.items()}}, args.out / "results.json")
     if results:
         figure(results, args.out / figure_name)
     write_json({"experiment": name, "scenario": scenario, "scale": args.scale, "scale_settings": SCALES[args.scale],
                 "episodes_per_condition": episodes_of(scenario, args.scale), "seed": args.seed,
-                "git_commit": _git_commit(), "uncommitted": _uncommitted(), **info}, args.out / "config.json")
+                **provenance(), **info}, args.out / "config.json")
     print(f"[{name}] wrote {args.out}/table.md, results.json, {figure_name}, config.json", flush=True)
 
 

@@ -20,6 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import time
 
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.learning.distill_metrics import sp_difference
 from experiments.distill_common import (
     Run,
@@ -109,7 +110,8 @@ def main() -> None:
             "test windows", "train datapoints", "gradient steps", "epochs"]
     write_table(rows, cols, args.out / "table", f"Table 11, scale {args.scale}: naive IL vs DAgger (H = 5, dt = 0.02 s)")
     write_json({"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows], "sp": ev["sp"],
-                "mse": ev["mse"], "sp_difference_vs_dagger": diffs, "returns": rets, "test_set": ev["test_set"]},
+                "mse": ev["mse"], "sp_difference_vs_dagger": diffs, "returns": rets, "test_set": ev["test_set"],
+                **provenance()},
                args.out / "results.json")
     figure(rows, args.out / "table11.png")
     write_config(args, rs, trained, {"seconds": {"total": time.monotonic() - t0, "training_part": t_train,

@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import time
 
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.learning.distill_metrics import sp_difference
 from experiments.distill_common import (
     Run,
@@ -113,7 +114,7 @@ def main() -> None:
             "survival disturbed (expert)", "MSE (plain test set)", "thesis SP"]
     write_table(rows, cols, args.out / "table", f"Table 11 sweep, scale {args.scale}: naive IL vs DAgger "
                 f"(first-spline, H = 5, dt = 0.02 s, 3 seeds)")
-    write_json({"rows": rows, "sp_difference_naive_minus_dagger": diffs,
+    write_json({"rows": rows, "sp_difference_naive_minus_dagger": diffs, **provenance(),
                 **{ev_name: {k: ev[k] for k in ("sp", "mse", "returns", "test_set", "seconds")}
                    for ev_name, ev in evs.items()}}, args.out / "results.json")
     write_config(args, rs, trained, {"collections": COLLECTIONS, "evaluations": EVALUATIONS,

@@ -14,6 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import time
 
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.eval.provenance import provenance
 from experiments.distill_common import (
     Run,
     evaluate,
@@ -82,7 +83,8 @@ def main() -> None:
     write_table(rows, cols, args.out / "table", f"Table 12, scale {args.scale}: DAgger mini-batch size "
                 "(discrete-discrete, H = 5, dt = 0.02 s)")
     write_json({"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows], "sp": ev["sp"],
-                "mse": ev["mse"], "returns": ev["returns"], "test_set": ev["test_set"]}, args.out / "results.json")
+                "mse": ev["mse"], "returns": ev["returns"], "test_set": ev["test_set"], **provenance()},
+               args.out / "results.json")
     figure(rows, args.out / "table12.png")
     write_config(args, rs, trained, {"seconds": {"total": time.monotonic() - t0, "training_part": t_train,
                                                  "evaluation": ev["seconds"]}})

@@ -15,6 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import time
 
 from dls_quadruped.core.json_io import write_json
+from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.mpc.config import EncodingConfig
 from dls_quadruped.mpc.encodings import encoded_dim
 from experiments.distill_common import (
@@ -113,7 +114,8 @@ def main() -> None:
             "train datapoints", "epochs"]
     write_table(rows, cols, args.out / "table", f"Table 13, scale {args.scale}: DAgger, every encoding x dt x H")
     write_json({"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows], "sp": ev["sp"],
-                "mse": ev["mse"], "returns": ev["returns"], "test_set": ev["test_set"]}, args.out / "results.json")
+                "mse": ev["mse"], "returns": ev["returns"], "test_set": ev["test_set"], **provenance()},
+               args.out / "results.json")
     figure(rows, args.out / "fig25.png")
     write_config(args, rs, trained, {"seconds": {"total": time.monotonic() - t0, "training_part": t_train,
                                                  "evaluation": ev["seconds"]}})

@@ -4,6 +4,9 @@ committed result files under ``docs/experiments/<experiment>/``.
     OMP_NUM_THREADS=1 .venv/bin/python experiments/verdicts.py            # the table, markdown
     OMP_NUM_THREADS=1 .venv/bin/python experiments/verdicts.py --check    # exit 1 if docs/experiments.md differs
 
+``--check`` also checks the prose (``experiments/verdict_prose.py``): each row's page states the table's verdict,
+no page claims an absence or convergence without a margin or a negation, and plan headers name their commits.
+
 Each row reads our number with its 95 % interval from a result file or recomputes it from the per-episode
 values with the experiments' own bootstrap (``distill_metrics.sp_difference``, ``eval.metrics.paired_difference``:
 seed 0, 2 000 resamples); :func:`verdict` applies the rules written at the top of ``docs/experiments.md``.
@@ -14,7 +17,9 @@ from __future__ import annotations
 import csv
 import json
 import re
+import subprocess
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -123,6 +128,38 @@ def pushes_primary(folder: str = "pushes") -> Interval:
     return Interval(d["mean"], *d["ci95"], _fmt(d["mean"], *d["ci95"], 3))
 
 
+def pushes_reading(folder: str) -> str:
+    """The verdict of a pushes run's primary contrast if the thesis's "38 %" is relative to base alone's survival
+    (+0.38 x base alone's rate, the survival margin around it): the thesis does not say which it is."""
+    d = _json(folder, "report.json")
+    rate, p = d["arms"]["base_alone"]["rate"], d["primary"]
+    size = 0.38 * rate
+    rel = verdict(Interval(p["mean"], *p["ci95"], ""), +1, size, 0.10)
+    return (f"'38 %' may be relative (the thesis does not say): +38 % of base alone's {100 * rate:.0f} % is "
+            f"+{size:.2f} ± 0.10, {rel} on that reading")
+
+
+def equivalence(iv: Interval, margin: float) -> str:
+    """A no-difference reading of ``iv`` with an equivalence margin stated before the run: "equivalent" when the
+    interval lies inside +- margin, "different" when it excludes 0, else "inconclusive"."""
+    if -margin <= iv.lo and iv.hi <= margin:
+        return "equivalent"
+    return "different" if iv.lo > 0 or iv.hi < 0 else "inconclusive"
+
+
+def sweep_large_data() -> str:
+    """The Table 11 sweep's cells at 100 000 and 400 000 datapoints under its plan's +-5-point equivalence margin."""
+    cells = {(n, c, e): sweep_gap(e, f"naive_{c}_{n}", f"dagger_{c}_{n}", folder=f"table11_sweep_medium_{n}")
+             for n in ("100k", "400k") for c in ("today", "narrow") for e in ("plain", "disturbed")}
+    by = {k: equivalence(iv, 5.0) for k, iv in cells.items()}
+    eq = [f"{e}, {c}, {n[:3]} 000: {cells[n, c, e].text}" for (n, c, e), v in by.items() if v == "equivalent"]
+    worst = max((k for k, v in by.items() if v == "inconclusive"), key=lambda k: cells[k].hi - cells[k].lo)
+    return (f"at 100 000 and 400 000 datapoints {sum(v == 'different' for v in by.values())} of {len(by)} cells "
+            f"exclude 0, {len(eq)} is equivalent within the plan's ±5 points ({'; '.join(eq)}), "
+            f"{sum(v == 'inconclusive' for v in by.values())} cross the margin: inconclusive (widest: "
+            f"{worst[2]}, {worst[1]}, {worst[0][:3]} 000: {cells[worst].text})")
+
+
 def _fmt(v: float, lo: float, hi: float, digits: int, unit: str = "") -> str:
     return f"{v:+.{digits}f}{unit} [{lo:+.{digits}f}, {hi:+.{digits}f}]"
 
@@ -162,14 +199,20 @@ def sweep_gap(evaluation: str, a: str, b: str, folder: str = "table11_sweep_medi
     return Interval(v, lo, hi, _fmt(v, lo, hi, 1))
 
 
-def survival_gap(folder: str, scenario: str) -> Interval:
-    """Climb minus rough survival on the same episodes (the 7.1 figures pair every expert with base only)."""
+def expert_gap(folder: str, scenario: str, a: str, b: str, key: str = "survived") -> Interval:
+    """Expert ``a`` minus expert ``b`` on the same episodes, from the per-episode files ``<folder>/<task>/
+    <scenario>.json`` of a 7.1 figure (``eval.compare.per_episode_values``; ``key`` as there)."""
     from dls_quadruped.eval.compare import per_episode_values
     from dls_quadruped.eval.metrics import paired_difference
 
-    a, b = (per_episode_values(_json(f"{folder}/{t}", f"{scenario}.json"), "survived") for t in ("climb", "rough"))
-    d = paired_difference(a, b)
+    x, y = (per_episode_values(_json(f"{folder}/{t}", f"{scenario}.json"), key) for t in (a, b))
+    d = paired_difference(x, y)
     return Interval(d["mean"], *d["ci95"], f"{d['mean']:+.4f} [{d['ci95'][0]:+.4f}, {d['ci95'][1]:+.4f}]")
+
+
+def survival_gap(folder: str, scenario: str) -> Interval:
+    """Climb minus rough survival on the same episodes (the 7.1 figures pair every expert with base only)."""
+    return expert_gap(folder, scenario, "climb", "rough")
 
 
 def _per_episode(folder: str, name: str, key: str) -> np.ndarray:
@@ -241,21 +284,33 @@ class Row:
     direction: int = 0
     thesis: float | None = None
     margin: float | None = None
-    why: str = ""
-    note: str = ""
+    why: str | Callable[[], str] = ""
+    note: str | Callable[[], str] = ""
+    exploratory: str = ""
+
+    def word(self, iv: Interval | None) -> str:
+        """The row's verdict word: "exploratory" (rule 5), "inconclusive" when ``why`` is given (rule 4), else
+        the rule's own."""
+        if self.exploratory:
+            return "exploratory"
+        return "inconclusive" if self.why else verdict(iv, self.direction, self.thesis, self.margin)
 
     def verdict_text(self, iv: Interval | None) -> str:
-        rule = verdict(iv, self.direction, self.thesis, self.margin)
-        if self.why:
-            text = "**inconclusive**: " + self.why + ("" if rule == "inconclusive" else f" (rule alone: {rule})")
+        why, note = (x() if callable(x) else x for x in (self.why, self.note))
+        if self.exploratory:
+            text = f"**exploratory**: {self.exploratory}; no verdict (rule 5)"
+        elif why:
+            rule = verdict(iv, self.direction, self.thesis, self.margin)
+            text = "**inconclusive**: " + why + ("" if rule == "inconclusive" else f" (rule alone: {rule})")
         else:
-            text = f"**{rule}**"
-        return text + (f"; {self.note}" if self.note else "")
+            text = f"**{self.word(iv)}**"
+        return text + (f"; {note}" if note else "")
 
 
 M15, T14, T17 = "table15_horizon_medium", "table14_warm_start_encodings_medium", "table17_gait_optimisation_medium"
 T18, V15 = "table18_multi_policy_medium_simple", "table18_multi_policy_medium_v15"
 D, E, W, P = "distillation.md", "experts.md", "warm_start.md", "multiple_policies.md"
+SWEEP = D + "#table-11-settled-where-does-the-gap-appear-plan-committed-at-f92556b-before-the-first-result"
 
 ROWS = [
     Row("1 · Fig. 17", "base ≥ 20 % above rough, speed, climb (reward, simple task)", "≥ +20 %",
@@ -275,7 +330,7 @@ ROWS = [
         note="every expert ≤ 3.8 % there"),
     Row("2 · Fig. 18b (ours)", "the same on our survival sweep (all difficulties)", "climb > rough",
         "climb − rough, survival", lambda: survival_gap("fig18b_survival_sweep_medium", "survival_sweep"),
-        E + "#fig-18b-survival-sweep", +1),
+        E + "#fig-18b-survival-sweep", +1, exploratory="the scenario was designed after Fig. 18 hit the floor"),
     Row("2 · Fig. 19", "stairs: every policy drops off after 25 cm", "25 cm", "climb, success < 50 % from [cm]",
         lambda: cell("fig19_stairs_medium", "success < 50 % from [cm]", policy="climb"), E + "#fig-19-stairs",
         0, 25.0, 2.5),
@@ -299,17 +354,17 @@ ROWS = [
                      schedule="Table 7", **{"Encoding (p, F)": "discrete, discrete"}),
         D + "#table-11-naive-imitation-vs-dagger", -1, -30.42, 5.0,
         why="the small scale has the gap (−27.3 [−47.3, −7.3]), the medium scale none"),
-    Row("4 · Table 11 sweep", "the same, with 15 000 datapoints and the rough task's noise and pushes (plan "
-        "written before the run)", "−43.68 points (f-s)", "naive − DAgger SP, first-spline, disturbed",
-        lambda: sweep_gap("disturbed", "naive_today_15k", "dagger_today_15k"), D + "#table-11-settled-where-does-"
-        "the-gap-appear-plan-written-2026-11-27-1945-utc-before-the-first-result", -1, -43.68, 5.0,
-        note="plain evaluation: −13.2 [−24.0, −3.9]; the gap shrinks with data and is gone at 100 000 (disturbed: "
-             "−1.6 [−8.7, +4.8]) and 400 000 (+0.9 [−4.9, +6.0])"),
+    Row("4 · Table 11 sweep", "the same, with 15 000 datapoints, plain evaluation (plan committed before the run)",
+        "−43.68 points (f-s)", "naive − DAgger SP, first-spline, plain",
+        lambda: sweep_gap("plain", "naive_today_15k", "dagger_today_15k"), SWEEP, -1, -43.68, 5.0,
+        note=lambda: "disturbed (the rough task's noise and pushes, not the thesis's SP setting): "
+                     + sweep_gap("disturbed", "naive_today_15k", "dagger_today_15k").text + "; " + sweep_large_data()),
     Row("4 · Table 11 sweep", "the same, 50 000 datapoints, one command per episode, plain evaluation",
         "−43.68 points (f-s)", "naive − DAgger SP, first-spline, narrow, plain",
-        lambda: sweep_gap("plain", "naive_narrow_50k", "dagger_narrow_50k"), D + "#table-11-settled-where-does-"
-        "the-gap-appear-plan-written-2026-11-27-1945-utc-before-the-first-result", -1, -43.68, 5.0,
-        note="disturbed: −31.6 [−48.2, −16.1], containing the thesis's size"),
+        lambda: sweep_gap("plain", "naive_narrow_50k", "dagger_narrow_50k"), SWEEP, -1, -43.68, 5.0,
+        note=lambda: "disturbed (not the thesis's SP setting): "
+                     + sweep_gap("disturbed", "naive_narrow_50k", "dagger_narrow_50k").text
+                     + ", containing the thesis's size"),
     Row("5 · Table 12", "SP falls as the batch grows", "−3.64 (512), −8.93 (1024)", "SP 512 − SP 64 [points]",
         lambda: sp_gap("table12_batch_size_medium", "batch_512", "batch_64"), D + "#table-12-mini-batch-size", -1),
     Row("5 · Fig. 24", "selector α = 0.6 is best", "best", "indicator − α 0.6, SP epoch 10 [points]",
@@ -385,10 +440,13 @@ ROWS = [
                      "fig32_survival.csv", **{"Warm start": "base"}),
         P + "#fig-32-survival-task", +1, 0.38, 0.10, why="every controller at 0-10 %: no room to rise"),
     Row("11 · pushes", "the same, on flat ground with pushes (preregistered)", "+38",
-        "base warm − base alone, survival", pushes_primary, P + "#fig-32-under-pushes-preregistered", +1),
+        "base warm − base alone, survival", pushes_primary, P + "#fig-32-under-pushes-preregistered", +1, 0.38, 0.10,
+        why=lambda: pushes_reading("pushes")),
     Row("11 · pushes", "the same, rerun with the retrained base and its student (plan amended before the run)", "+38",
         "base warm − base alone, survival", lambda: pushes_primary("retrained/pushes_recipe"),
-        "retrained.md#the-pushes-run-with-the-retrained-pair-preregistered", +1),
+        "retrained.md#the-pushes-run-with-the-retrained-pair-preregistered", +1, 0.38, 0.10,
+        why=lambda: pushes_reading("retrained/pushes_recipe") + "; a second attempt, with two changes at once "
+        "(the retrained pair, the MPC's height reference)"),
     Row("11 · Fig. 32", "two warm starts survive 0 % on the survival task", "0 %", "base + speed, survival",
         lambda: cell("table18_multi_policy_medium_spawn_fix", "survival", "fig32_survival.csv",
                      **{"Warm start": "base + speed"}),
@@ -403,7 +461,8 @@ ROWS = [
         lambda: gap("table18_multi_policy_medium_v0.5", "ws_base+speed_v0.5", "ws_base_v0.5"),
         P + "#figs-33-34-three-speeds", +1),
     Row("12 · Fig. 34", "the argmin switches policy often (up to 10 /s)", "≤ 10 /s", "base + speed, switches/s",
-        lambda: cell(T18, "switches / s", **{"Warm start": "base + speed"}), P + "#figs-33-34-three-speeds", +1),
+        lambda: cell(T18, "switches / s", **{"Warm start": "base + speed"}), P + "#figs-33-34-three-speeds", 0,
+        10.0, 1.0, note="the thesis's 'up to' may be a peak; ours is the mean over episodes"),
 ]
 
 
@@ -429,14 +488,26 @@ def main(argv: list[str] | None = None) -> int:
     from dls_quadruped.cli import ArgumentParser
 
     p = ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--check", action="store_true", help="exit 1 if docs/experiments.md's table is not this one")
+    p.add_argument("--check", action="store_true",
+                   help="exit 1 if docs/experiments.md's table is not this one or a page's verdict differs from it")
     args = p.parse_args(argv)
     table = render()
     if args.check:
+        from experiments.verdict_prose import overclaims, plan_errors, row_mismatches
+
         if documented() != table:
             print("docs/experiments.md's verdict table differs from the result files; paste this:\n" + table)
             return 1
         print("docs/experiments.md's verdict table matches the result files")
+        prose = row_mismatches(ROWS) + overclaims()
+        try:
+            prose += plan_errors()
+        except (OSError, subprocess.CalledProcessError) as e:  # a copy of the tree without its history
+            print(f"plan headers not checked: no git history here ({e})")
+        if prose:
+            print("the section pages' verdict sentences disagree with the table:\n  " + "\n  ".join(prose))
+            return 1
+        print(f"the section pages state every row's verdict as the table does ({len(ROWS)} rows)")
         return 0
     print(table)
     return 0

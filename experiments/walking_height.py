@@ -29,6 +29,7 @@ from dls_quadruped.core.json_io import write_json
 from dls_quadruped.core.rotations import quat_rotate
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
+from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.eval.scenario import split_seed
 from dls_quadruped.learning.policy_file import load_module
 from dls_quadruped.mpc.srbd import com_height_reference, robot_srbd_model
@@ -90,7 +91,7 @@ def main(argv: list[str] | None = None) -> dict:
               f"{res['robot_sd_m']:.4f}, over time {res['step_sd_m']:.4f}; {res['robots_standing']}/{args.robots} "
               f"stood); the MPC's default reference {com_height_reference():.4f} m", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    write_json(out, args.out / "walking_height.json", indent=1)
+    write_json({**out, **provenance()}, args.out / "walking_height.json", indent=1)
     print(json.dumps({t: round(e["com_height_m"], 4) for t, e in out["experts"].items()}))
     return out
 

@@ -27,7 +27,6 @@ replaced by another).
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import time
 from dataclasses import dataclass, field, replace
@@ -47,6 +46,7 @@ from dls_quadruped.closed_loop.episodes import commands, run_controllers
 from dls_quadruped.closed_loop.metrics import summarize
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.core.progress import progress
+from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.inputs import GROUNDS
 from experiments.distill_common import write_table
@@ -235,7 +235,7 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
                         "naive_gait": list(cell.naive_gait) if cell.naive_gait else None, "com_height": com_height,
                         "shares": list(cell.shares) if cell.shares else None,
                         "sampler": cell.sampler, "optimise": list(cell.optimise), "vx": cell.vx,
-                        "naive_share": cell.naive_share, "seconds": seconds, "git_commit": _commit(),
+                        "naive_share": cell.naive_share, "seconds": seconds, **provenance(),
                         "seconds_wall": time.monotonic() - t0})
         if len(cell.students) > 1:  # Fig. 34: the winning group of every solve of robot 0 (-1: none)
             summary["winner_trace_robot0"] = traces.winner[..., 0].reshape(-1).tolist()
@@ -375,23 +375,13 @@ def survival(s: dict) -> str:
     return f"{100 * v['rate']:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] (n={n})"
 
 
-def _commit() -> str:
-    """The repository's HEAD commit (each cell records the code it ran with), or "unknown"."""
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
-                              check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def write_config(args: argparse.Namespace, cells: list[Cell], extra: dict | None = None) -> None:
-    commit = _commit()
     from dls_quadruped.bench.machine import cpu_model
 
     wall = sum(r.get("seconds_wall", 0.0) for r in (extra or {}).pop("results", {}).values())
     write_json({"scale": args.scale, "episodes_per_cell": args.episodes, "seconds": args.seconds, "seed": args.seed,
                 "sampler_seeds": args.sampler_seeds, "cells_wall_s": round(wall, 1),
-                "threads": args.threads, "git_commit": commit, "cpu": cpu_model(), "policy": str(args.policy),
+                "threads": args.threads, **provenance(), "cpu": cpu_model(), "policy": str(args.policy),
                 "variant": getattr(args, "variant", "thesis"), "com_height": getattr(args, "com_height", None),
                 "committed_student": str(getattr(args, "committed_student", COMMITTED_STUDENT)),
                 "students": str(args.students), "cells": [c.name for c in cells], **(extra or {})},

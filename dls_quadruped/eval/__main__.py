@@ -30,6 +30,7 @@ from dls_quadruped.cli import (
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.core.progress import label
 from dls_quadruped.eval.policy import check_policy_file
+from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.eval.scenario import (
     SPLITS,
     VALIDATION_SEED_OFFSET,
@@ -130,6 +131,7 @@ def main(argv: list[str] | None = None) -> dict:
     if overrides:
         res["task_overrides"] = overrides
     res["wall_s"] = round(time.perf_counter() - t0, 1)
+    res.update(provenance())
     out = args.out or default_out(args.policy)
     out.mkdir(parents=True, exist_ok=True)
     write_json(res, out / f"{scenario.name}.json", indent=1)  # strict JSON: a NaN metric becomes null, listed

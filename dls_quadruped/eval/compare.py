@@ -39,6 +39,7 @@ import numpy as np
 from dls_quadruped.cli import ArgumentParser, UserError, run_cli
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.metrics import paired_difference
+from dls_quadruped.eval.provenance import provenance
 
 PAIRED_METRICS = {"survived": "survival [share]", "reward": "mean reward per step", "length_s": "episode length [s]",
                   "cot": "cost of transport", "reached_top": "stairs: reached the top [share]",
@@ -255,7 +256,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     print(format_rows(rows, names))
     if args.out is not None:
         write_json({"a": str(args.a), "b": str(args.b), "policy_a": a.get("policy"), "policy_b": b.get("policy"),
-                    "scenario": a.get("scenario"), "seed": a.get("seed"), "episodes": a.get("episodes"), "rows": rows},
+                    "scenario": a.get("scenario"), "seed": a.get("seed"), "episodes": a.get("episodes"), "rows": rows,
+                    **provenance()},
                    args.out,
                    indent=1)
     return rows

@@ -30,6 +30,7 @@ from dls_quadruped.cli import (
 )
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.compare import PAIRED_METRICS, per_episode_values
+from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.eval.scenario import EvalOptions, split_seed
 from dls_quadruped.eval.scenarios import SCENARIOS
 
@@ -118,6 +119,7 @@ def main(argv: list[str] | None = None) -> dict:
                 res.get("episodes_per_condition", res.get("episodes")) != opts.episodes:
             res = scenario.evaluate(ckpt, opts)
             res["split"] = "validation"
+            res.update(provenance())
             write_json(res, cached, indent=1)
         values[it] = metric_value(res, args.metric)
         print(f"[select] {ckpt.name}: validation {args.metric} {values[it]:.4f}", flush=True)
@@ -125,7 +127,8 @@ def main(argv: list[str] | None = None) -> dict:
     summary = {"run": str(args.run), "scenario": args.scenario, "metric": args.metric, "split": "validation",
                "seed": args.seed, "validation_seed": opts.seed, "episodes": opts.episodes,
                "candidates": [{"iteration": it, "checkpoint": str(todo[it]), "value": v} for it, v in values.items()],
-               "chosen": {"iteration": chosen, "checkpoint": str(todo[chosen]), "value": values[chosen]}}
+               "chosen": {"iteration": chosen, "checkpoint": str(todo[chosen]), "value": values[chosen]},
+               **provenance()}
     write_json(summary, out / "selection.json", indent=1)
     print(f"[select] chosen {todo[chosen]} ({args.metric} {values[chosen]:.4f} on {opts.episodes} validation "
           f"episodes); report it with: python -m dls_quadruped.eval --policy {todo[chosen]} --scenario {args.scenario}")

@@ -155,3 +155,31 @@ def test_walking_height_help_and_a_bad_variant():
     bad = subprocess.run([sys.executable, script, "--variant", "bogus"], capture_output=True, text=True, timeout=120,
                          check=False)
     assert bad.returncode == 2 and "invalid choice: 'bogus'" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_fig17_keeps_per_episode_files_that_give_its_paired_row_and_the_commit(tiny, save_policy, monkeypatch):
+    """The verdict row of Fig. 17 (speed - base, reward per step) can be recomputed from the per-expert files the
+    script writes, and every file says which commit it ran on."""
+    from dls_quadruped.eval.provenance import provenance
+    from experiments import verdicts
+
+    torch.manual_seed(0)
+    save_policy(torch.nn.Sequential(torch.nn.Linear(259, 28), torch.nn.Tanh()), 259,
+                tiny / "policies" / "speed_actor.pt")
+    out = run(fig17_simple_task, tiny, "fig17")
+    monkeypatch.setattr(verdicts, "RESULTS", tiny)
+    verdicts._json.cache_clear()
+    verdicts._csv.cache_clear()
+    try:
+        from_files = verdicts.expert_gap("fig17", "simple", "speed", "base", "reward")
+        printed = verdicts.paired_csv("fig17", "speed - base", "mean reward per step")
+    finally:
+        verdicts._json.cache_clear()
+        verdicts._csv.cache_clear()
+    assert from_files.value != 0.0  # two different policies
+    assert (from_files.value, from_files.lo, from_files.hi) == pytest.approx(
+        (printed.value, printed.lo, printed.hi), abs=5e-5)
+    head = provenance()
+    for f in (out / "base" / "simple.json", out / "speed" / "simple.json", out / "config.json", out / "results.json"):
+        rec = json.loads(f.read_text())
+        assert rec["git_commit"] == head["git_commit"] and rec["git_dirty"] == head["git_dirty"], f

@@ -124,3 +124,159 @@ def test_students_paired_in_both_rl_rows_keep_the_value_and_narrow_the_interval(
     apart = relative_gap_difference(folder, naive, rl)
     assert joint.value == pytest.approx(apart.value)
     assert apart.lo < joint.lo < joint.value < joint.hi < apart.hi
+
+
+def test_an_exploratory_row_carries_no_verdict_and_a_note_may_be_computed():
+    row = Row("x", "claim", "t", "label", lambda: iv(0.1, 0.2), "p.md", +1, exploratory="designed after looking",
+              note=lambda: "computed")
+    assert row.word(row.ours()) == "exploratory"
+    assert row.verdict_text(row.ours()) == "**exploratory**: designed after looking; no verdict (rule 5); computed"
+
+
+def test_equivalence_needs_the_interval_inside_the_margin():
+    from experiments.verdicts import equivalence
+
+    assert equivalence(iv(-1.5, 4.9), 5.0) == "equivalent"     # the sweep's plain / today / 400 000 cell
+    assert equivalence(iv(-8.7, 4.8), 5.0) == "inconclusive"   # disturbed / today / 100 000: crosses -5
+    assert equivalence(iv(-24.0, -3.9), 5.0) == "different"
+
+
+def test_the_relative_reading_of_38_percent_scales_base_alones_survival():
+    """The retrained pushes run: base alone 69 % (66 of 96), +38 % of it is +0.26; [+0.076, +0.271] holds it within
+    the 0.10 survival margin, while 0.38 +- 0.10 (the absolute reading) is missed."""
+    from experiments.verdicts import pushes_reading
+
+    assert "69 % is +0.26 ± 0.10, reproduced on that reading" in pushes_reading("retrained/pushes_recipe")
+    assert verdict(iv(0.076, 0.271), +1, 0.38, 0.10) == "contradicted"
+    assert verdict(iv(0.076, 0.271), +1, 0.38 * 66 / 96, 0.10) == "reproduced"
+
+
+@pytest.fixture
+def pages(tmp_path, monkeypatch):
+    """A copy of docs/experiments/ and docs/experts.md that the prose check reads instead of the real ones."""
+    import shutil
+
+    from experiments import verdict_prose
+
+    docs = tmp_path / "docs"
+    shutil.copytree(REPO / "docs" / "experiments", docs / "experiments",
+                    ignore=lambda d, names: [n for n in names if (Path(d) / n).is_dir()])
+    for name in ("experiments.md", "experts.md"):
+        shutil.copy(REPO / "docs" / name, docs / name)
+    monkeypatch.setattr(verdict_prose, "DOCS", docs)
+    monkeypatch.setattr(verdict_prose, "PAGES", [docs / "experiments.md", *sorted((docs / "experiments").glob("*.md")),
+                                                 docs / "experts.md"])
+    return docs
+
+
+def edit(path: Path, old: str, new: str) -> None:
+    text = path.read_text(encoding="utf-8")
+    assert old in text
+    path.write_text(text.replace(old, new), encoding="utf-8")
+
+
+def test_the_section_pages_state_every_rows_verdict_as_the_table():
+    from experiments.verdict_prose import PROSE, overclaims, row_mismatches
+
+    assert {r.claim for r in ROWS} == set(PROSE)
+    assert row_mismatches(ROWS) == []
+    assert overclaims() == []
+
+
+def test_a_page_that_states_another_label_fails_the_check(pages, capsys):
+    """The Fig. 18 row is inconclusive; a page that calls it reproduced, or that no longer states it, fails
+    ``verdicts.py --check`` while the table itself still matches."""
+    from experiments.verdict_prose import row_mismatches
+    from experiments.verdicts import main
+
+    page = pages / "experiments" / "experts.md"
+    edit(page, '"Climb is best, even above rough": inconclusive.', '"Climb is best, even above rough": reproduced.')
+    (bad,) = row_mismatches(ROWS)
+    assert bad.startswith("2 · Fig. 18 ") and "says 'reproduced', the table 'inconclusive'" in bad
+    assert main(["--check"]) == 1
+    assert "disagree with the table" in capsys.readouterr().out
+    edit(page, '"Climb is best, even above rough": reproduced.', "Climb and rough cannot be ranked here.")
+    (bad,) = row_mismatches(ROWS)
+    assert "states no verdict" in bad
+
+
+def test_the_rule_alone_and_another_reading_are_not_the_verdict():
+    from experiments.verdict_prose import stated
+
+    phrase = ('"The MPC raises base\'s survival"',)
+    assert stated('- **"The MPC raises base\'s survival": inconclusive** (rule alone: contradicted)', phrase) == \
+        ["inconclusive"]
+    assert stated('- **"The MPC raises base\'s survival"** (rule alone: contradicted), 0.26 reproduced on that '
+                  'reading', phrase) == []
+    assert stated('- **"The MPC raises base\'s survival"**: one line\n  and the next: **not reproduced**', phrase) == \
+        ["not reproduced"]
+    assert stated("- another bullet: reproduced", phrase) == []
+
+
+@pytest.mark.parametrize(("sentence", "flagged"), [
+    ("At 100 000 datapoints the gap is gone.", True),
+    ("At 400 000 there is no gap in any cell.", True),
+    ("The two encodings are equivalent.", True),
+    ("Speed's training converges.", True),
+    ("The gap is gone within the plan's ±5-point margin.", False),
+    ("That the gap is gone is not shown.", False),
+    ("Speed's return had not converged at iteration 999.", False),
+    ("Fig. 18 shows the two experts are equivalent within a 10-point margin.", False),
+])
+def test_an_absence_or_convergence_needs_a_margin_or_a_negation(tmp_path, sentence, flagged):
+    from experiments.verdict_prose import overclaims
+
+    page = tmp_path / "p.md"
+    page.write_text(f"# A page\n\nA first sentence. {sentence} A last sentence.\n", encoding="utf-8")
+    assert bool(overclaims([page])) == flagged
+
+
+def _repo(tmp_path: Path) -> Path:
+    import subprocess
+
+    repo = tmp_path / "repo"
+    (repo / "docs" / "experiments").mkdir(parents=True)
+    for args in (["init", "-q"], ["config", "user.email", "t@t"], ["config", "user.name", "t"]):
+        subprocess.run(["git", "-C", str(repo), *args], check=True)
+    return repo
+
+
+def _commit(repo: Path, message: str) -> str:
+    import subprocess
+
+    subprocess.run(["git", "-C", str(repo), "add", "-A"], check=True)
+    subprocess.run(["git", "-C", str(repo), "commit", "-q", "-m", message], check=True)
+    return subprocess.run(["git", "-C", str(repo), "rev-parse", "--short=7", "HEAD"], check=True,
+                          capture_output=True, text=True).stdout.strip()
+
+
+def test_a_plan_header_must_name_the_commit_that_added_it(tmp_path):
+    from experiments.verdict_prose import plan_errors
+
+    repo = _repo(tmp_path)
+    plan = repo / "docs" / "experiments" / "x_plan.md"
+    plan.write_text("# Plan: x (written 2026-11-27 19:45 UTC)\n\nbody\n")
+    first = _commit(repo, "plan")
+    (repo / "docs" / "experiments" / "other.md").write_text("# other\n")
+    second = _commit(repo, "other")
+    assert any("hand-written time" in e for e in plan_errors(repo))
+    plan.write_text(f"# Plan: x (committed at {second})\n\nbody\n")  # a commit that did not add it
+    assert any("did not add that heading" in e for e in plan_errors(repo))
+    plan.write_text("# Plan: x (committed at 0123456)\n\nbody\n")
+    assert any("not a commit" in e for e in plan_errors(repo))
+    plan.write_text(f"# Plan: x (committed at {first})\n\nbody\n\n## Amendment (committed at {first})\n")
+    assert any("## Amendment" in e and "did not add" in e for e in plan_errors(repo))
+    plan.write_text(f"# Plan: x (committed at {first})\n\nbody\n")
+    assert plan_errors(repo) == []
+
+
+def test_the_committed_plan_headers_name_their_commits():
+    import subprocess
+
+    from experiments.verdict_prose import plan_errors
+
+    try:
+        errors = plan_errors()
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("no git history in this copy of the tree")
+    assert errors == []
