@@ -94,7 +94,7 @@ def test_the_reward_manager_adds_the_weighted_clipped_term(walked):
     rm = env.reward_manager
     i = [t.name for t in rm.terms].index("mpc_trajectory_cost")
     rewards_step = rm.step_reward[:, i].clone()
-    expected = -0.1 * torch.clamp(_mpc_state_cost(env) / 200.0, max=50.0) * env.step_dt  # the task's weight and clip
+    expected = -0.1 * torch.clamp(_mpc_state_cost(env) / 200.0, max=100.0) * env.step_dt  # the task's weight and clip
     torch.testing.assert_close(rewards_step, expected, rtol=2e-4, atol=1e-6)
 
 
