@@ -1,5 +1,6 @@
 """PPO in the MPC's horizon space from the DAgger student: the actor built from the student outputs what the student
-outputs, and ``base_mpc_cost`` trains from it (2 iterations, 4 robots, episodes of 0.5 s)."""
+outputs, ``base_mpc_cost`` trains from it (2 iterations, 4 robots, episodes of 0.5 s), and an actor exports back to a
+student program the closed loop accepts."""
 
 from __future__ import annotations
 
@@ -78,3 +79,21 @@ def test_ppo_trains_two_iterations_from_the_student(networks, tmp_path):
     first = read_checkpoint(networks)["actor_state_dict"]["mlp.6.weight"]
     assert not torch.equal(last["actor_state_dict"]["mlp.6.weight"], first)  # PPO moved the student's last layer
     assert (run / "exported" / "policy.pt2").is_file()
+
+
+def test_export_back_to_a_student_round_trips(networks, tmp_path):
+    """init (student -> actor) then export (actor -> student program): the program outputs the original student's
+    horizon and its metadata passes the closed loop's encoding check."""
+    from dls_quadruped.mpc.config import SamplerConfig
+    from dls_quadruped.mpc.warm_start import check_student_encoding
+    from experiments import mpc_cost_export
+
+    out = mpc_cost_export.main([str(networks), "--out", str(tmp_path / "back.pt2")])
+    back, meta = load_student(out)
+    check_student_encoding(meta, SamplerConfig())  # first-spline, H = 10, dt = 0.02 s
+    original, _ = load_student(mpc_cost_init.STUDENT)
+    obs = read_checkpoint(mpc_cost_init.CRITIC)["critic_state_dict"]["obs_normalizer._mean"].expand(6, -1).clone()
+    obs += 0.1 * torch.randn(obs.shape, generator=torch.Generator().manual_seed(0))  # states near the data's mean
+    with torch.no_grad():
+        torch.testing.assert_close(back(obs), original(obs), rtol=1e-4, atol=1e-4)
+        torch.testing.assert_close(back.first_action(obs), original.first_action(obs), rtol=1e-4, atol=1e-4)
