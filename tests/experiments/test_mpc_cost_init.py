@@ -4,6 +4,7 @@ student program the closed loop accepts."""
 
 from __future__ import annotations
 
+import csv
 import sys
 from pathlib import Path
 
@@ -24,6 +25,7 @@ from dls_quadruped.learning.runner import (
 )
 from dls_quadruped.learning.student import load_student
 from dls_quadruped.mpc.config import EncodingConfig
+from dls_quadruped.mpc.horizon import TERM_NAMES
 from experiments import mpc_cost_init
 
 SHORT = ["--set", "env.episode_length_s=0.5", "--set", "scene.num_workers=0"]
@@ -79,6 +81,15 @@ def test_ppo_trains_two_iterations_from_the_student(networks, tmp_path):
     first = read_checkpoint(networks)["actor_state_dict"]["mlp.6.weight"]
     assert not torch.equal(last["actor_state_dict"]["mlp.6.weight"], first)  # PPO moved the student's last layer
     assert (run / "exported" / "policy.pt2").is_file()
+    from experiments import mpc_cost_curve
+
+    curve = mpc_cost_curve.main([str(run), "--csv", str(tmp_path / "curve.csv")])
+    rows = list(csv.DictReader(curve.open()))
+    assert [int(r["iteration"]) for r in rows] == [0, 1]
+    split = sum(float(rows[-1][f"mpc_trajectory_cost/{t}"]) for t in TERM_NAMES)
+    assert split == pytest.approx(float(rows[-1]["mpc_trajectory_cost"]), rel=1e-3)  # logged split sums to the term
+    assert float(rows[-1]["mpc_trajectory_cost"]) < 0
+    assert (tmp_path / "curve.png").is_file()
 
 
 def test_export_back_to_a_student_round_trips(networks, tmp_path):
