@@ -80,7 +80,8 @@ class HorizonScore:
 
 def horizon_inputs(raw_horizon: torch.Tensor, state: RobotState, command: torch.Tensor, com_height: float,
                    cfg: SamplerConfig, model: SRBDModel | None = None) -> KernelInputs:
-    """The kernel inputs of a one-sample solve whose warm start is each robot's horizon (flat ground at z = 0).
+    """The kernel inputs, on the CPU, of a one-sample solve whose warm start is each robot's horizon (flat ground at
+    z = 0).
 
     Args:
         raw_horizon: (B, D) encoded horizon in the action manager's raw units (a student's output).
@@ -100,10 +101,13 @@ def horizon_inputs(raw_horizon: torch.Tensor, state: RobotState, command: torch.
                          f"{cfg.encoding_F} H={cfg.horizon}, got {tuple(raw_horizon.shape)}")
     if not 0.1 <= com_height <= 0.6:
         raise ValueError(f"com_height (the MPC's CoM height reference) must be in [0.1, 0.6] m, got {com_height!r}")
-    encoded = warm_start.from_student(raw_horizon.float(), cfg)
-    dev = encoded.device
+    # the C++ kernel computes on the CPU (as in the closed loop, whose MPC runs where its kernel runs); mpc_inputs
+    # builds its constants on the CPU too
+    dev = torch.device("cpu")
+    state = state if state.base_pos_w.device == dev else state.to(dev)
+    encoded = warm_start.from_student(raw_horizon.to(dev, torch.float32), cfg)
     # the reference footholds only enter the input cost, which R = 0 switches off: the nominal ones
-    srbd, refs, frame = mpc_inputs(state, command, torch.zeros(b, 4, 2), float(com_height), cfg, model)
+    srbd, refs, frame = mpc_inputs(state, command.to(dev), torch.zeros(b, 4, 2), float(com_height), cfg, model)
     return KernelInputs(
         seed=torch.zeros((), dtype=torch.long, device=dev), warm_starts=encoded[:, None, :],
         group=torch.zeros(1, dtype=torch.long, device=dev), perturb=torch.zeros(1, device=dev),

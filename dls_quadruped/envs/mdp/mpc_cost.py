@@ -17,7 +17,9 @@ alone reaches c ~ 500), which would otherwise swamp the value function.
 The value comes from the controller's cost kernel (``cpp`` on the CPU: ~1 ms for 256 robots). The split by term
 (``mpc.horizon.TERM_NAMES``: z, vx, vy, vz, roll, pitch and the three rates) needs the eager reference rollout (~6 ms
 for 256 robots), so it is computed every ``split_every``-th call (1: every call); each robot's parts are its value
-times its shares of the latest split, so they sum to the value and the reward manager logs them (``parts``).
+times its shares of the latest split, so they sum to the value and the reward manager logs them (``parts``). The
+kernel computes on the CPU, so with the env on a GPU each step copies the horizons and states to the host and the
+values back (not measured on a GPU).
 """
 
 from __future__ import annotations
