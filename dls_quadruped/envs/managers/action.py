@@ -3,9 +3,17 @@
 Raw (B, 28) network output -> ``control.latent_action.ActionInterface`` (normalise, clip, frame H ->
 world, touch-down z from the terrain's exact height lookup) -> the simulator backend's ``set_references``.
 Task file: ``actions: {latent: {<LatentActionConfig field>: value, ...}}``.
+
+With ``actions.horizon: {p, F, horizon, constrained_fit, dt}`` the policy acts in the sampling MPC's horizon
+space instead: its (B, D) output is an encoded horizon of latent actions in raw units (``mpc.encodings``, a
+distilled student's output space), the env applies its first action (``mpc.horizon.first_raw_action``: step 0 of
+the MPC's decoding) as above, and the manager keeps the horizon (``raw_horizon``) with the robot state and
+command it was chosen at (``decision_state``, ``decision_command``) for the terms that score it.
 """
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import torch
 
@@ -20,17 +28,47 @@ from dls_quadruped.control.latent_action import (
 )
 from dls_quadruped.core.compile import Fused
 from dls_quadruped.core.rotations import yaw_from_quat
+from dls_quadruped.core.state import RobotState
 from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
 from dls_quadruped.envs.managers.base import ManagerBase, format_table
+from dls_quadruped.mpc import horizon as mpc_horizon
+
+if TYPE_CHECKING:
+    from dls_quadruped.mpc.config import EncodingConfig
+
+HORIZON_KEYS = ("p", "F", "horizon", "constrained_fit", "dt")
 
 
 def resolve_action_config(task: TaskConfig) -> LatentActionConfig:
     """The ``actions`` section checked: only ``latent``, with ``LatentActionConfig`` fields."""
     section = task.section("actions")
-    unknown = sorted(set(section) - {"latent"})
+    unknown = sorted(set(section) - {"latent", "horizon"})
     if unknown:
-        raise task.error(f"actions.{unknown[0]}", "unknown action term; allowed: ['latent']")
+        raise task.error(f"actions.{unknown[0]}", "unknown action term; allowed: ['horizon', 'latent']")
+    resolve_horizon_config(task)  # checked with the rest of the section when the task is loaded
     return dataclass_from_dict(LatentActionConfig, section.get("latent") or {}, task, "actions.latent")
+
+
+def resolve_horizon_config(task: TaskConfig) -> tuple[EncodingConfig, float] | None:
+    """``actions.horizon`` checked: (the encoding, its spacing dt [s]), or None when the policy acts with one
+    latent action. Defaults: the students' first-spline, H = 10, dt = 0.02 s, constrained fit."""
+    spec = task.section("actions").get("horizon")
+    if spec is None:
+        return None
+    if not isinstance(spec, dict):
+        raise task.error("actions.horizon", f"must be a mapping with keys {list(HORIZON_KEYS)}, got {spec!r}")
+    unknown = sorted(set(spec) - set(HORIZON_KEYS))
+    if unknown:
+        raise task.error(f"actions.horizon.{unknown[0]}", f"unknown key; allowed: {list(HORIZON_KEYS)}")
+    dt = spec.get("dt", 0.02)
+    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not 0 < dt < 1:
+        raise task.error("actions.horizon.dt", f"must be a number of seconds in (0, 1), got {dt!r}")
+    try:
+        enc = mpc_horizon.EncodingConfig(spec.get("p", "first"), spec.get("F", "spline"), spec.get("horizon", 10),
+                             spec.get("constrained_fit", True))
+    except ValueError as err:
+        raise task.error("actions.horizon", str(err)) from None
+    return enc, float(dt)
 
 
 class ActionManager(ManagerBase):
@@ -49,6 +87,14 @@ class ActionManager(ManagerBase):
         self.interface = ActionInterface(self.cfg, env.scene.terrain.height_at)
         n, dev = env.num_envs, env.device
         self.num_actions = ACTION_DIM
+        horizon = resolve_horizon_config(task)
+        self.horizon: EncodingConfig | None = None if horizon is None else horizon[0]
+        self.horizon_dt: float | None = None if horizon is None else horizon[1]
+        if self.horizon is not None:
+            self.num_actions = mpc_horizon.encoded_dim(self.horizon)
+            self.raw_horizon = torch.zeros(n, self.num_actions, device=dev)
+            self.decision_command = torch.zeros(n, 3, device=dev)
+            self.decision_state: RobotState | None = None
         self.raw_action = torch.zeros(n, ACTION_DIM, device=dev)
         self.prev_raw_action = torch.zeros_like(self.raw_action)
         self.applied_action = torch.zeros_like(self.raw_action)
@@ -72,6 +118,8 @@ class ActionManager(ManagerBase):
         The raw action is kept clamped to +-``RAW_LIMIT``, so the action rate, the violation and the applied action
         of an entry of 1e20 are those of 1e6 (finite), not an overflow."""
         raw = raw.to(self.raw_action)
+        if self.horizon is not None:
+            raw = self._first_of_horizon(raw, replan, finite)
         if not finite:
             validate_raw(raw, cfg=self.cfg)
         if not replan:
@@ -86,6 +134,19 @@ class ActionManager(ManagerBase):
             self.stance_frac[:] = contact.to(self.stance_frac.dtype).mean(dim=-2)
         self.env.scene.sim.set_references(f, d, p_td_w, F_w)
 
+    def _first_of_horizon(self, raw: torch.Tensor, replan: bool, finite: bool) -> torch.Tensor:
+        """Keep the (B, D) horizon, and the state and command it was chosen at; return its (B, 28) first action."""
+        if raw.dim() != 2 or raw.shape[1] != self.num_actions:
+            raise ValueError(f"a horizon action must have shape (B, {self.num_actions}) (actions.horizon "
+                             f"{self.horizon.p}-{self.horizon.F} H={self.horizon.horizon}), got {tuple(raw.shape)}")
+        if not finite and not bool(torch.isfinite(raw).all()):
+            raise ValueError("the horizon action contains NaN/inf; every entry must be finite")
+        self.raw_horizon[:] = raw.clamp(-RAW_LIMIT, RAW_LIMIT)
+        if not replan:
+            self.decision_state = self.env.state.clone()
+            self.decision_command[:] = self.env.command_manager.command
+        return mpc_horizon.first_raw_action(self.raw_horizon, self.horizon)
+
     def _convert_eager(self, s) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """The raw action in ``raw_action`` to world references (f, d, p_td_w, F_w); violation and applied actions
         written (compiled with scene.compile)."""
@@ -99,14 +160,22 @@ class ActionManager(ManagerBase):
 
     def finite_rows(self, raw: torch.Tensor) -> torch.Tensor:
         """(B,) bool: every entry of the robot's (B, 28) raw action and its physical value is finite
-        (``latent_action.finite_entries``); on the device, no host read."""
-        return finite_entries(raw, self.cfg).all(dim=1)
+        (``latent_action.finite_entries``; a horizon action: every entry, and its first action's physical value);
+        on the device, no host read."""
+        if self.horizon is None:
+            return finite_entries(raw, self.cfg).all(dim=1)
+        first = mpc_horizon.first_raw_action(raw.nan_to_num(), self.horizon)
+        return torch.isfinite(raw).all(dim=1) & finite_entries(first, self.cfg).all(dim=1)
 
     def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
         # saturated and stance_frac stay: they describe the action just held, read after the step's resets
-        for buf in (self.raw_action, self.prev_raw_action, self.applied_action, self.violation, self.applied_physical):
+        bufs = [self.raw_action, self.prev_raw_action, self.applied_action, self.violation, self.applied_physical]
+        for buf in bufs + ([self.raw_horizon] if self.horizon is not None else []):
             buf.index_fill_(0, env_ids, 0.0)  # x[ids] = 0.0 copies the 0 from the host on CUDA
         return {}
 
     def summary(self) -> str:
-        return format_table("actions", ("term", "dim", "config"), [("latent", ACTION_DIM, "LatentActionConfig")])
+        rows = [("latent", ACTION_DIM, "LatentActionConfig")]
+        if self.horizon is not None:
+            rows.append(("horizon", self.num_actions, f"{self.horizon}, dt {self.horizon_dt} s"))
+        return format_table("actions", ("term", "dim", "config"), rows)

@@ -3,7 +3,8 @@
 Weights are mutable (``self.weights``) so a curriculum can switch terms on. Each write also lands in a device
 tensor the (compiled) compute reads, so switching a weight neither recompiles nor uploads per step. Episode sums
 per term are logged at reset as ``Episode_Reward/<term>`` (sum over the episode / episode length in s, a 0-dim
-tensor).
+tensor). A term function with a ``parts(env) -> {name: (B,)}`` attribute (its last value split into parts that sum
+to it) has each part logged the same way, weighted, as ``Episode_Reward/<term>/<part>``.
 """
 
 from __future__ import annotations
@@ -64,6 +65,8 @@ class RewardManager(ManagerBase):
         self.weights = Weights([t.name for t in self.terms], [float(t.extra["weight"]) for t in self.terms],
                                env.device, self._build_compute)
         self.episode_sums = {t.name: torch.zeros(env.num_envs, device=env.device) for t in self.terms}
+        self.part_sums: dict[str, torch.Tensor] = {}
+        """``<term>/<part>`` -> (B,) episode sums of the parts of the terms that split their value (``parts``)."""
         self.step_reward = torch.zeros(env.num_envs, len(self.terms), device=env.device)
         self._build_compute()
 
@@ -89,6 +92,12 @@ class RewardManager(ManagerBase):
             self.step_reward[:, i] = r
             self.episode_sums[term.name] += r
             total += r
+            split = getattr(term.func, "parts", None)
+            for part, v in (split(self.env) if split is not None else {}).items():
+                key = f"{term.name}/{part}"
+                if key not in self.part_sums:
+                    self.part_sums[key] = torch.zeros_like(r)
+                self.part_sums[key] += torch.nan_to_num(v.float(), nan=0.0, posinf=0.0, neginf=0.0) * w[i] * dt
         return total
 
     def episode_fraction(self, name: str, env_ids: torch.Tensor) -> float:
@@ -105,7 +114,7 @@ class RewardManager(ManagerBase):
         """Episode sums of ``env_ids`` (mean over them / episode length [s]) as 0-dim tensors on the env's device
         (not read back here: the logger does that, once per iteration), then cleared."""
         logs = {}
-        for name, s in self.episode_sums.items():
+        for name, s in (self.episode_sums | self.part_sums).items():
             logs[f"Episode_Reward/{name}"] = s[env_ids].mean() / self.env.max_episode_length_s
             s.index_fill_(0, env_ids, 0.0)
         return logs

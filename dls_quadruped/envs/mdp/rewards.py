@@ -6,7 +6,7 @@ from __future__ import annotations
 import torch
 
 from dls_quadruped.core.torch_cache import constant_cache
-from dls_quadruped.envs.mdp import kernels
+from dls_quadruped.envs.mdp import kernels, mpc_cost
 from dls_quadruped.envs.mdp.observations import (
     base_lin_vel,
     foot_contact,
@@ -108,3 +108,15 @@ def action_limit(env, component: str, low: float, high: float) -> torch.Tensor:
         raise ValueError(f"action_limit: unknown component {component!r}; allowed: {sorted(_COMPONENTS)}")
     x = env.action_manager.applied_physical[:, _COMPONENTS[component]]
     return kernels.l1(torch.clamp(low - x, min=0.0) + torch.clamp(x - high, min=0.0))
+
+
+def mpc_trajectory_cost(env, reference_cost: float = 200.0, com_height: float = 0.404, clip: float = 50.0,
+                        split_every: int = 10) -> torch.Tensor:
+    """The sampling MPC's state cost of each robot's horizon action rolled out from its state, over
+    ``reference_cost`` and clipped at ``clip`` (``mdp/mpc_cost.py``; needs ``actions.horizon``). ``com_height``
+    [m]: the MPC's CoM height reference (0.404: the height the recipe experts walk at). Its split by cost term
+    (computed every ``split_every``-th step) is logged as ``Episode_Reward/mpc_trajectory_cost/<term>``."""
+    return mpc_cost.trajectory_cost(env, reference_cost, com_height, clip, split_every)
+
+
+mpc_trajectory_cost.parts = mpc_cost.parts  # the reward manager logs the split by term
