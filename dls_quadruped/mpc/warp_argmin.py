@@ -33,21 +33,29 @@ _F2 = wp.array2d(dtype=wp.float32)
 _I2 = wp.array2d(dtype=wp.int32)
 
 
+@wp.func
+def _first_min(cost: _F2, index: _I2, first: int, b: int, start: int, stop: int, step: int):
+    """(lowest cost, its sample index) over entries ``start:stop:step`` of row b, ties to the lower index; ``first``
+    as in :func:`argmin_reduce`."""
+    best = wp.float32(wp.inf)
+    arg = wp.int32(-1)
+    for j in range(start, stop, step):
+        c = cost[b, j]
+        i = j
+        if first == 0:
+            i = wp.int32(index[b, j])
+        if arg < 0 or c < best or (c == best and i < arg):
+            best = c
+            arg = i
+    return best, arg
+
+
 @wp.kernel(enable_backward=False)
 def argmin_reduce(cost_in: _F2, index_in: _I2, first: int, n_out: int, cost_out: _F2, index_out: _I2):
     """Thread (b, t): the first minimum of robot b's entries t, t + n_out, ... of its row of ``cost_in`` (``first``
     = 1: the (B, M) costs themselves, an entry's index its column; else partials with their sample index)."""
     b, t = wp.tid()
-    best = wp.float32(wp.inf)
-    arg = wp.int32(-1)
-    for j in range(t, cost_in.shape[1], n_out):
-        c = cost_in[b, j]
-        i = j
-        if first == 0:
-            i = wp.int32(index_in[b, j])
-        if arg < 0 or c < best or (c == best and i < arg):
-            best = c
-            arg = i
+    best, arg = _first_min(cost_in, index_in, first, b, t, cost_in.shape[1], n_out)
     cost_out[b, t] = best
     index_out[b, t] = arg
 
@@ -56,16 +64,7 @@ def argmin_reduce(cost_in: _F2, index_in: _I2, first: int, n_out: int, cost_out:
 def argmin_final(cost: _F2, index: _I2, first: int, n: int, b: int) -> int:
     """Robot b's first minimum from the ``n`` (<= :data:`FAN_IN`) entries of its row (``first`` as in
     :func:`argmin_reduce`)."""
-    best = wp.float32(wp.inf)
-    arg = wp.int32(-1)
-    for j in range(n):
-        c = cost[b, j]
-        i = j
-        if first == 0:
-            i = wp.int32(index[b, j])
-        if arg < 0 or c < best or (c == best and i < arg):
-            best = c
-            arg = i
+    _best, arg = _first_min(cost, index, first, b, 0, n, 1)
     return arg
 
 

@@ -21,9 +21,11 @@ left() { echo $(( LEASE_S - ($(date +%s) - T0) )); }
 
 if [ ! -d "$SITE/warp" ]; then
     # the first call of a lease may have moved part 1 to /root (a call carries at most 64 MiB): look in both
-    parts=$(for f in "$PACK"/gpu_site.tar.xz.part* /root/gpu_site.tar.xz.part*; do [ -f "$f" ] && echo "${f##*part} $f"; done \
-            | sort -n -u -k1,1 | cut -d' ' -f2)
-    mkdir -p "$SITE" && cat $parts | xz -d -T0 | tar -x -C "$SITE" || { echo "gpu_lease: cannot unpack $parts"; exit 2; }
+    parts=$(for f in "$PACK"/gpu_site.tar.xz.part* /root/gpu_site.tar.xz.part*; do
+                [ -f "$f" ] && echo "${f##*part} $f"
+            done | sort -n -u -k1,1 | cut -d' ' -f2)
+    mkdir -p "$SITE" && cat $parts | xz -d -T0 | tar -x -C "$SITE" \
+        || { echo "gpu_lease: cannot unpack $parts"; exit 2; }
 fi
 caches=$(ls "$PACK"/gpu_caches.tar.xz.part* 2>/dev/null)
 [ -n "$caches" ] && mkdir -p "$CACHES" && cat $caches | xz -d -T0 | tar -x -C "$CACHES"
