@@ -113,7 +113,8 @@ class SamplingMPC:
         """
         if self.last_result is None or self._forgotten is not None:
             if default is None:
-                raise ValueError("naive_warm_start: there is no previous solution yet; pass default=(B, D) encoded action")
+                raise ValueError("naive_warm_start: there is no previous solution yet; pass default=(B, D) encoded "
+                                 "action")
             default = default.to(self.device, torch.float32)
             if self.last_result is None:
                 return default

@@ -39,7 +39,8 @@ from dls_quadruped.mpc.encodings import (
 from dls_quadruped.mpc.samples import forces_from_offsets, offsets_from_forces
 
 
-def shifted_force_offsets(encoded: torch.Tensor, contact: torch.Tensor, cfg: SamplerConfig, steps: float) -> torch.Tensor:
+def shifted_force_offsets(encoded: torch.Tensor, contact: torch.Tensor, cfg: SamplerConfig,
+                          steps: float) -> torch.Tensor:
     """The F block of the naive warm start: offsets per step, zeroed where the leg swings, shifted, re-encoded.
 
     Per step k the decoded offsets ``dF(k)`` are multiplied by the stance flags ``c(k)`` of the solution

@@ -27,8 +27,8 @@ import torch
 
 from dls_quadruped.control.lowlevel import LegTerms
 from dls_quadruped.core.compile import compile_wanted, fused_method
+from dls_quadruped.sim.buffers import MAX_ABS_QVEL
 from dls_quadruped.sim.interface import standing_references
-from dls_quadruped.sim.shard import MAX_ABS_QVEL
 from dls_quadruped.sim.warp_collision import ALLOCATION_OVERFLOWS
 from dls_quadruped.sim.warp_worlds import publish_contacts
 

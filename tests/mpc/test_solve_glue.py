@@ -58,8 +58,8 @@ def _assert_identical(a: MPCResult, b: MPCResult) -> None:
         x, y = getattr(a, f.name), getattr(b, f.name)
         if isinstance(x, torch.Tensor):
             assert x.dtype == y.dtype and x.shape == y.shape, f.name
-            assert torch.equal(x, y) or torch.equal(x.isnan(), y.isnan()) and torch.equal(x[~x.isnan()], y[~y.isnan()]), \
-                f"{f.name}: {x} vs {y}"
+            same_nan = torch.equal(x.isnan(), y.isnan()) and torch.equal(x[~x.isnan()], y[~y.isnan()])
+            assert torch.equal(x, y) or same_nan, f"{f.name}: {x} vs {y}"
         else:
             assert x == y, f.name
 
