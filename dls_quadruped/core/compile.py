@@ -123,15 +123,16 @@ class fused_method:  # lower case: a decorator, named like the built-in ones (pr
     Args:
         name: what the compile-failure warning calls it.
         dynamic: ``Fused``'s (a batch size that changes from call to call).
-        enabled: dotted attribute of the instance saying whether to compile (read once, on first access), e.g.
-            ``"compile"`` or ``"env.compile"``.
+        enabled: whether to compile, read from the instance once, on first access: a dotted attribute (``"compile"``,
+            ``"env.compile"``) or a function of the instance (``lambda m: getattr(m.env, "compile", False)``).
 
     The decorated function may be a ``staticmethod``. On an instance, the attribute is its ``Fused`` (kept in the
     instance's ``__dict__``, so later accesses are plain attribute reads); ``.fn`` is the method itself, eager.
     """
 
-    def __init__(self, name: str, dynamic: bool = False, enabled: str = "compile"):
-        self.name, self.dynamic, self._enabled = name, dynamic, operator.attrgetter(enabled)
+    def __init__(self, name: str, dynamic: bool = False, enabled: str | Callable[[Any], bool] = "compile"):
+        self.name, self.dynamic = name, dynamic
+        self._enabled = operator.attrgetter(enabled) if isinstance(enabled, str) else enabled
         self.fn: Any = None
         self.attr = ""
 

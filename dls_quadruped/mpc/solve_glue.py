@@ -6,18 +6,20 @@ re-drawing and decoding the winner are ~150 small torch ops (docs/benchmarks.md 
 two paths side by side). The fused path keeps every number bit for bit (tests/mpc/test_solve_glue.py compares
 every field of the result with the torch path, ``SamplingMPC.fused = False``) and does:
 
-* input cleaning (non-finite entry -> 0, per-robot flags): :func:`clean_rows` in C++;
+* input cleaning (non-finite entry -> 0, per-robot flags): ``clean_inputs`` in C++;
 * the kernel and the argmin in one C++ call (``mpc_solve`` in rollout_kernel.cpp) into preallocated
-  buffers (:class:`Workspace`, one per (B, M, G)); an arbitration between warm-start groups
+  buffers (:class:`Workspace`, one per (B, G)); the controller's arbitration between warm-start groups
   (:mod:`arbitration`) then re-selects the winner from the same (B, M) costs with the torch path's call;
 * the winner: its noise counters, clip, contacts, forces, limits, frames and input-cost terms in C++
   (``solve_glue.cpp``, built with ``-ffp-contract=off`` and torch's evaluation order); the log, cos, sin,
   the spline matmul and the sums stay torch calls on tensors of the torch path's shapes, because their
   results depend on torch's vector/scalar code paths and summation order.
 
-The library is a plain shared object built at first use like the kernel (:mod:`cpp_kernel`, same cache
-directory); :func:`load` returns None (one ``RuntimeWarning``) if it cannot be built and the solve takes the
-torch path.
+:class:`FusedSolve` is the component ``SamplingMPC`` owns (``SamplingMPC.fused_solve``): the libraries and the
+workspaces, and the steps above as methods that take what they need as arguments (the controller keeps its seed
+generator, arbitration and previous solution). The library is a plain shared object built at first use like the
+kernel (:mod:`cpp_kernel`, same cache directory); :func:`load` returns None (one ``RuntimeWarning``) if it cannot
+be built and the solve takes the torch path.
 """
 
 from __future__ import annotations

@@ -119,6 +119,10 @@ class _Nested:
     def _double(self, x: torch.Tensor) -> torch.Tensor:
         return x * 2.0
 
+    @fused_method("Nested.half", enabled=lambda n: getattr(n.owner, "compile", False))
+    def _half(self, x: torch.Tensor) -> torch.Tensor:
+        return x / 2.0
+
 
 def test_a_fused_method_is_one_fused_per_instance_with_the_instances_setting():
     eager, other = _Scaled(False, 3.0), _Scaled(False, 5.0)
@@ -131,6 +135,7 @@ def test_a_fused_method_is_one_fused_per_instance_with_the_instances_setting():
     assert torch.equal(eager._offset(x), x + 1.0) and torch.equal(eager._offset.fn(x), x + 1.0)
     assert isinstance(_Scaled._branchy, fused_method)  # on the class: the decorator itself
     assert _Nested(_Scaled(True, 1.0))._double.compiled and not _Nested(eager)._double.compiled  # a dotted setting
+    assert _Nested(_Scaled(True, 1.0))._half.compiled and not _Nested(object())._half.compiled  # a function of it
 
 
 def test_a_fused_method_falls_back_to_its_eager_method_and_refuses_a_non_boolean_setting():
