@@ -39,7 +39,8 @@ def compile_wanted(setting: bool | None, device: torch.device | str) -> bool:
     if setting is None:
         return torch.device(device).type == "cuda"
     if not isinstance(setting, bool):
-        raise ValueError(f"compile must be true, false or null (null: on for CUDA devices), got {setting!r}")  # noqa: TRY004
+        raise ValueError(  # noqa: TRY004
+            f"compile must be true, false or null (null: on for CUDA devices), got {setting!r}")
     return setting
 
 

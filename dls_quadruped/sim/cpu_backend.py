@@ -59,7 +59,8 @@ class VecSim:
         cfg: backend configuration.
     """
 
-    def __init__(self, model: mujoco.MjModel, num_envs: int, cfg: SimConfig = SimConfig()):  # noqa: B008 -- frozen dataclass: an immutable default
+    def __init__(self, model: mujoco.MjModel, num_envs: int,
+                 cfg: SimConfig = SimConfig()):  # noqa: B008 -- frozen dataclass: an immutable default
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.model = model
