@@ -127,6 +127,8 @@ def slot_returns(env, policies: list[Callable[[torch.Tensor], torch.Tensor]], se
                           desc=f"{slots} policies x {per} episodes")
     return {"return": rec.episode_return.reshape(slots, per), "survived": (~rec.fell).reshape(slots, per),
             "record": None if record is None else ExpertEpisodes.from_record(rec, kept, seed)}
+
+
 def _resample(k: int, e: int, n_boot: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(n_boot, K) seed indices and (n_boot, E) episode indices, each drawn with replacement."""
     rng = np.random.default_rng(seed)
