@@ -17,19 +17,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-
 from dls_quadruped.cli import ArgumentParser, positive_int, run_cli
 from dls_quadruped.control.latent_action import ACTION_GROUPS
+
+ROOT = Path(__file__).resolve().parents[1]
 
 GROUPS = {**{name: rows for name, rows in ACTION_GROUPS}, "all": slice(0, 28)}
 """Component name -> columns of the 28-vector that get the noise."""

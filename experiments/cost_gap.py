@@ -26,10 +26,7 @@ the gap is the reference.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import run_cli
 from dls_quadruped.core.json_io import write_json

@@ -11,10 +11,7 @@ base's reward relative to it. Thesis: base is best, "at least 20 % better" than 
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import (
     mean_cell,

@@ -12,12 +12,9 @@ the rough task".
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import (
     percent_band,

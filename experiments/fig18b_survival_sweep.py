@@ -14,12 +14,9 @@ policy: survival per difficulty row (Wilson 95 %) and the difficulty where it fi
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import (
     percent_band,

@@ -11,12 +11,9 @@ Thesis: "not particularly good"; performance drops after 25 cm, even for climb; 
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import num, pyplot, run, save
 

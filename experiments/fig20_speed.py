@@ -12,12 +12,9 @@ which it was trained" (1 m/s); rough falls above 0.8 m/s; climb does not fall bu
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import (
     mean_cell,

@@ -12,12 +12,9 @@ has the highest CoT up to 1.1 m/s, then drops at its trot -> trot-gallop transit
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import pyplot, run, save
 

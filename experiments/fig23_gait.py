@@ -14,12 +14,9 @@ rising sharply at its maximum; no flying gait.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.rl_common import pyplot, run, save
 

@@ -14,13 +14,10 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 from pathlib import Path
 
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json

@@ -13,10 +13,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import ArgumentParser, UserError, run_cli
 from dls_quadruped.viz.learning_curve import COLUMNS, read_run

@@ -24,12 +24,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 from pathlib import Path
 
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import ArgumentParser, UserError, run_cli
 from dls_quadruped.envs.config import load_task

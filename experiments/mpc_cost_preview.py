@@ -12,12 +12,9 @@ distribution, not the evaluation's validation or test split: exploratory, no int
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.envs.config import load_task

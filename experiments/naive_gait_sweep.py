@@ -18,10 +18,7 @@ the data); the best cell is reported as exploratory.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.warm_start_common import (
     Cell,

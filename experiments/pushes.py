@@ -23,11 +23,7 @@ episode. ``report`` computes the paired differences (two-level bootstrap over ep
 from __future__ import annotations
 
 import json
-import sys
 from itertools import pairwise
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 

@@ -13,13 +13,9 @@ differ by up to 2a.
 
 from __future__ import annotations
 
-import sys
+import argparse
 from collections import Counter
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import argparse
 
 import numpy as np
 import torch

@@ -23,11 +23,6 @@ that interval lies wholly below 0.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 import time
 
 from dls_quadruped.core.json_io import write_json

@@ -6,12 +6,8 @@ dataset size and epochs fixed, so a larger batch makes fewer gradient steps; 3 t
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 import time
+from pathlib import Path
 
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.provenance import provenance

@@ -7,12 +7,8 @@ Fig. 25 (a) SP vs H and dt for discrete-discrete, (b) SP per encoding at H = 10,
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 import time
+from pathlib import Path
 
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.provenance import provenance

@@ -17,12 +17,8 @@ student per (dt, H) from ``--students`` (``make_students.sh table15``).
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 import argparse
+from pathlib import Path
 
 from dls_quadruped.cli import UserError, run_cli
 from experiments.warm_start_common import (

@@ -14,10 +14,7 @@ sampler seeds, merged per row; e.g. only the headline cells, M = 4 000 and 10 00
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import run_cli
 from experiments.warm_start_common import (

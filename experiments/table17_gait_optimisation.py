@@ -14,10 +14,7 @@ the sampler seeds, merged per row; e.g. only the 1.5 m/s headline cells:
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import run_cli
 from experiments.warm_start_common import (

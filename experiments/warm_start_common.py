@@ -27,15 +27,10 @@ replaced by another).
 from __future__ import annotations
 
 import argparse
-import sys
+import json
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-import json
 
 import numpy as np
 import torch
@@ -51,6 +46,8 @@ from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.inputs import GROUNDS
 from experiments.distill_common import write_table
 from experiments.rl_common import VARIANTS, expert_file, pyplot, save, student_file  # noqa: F401 (plot helpers shared)
+
+REPO = Path(__file__).resolve().parents[1]
 
 SCALES = {"small": {"episodes": 4, "seconds": 5.0}, "medium": {"episodes": 16, "seconds": 15.0},
           "thesis": {"episodes": 100, "seconds": 15.0}}

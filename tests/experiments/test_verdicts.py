@@ -4,13 +4,9 @@ committed result files (``experiments/verdicts.py``)."""
 from __future__ import annotations
 
 import re
-import sys
 from pathlib import Path
 
 import pytest
-
-REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO))
 
 from experiments.verdicts import (
     ROWS,
@@ -22,6 +18,8 @@ from experiments.verdicts import (
     render,
     verdict,
 )
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def iv(lo: float, hi: float) -> Interval:

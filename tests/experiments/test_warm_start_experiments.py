@@ -50,7 +50,6 @@ def test_missing_student_is_skipped_not_replaced(tmp_path: Path) -> None:
 def test_training_seeds_merge_per_episode_means() -> None:
     """A Table 15 row from two students' cells: per episode, each student's mean over its sampler seeds;
     survival pooled; the median over (student, episode) values."""
-    sys.path.insert(0, str(REPO))
     from experiments.warm_start_common import merge_training_seeds
 
     def cell(name, reward, survived):  # (S = 2 sampler seeds, E = 3 episodes)
@@ -175,7 +174,6 @@ def test_com_height_applies_to_mpc_cells_and_a_cache_of_another_height_is_refuse
     cost); a cached cell run with another reference is not reused silently."""
     import argparse
 
-    sys.path.insert(0, str(REPO))
     from experiments.warm_start_common import Cell, cell_com_height, run_cells
 
     args = argparse.Namespace(com_height=0.40, out=tmp_path, only=None, threads=1)
@@ -221,7 +219,6 @@ def test_cost_gap_merges_three_students_and_splits_the_gap_by_term(tmp_path: Pat
     students, and 3 draws of student 0 (or of student 2) have probability 1/27 > 2.5 %, so it is [+10, +30] by
     hand; the other terms are 0 and the total's mean gap equals the height term's. The state rollout cost's
     v_x term likewise: students exceed naive's by 5 (k + 1), so +10 [+5, +15]."""
-    sys.path.insert(0, str(REPO))
     from dls_quadruped.mpc.cost import STATE_TERMS
     from experiments import cost_gap
 
@@ -275,7 +272,6 @@ def test_cost_gap_merges_three_students_and_splits_the_gap_by_term(tmp_path: Pat
 
 
 def test_cost_gap_without_students_names_the_missing_file(tmp_path: Path) -> None:
-    sys.path.insert(0, str(REPO))
     from dls_quadruped.cli import UserError
     from experiments import cost_gap
 
@@ -286,7 +282,6 @@ def test_cost_gap_without_students_names_the_missing_file(tmp_path: Path) -> Non
 @pytest.mark.parametrize("argv, code, text", [(["--help"], 0, "--seed-students"),
                                               (["--scale", "huge"], 2, "invalid choice: 'huge'")])
 def test_cost_gap_help_and_a_bad_scale(monkeypatch, capsys, argv, code, text):
-    sys.path.insert(0, str(REPO))
     from experiments import cost_gap
 
     monkeypatch.setattr(sys, "argv", ["cost_gap.py", *argv])
@@ -300,7 +295,6 @@ def test_table16_students_as_seeds_merge_each_rl_row(tmp_path: Path, monkeypatch
     """table16_samples.py --seed-students on cached cells built by hand: each student's M = 4 000 cell costs
     exactly 1.1x its M = 10 000 cell on every episode, so the merged RL row's Δ initial is +10.0 % with a
     zero-width interval; a missing student of a selected cell is named before anything runs."""
-    sys.path.insert(0, str(REPO))
     from dls_quadruped.cli import UserError
     from experiments import table16_samples as t16
     from experiments.warm_start_common import seed_student_cells
@@ -351,7 +345,6 @@ def test_table16_and_17_help_a_bad_flag_and_a_missing_student(monkeypatch, capsy
 
     from dls_quadruped.cli import run_cli
 
-    sys.path.insert(0, str(REPO))
     module = importlib.import_module(f"experiments.{script}")
     monkeypatch.setattr(sys, "argv", [f"{script}.py", "--out", str(tmp_path), *argv])
     with pytest.raises(SystemExit) as err:
