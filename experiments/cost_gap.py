@@ -32,21 +32,14 @@ from dls_quadruped.cli import run_cli
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.mpc.cost import STATE_TERMS
-from experiments.distill_common import write_table
-from experiments.warm_start_common import (
+from experiments.output import pyplot, save, write_table
+from experiments.warm_start_common import Cell, parse_args, run_cells
+from experiments.warm_start_seeds import (
     SEED_STUDENTS,
-    Cell,
-    finish,
-    med,
     merge_seed_rows,
-    paired,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
     seed_student_cells,
-    survival,
 )
+from experiments.warm_start_tables import finish, med, paired, survival
 
 ENCODINGS = (("first", "spline"), ("discrete", "discrete"))
 SEEDS = SEED_STUDENTS

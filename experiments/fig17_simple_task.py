@@ -13,14 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from experiments.rl_common import (
-    mean_cell,
-    num,
-    pyplot,
-    rate_cell,
-    run,
-    save,
-)
+from experiments.output import pyplot, save
+from experiments.rl_common import mean_cell, num, rate_cell, run
 
 NAME, SCENARIO = "fig17_simple_task", "simple"
 THESIS = {"base": "best", "rough": "general-purpose, 2nd", "speed": "specialised, lower", "climb": "specialised, lower"}

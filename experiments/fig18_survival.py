@@ -16,13 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.rl_common import (
-    percent_band,
-    pyplot,
-    rate_cell,
-    run,
-    save,
-)
+from experiments.output import pyplot, save
+from experiments.rl_common import percent_band, rate_cell, run
 
 NAME, SCENARIO = "fig18_survival", "survival"
 THESIS = {"base": "does not withstand", "rough": "below climb", "speed": "does not withstand", "climb": "best"}

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.rl_common import num, pyplot, run, save
+from experiments.output import pyplot, save
+from experiments.rl_common import num, run
 
 NAME, SCENARIO = "fig19_stairs", "stairs"
 

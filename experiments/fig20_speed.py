@@ -16,13 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.rl_common import (
-    mean_cell,
-    num,
-    pyplot,
-    run,
-    save,
-)
+from experiments.output import pyplot, save
+from experiments.rl_common import mean_cell, num, run
 
 NAME, SCENARIO = "fig20_speed", "speed"
 TRAINED_MAX = {"base": 1.0, "rough": 0.8, "speed": 2.1, "climb": 0.5}

@@ -17,13 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.rl_common import (
-    mean_cell,
-    num,
-    pyplot,
-    run,
-    save,
-)
+from experiments.output import pyplot, save
+from experiments.rl_common import mean_cell, num, run
 
 NAME, SCENARIO = "fig21_omni", "omni"
 THESIS = {"base": "~1.5 m/s in every direction", "rough": "its +-0.8 m/s disc", "speed": "forward to ~2 m/s",

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.rl_common import pyplot, run, save
+from experiments.output import pyplot, save
+from experiments.rl_common import run
 
 NAME, SCENARIO = "fig22_cot", "cot"
 

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.rl_common import pyplot, run, save
+from experiments.output import pyplot, save
+from experiments.rl_common import run
 
 NAME, SCENARIO = "fig23_gait", "gait"
 PAIRS = ("diagonal", "lateral", "front", "rear")

@@ -15,7 +15,6 @@ from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.provenance import provenance
 from experiments.distill_common import (
     Run,
-    evaluate,
     mse_cell,
     parse_args,
     seeds_cell,
@@ -23,8 +22,9 @@ from experiments.distill_common import (
     sp_cell,
     train_runs,
     write_config,
-    write_table,
 )
+from experiments.distill_eval import evaluate
+from experiments.output import write_table
 
 SELECTORS = [("indicator", {"kind": "indicator"}), ("alpha_0.3", {"kind": "exponential", "alpha": 0.3}),
              ("alpha_0.6", {"kind": "exponential", "alpha": 0.6}), ("alpha_0.9", {"kind": "exponential", "alpha": 0.9})]

@@ -20,17 +20,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from experiments.warm_start_common import (
-    Cell,
-    finish,
-    med,
-    paired,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
-    survival,
-)
+from experiments.output import pyplot, save
+from experiments.warm_start_common import Cell, parse_args, run_cells
+from experiments.warm_start_tables import finish, med, paired, survival
 
 SPEED = 1.5
 FREQUENCIES = (1.5, 2.0, 2.5, 3.0)

@@ -31,14 +31,8 @@ from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.metrics import paired_difference
 from dls_quadruped.eval.provenance import provenance
 from experiments.rl_common import student_file
-from experiments.warm_start_common import (
-    REPO,
-    Cell,
-    parse_args,
-    run_cells,
-    survival,
-    write_config,
-)
+from experiments.warm_start_common import REPO, Cell, parse_args, run_cells
+from experiments.warm_start_tables import survival, write_config
 
 GRID = (0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0)
 """[m/s] push speeds of the calibration."""

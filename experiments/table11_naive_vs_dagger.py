@@ -20,16 +20,15 @@ from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.learning.distill_metrics import sp_difference
 from experiments.distill_common import (
     Run,
-    evaluate,
     parse_args,
     select,
     sp_cell,
     summary_row,
     train_runs,
-    untrained_returns,
     write_config,
-    write_table,
 )
+from experiments.distill_eval import evaluate, untrained_returns
+from experiments.output import write_table
 
 THESIS = {  # Table 11: (MSE, SP)
     ("naive", "discrete", "discrete"): (0.1546, "68.49 %"), ("dagger", "discrete", "discrete"): (0.2185, "98.91 %"),

@@ -30,16 +30,15 @@ from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.learning.distill_metrics import sp_difference
 from experiments.distill_common import (
     Run,
-    evaluate,
     parse_args,
     pct,
     select,
     sp_cell,
     train_runs,
-    untrained_returns,
     write_config,
-    write_table,
 )
+from experiments.distill_eval import evaluate, untrained_returns
+from experiments.output import write_table
 
 SIZES = (15_000, 50_000, 100_000, 400_000)
 EPOCHS = 10

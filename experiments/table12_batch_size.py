@@ -13,14 +13,14 @@ from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.provenance import provenance
 from experiments.distill_common import (
     Run,
-    evaluate,
     parse_args,
     select,
     summary_row,
     train_runs,
     write_config,
-    write_table,
 )
+from experiments.distill_eval import evaluate
+from experiments.output import write_table
 
 THESIS = {64: (0.2048, "98.53 %"), 128: (0.2534, "98.54 %"), 256: (0.2764, "97.79 %"), 512: (0.3444, "94.89 %"),
           1024: (0.4876, "89.60 %")}

@@ -16,14 +16,14 @@ from dls_quadruped.mpc.config import EncodingConfig
 from dls_quadruped.mpc.encodings import encoded_dim
 from experiments.distill_common import (
     Run,
-    evaluate,
     parse_args,
     select,
     summary_row,
     train_runs,
     write_config,
-    write_table,
 )
+from experiments.distill_eval import evaluate
+from experiments.output import write_table
 
 ENCODINGS = [("discrete", "discrete"), ("discrete", "spline"), ("spline", "discrete"), ("spline", "spline"),
              ("first", "discrete"), ("first", "spline")]

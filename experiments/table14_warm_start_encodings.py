@@ -10,18 +10,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from experiments.warm_start_common import (
-    Cell,
-    finish,
-    med,
-    paired,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
-    survival,
-    tabulate,
-)
+from experiments.output import pyplot, save
+from experiments.warm_start_common import Cell, parse_args, run_cells
+from experiments.warm_start_tables import finish, med, paired, survival, tabulate
 
 ENCODINGS = [("discrete", "discrete"), ("discrete", "spline"), ("spline", "discrete"), ("spline", "spline"),
              ("first", "discrete"), ("first", "spline")]

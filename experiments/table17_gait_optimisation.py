@@ -17,18 +17,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from dls_quadruped.cli import run_cli
-from experiments.warm_start_common import (
-    Cell,
-    finish,
-    med,
-    merge_seed_rows,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
-    seed_student_cells,
-    survival,
-)
+from experiments.output import pyplot, save
+from experiments.warm_start_common import Cell, parse_args, run_cells
+from experiments.warm_start_seeds import merge_seed_rows, seed_student_cells
+from experiments.warm_start_tables import finish, med, survival
 
 SPEEDS = (0.1, 0.5, 1.5)
 GAIT = {"no": ("F",), "frequency": ("F", "f"), "duty": ("F", "d"), "full": ("F", "f", "d")}

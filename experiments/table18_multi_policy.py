@@ -42,21 +42,11 @@ import numpy as np
 
 from dls_quadruped.closed_loop.episodes import STAIRS_HEIGHTS
 from dls_quadruped.core.json_io import write_json
+from experiments.output import pyplot, save
 from experiments.rl_common import Policies
 from experiments.table18_stairs import STAIRS_SECONDS, write_stairs
-from experiments.warm_start_common import (
-    REPO,
-    Cell,
-    finish,
-    med,
-    paired,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
-    survival,
-    write_config,
-)
+from experiments.warm_start_common import REPO, Cell, parse_args, run_cells
+from experiments.warm_start_tables import finish, med, paired, survival, write_config
 
 WARM_STARTS = (("base",), ("speed",), ("rough",), ("base", "speed"), ("rough", "speed"))
 EXPERTS = ("base", "speed", "rough")
@@ -293,7 +283,7 @@ def main() -> None:
     todo = cells(Policies(args.policy_dir, args.variant))
     results = run_cells(todo, args)
     write_stairs(args, results)
-    from experiments.distill_common import write_table
+    from experiments.output import write_table
 
     write_table(survival_rows(results), ["Warm start", "survival", "Δ survival (paired, fraction)", "switches / s"],
                 args.out / "fig32_survival", f"Fig. 32: survival task ({args.scale}: {args.episodes} episodes x "

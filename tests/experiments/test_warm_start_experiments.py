@@ -50,7 +50,7 @@ def test_missing_student_is_skipped_not_replaced(tmp_path: Path) -> None:
 def test_training_seeds_merge_per_episode_means() -> None:
     """A Table 15 row from two students' cells: per episode, each student's mean over its sampler seeds;
     survival pooled; the median over (student, episode) values."""
-    from experiments.warm_start_common import merge_training_seeds
+    from experiments.warm_start_seeds import merge_training_seeds
 
     def cell(name, reward, survived):  # (S = 2 sampler seeds, E = 3 episodes)
         return {"cell": name, "controller": "rl_warm_start", "episodes": 3, "replicas": 2,
@@ -297,7 +297,7 @@ def test_table16_students_as_seeds_merge_each_rl_row(tmp_path: Path, monkeypatch
     zero-width interval; a missing student of a selected cell is named before anything runs."""
     from dls_quadruped.cli import UserError
     from experiments import table16_samples as t16
-    from experiments.warm_start_common import seed_student_cells
+    from experiments.warm_start_seeds import seed_student_cells
 
     rng = np.random.default_rng(1)
     e, s = 4, 2
