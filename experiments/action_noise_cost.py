@@ -6,7 +6,7 @@ the simple task with Gaussian noise of std ``sigma`` (raw action units, as the t
 one component's raw actions at every policy step -- f (4 step frequencies), d (4 duties), p (8 foothold offsets), F
 (12 forces) or all 28 -- and its reward per step is paired with the noiseless policy's on the same episodes.
 
-    python experiments/action_noise_cost.py --policy docs/policies/base_recipe_actor.pt2 --sigmas 0.5 1.0
+    python -m experiments.action_noise_cost --policy docs/policies/base_recipe_actor.pt2 --sigmas 0.5 1.0
 
 Every condition draws the same (steps, robots, 28) noise sequence from one seeded generator and keeps only its
 component's columns, so two conditions differ only in where the noise goes (common random numbers). Episodes: the

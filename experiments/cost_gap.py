@@ -19,8 +19,8 @@ naive warm start of its encoding. Per encoding:
 at the default and once at the height the expert walks (0.357 m for the first base expert) to see how much of
 the gap is the reference.
 
-    python experiments/cost_gap.py --scale medium --seed-students runs/students_seeds
-    python experiments/cost_gap.py --scale medium --seed-students runs/students_seeds --com-height 0.357 \\
+    python -m experiments.cost_gap --scale medium --seed-students runs/students_seeds
+    python -m experiments.cost_gap --scale medium --seed-students runs/students_seeds --com-height 0.357 \\
         --out results/experiments/cost_gap_h0.357
 """
 

@@ -1,7 +1,7 @@
 """Fig. 17 (thesis 7.1.2): the four RL experts on the simple task, base-task (Table-4) reward.
 
-    python experiments/fig17_simple_task.py --scale small     # about 1 min per policy on 2 cores
-    python experiments/fig17_simple_task.py --scale thesis
+    python -m experiments.fig17_simple_task --scale small     # about 1 min per policy on 2 cores
+    python -m experiments.fig17_simple_task --scale thesis
 
 Scenario ``simple`` (docs/eval.md): one command per 15 s episode, v_x in [0.3, 0.6] m/s, v_y in
 [-0.2, 0.2] m/s, omega_z in [-0.5, 0.5] rad/s, flat, no disturbance. Per policy: the per-step

@@ -1,7 +1,7 @@
 """Fig. 18 (thesis 7.1.3): survival of the four RL experts on the survival task.
 
-    python experiments/fig18_survival.py --scale small     # about 2 min per policy on 2 cores
-    python experiments/fig18_survival.py --scale thesis
+    python -m experiments.fig18_survival --scale small     # about 2 min per policy on 2 cores
+    python -m experiments.fig18_survival --scale thesis
 
 Scenario ``survival`` (docs/eval.md): simple-task commands on the rough task's hardest terrain rows
 (rugged, slopes, boxes, stairs), pushes of +-1 m/s every 4-6 s, friction 0.2-1.0, +-20 N wrench,

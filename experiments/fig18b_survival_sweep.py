@@ -1,6 +1,6 @@
 """Fig. 18b (ours, beside thesis 7.1.3): survival of the four RL experts vs terrain difficulty.
 
-    python experiments/fig18b_survival_sweep.py --scale small     # about 1-2 min per policy on 2 cores
+    python -m experiments.fig18b_survival_sweep --scale small     # about 1-2 min per policy on 2 cores
 
 Scenario ``survival_sweep`` (docs/eval.md): the survival task's commands and terrain types over the
 rough task's *whole* difficulty range, 8 rows from 0 (nearly flat) to 1 (``survival``'s hardest

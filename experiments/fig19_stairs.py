@@ -1,7 +1,7 @@
 """Fig. 19: staircase performance of the four RL experts vs step height (5-50 cm).
 
-    python experiments/fig19_stairs.py --scale small     # about 2 min per policy on 2 cores
-    python experiments/fig19_stairs.py --scale thesis
+    python -m experiments.fig19_stairs --scale small     # about 2 min per policy on 2 cores
+    python -m experiments.fig19_stairs --scale thesis
 
 Scenario ``stairs`` (docs/eval.md): a 6-step ``stairs_up`` flight per height, 0.3-0.5 m/s
 forward, no noise or perturbation. Per policy and height: reached the top (Wilson 95 %) and the

@@ -1,7 +1,7 @@
 """Fig. 20: survival probability of the four RL experts vs commanded forward speed, flat ground.
 
-    python experiments/fig20_speed.py --scale small     # about 1 min per policy on 2 cores
-    python experiments/fig20_speed.py --scale thesis
+    python -m experiments.fig20_speed --scale small     # about 1 min per policy on 2 cores
+    python -m experiments.fig20_speed --scale thesis
 
 Scenario ``speed`` (docs/eval.md): (v, 0, 0) for 15 s, v = 0.25 ... 2.5 m/s, flat, no disturbance.
 Per policy and speed: survival (Wilson 95 %) and achieved speed (mean, 95 % CI); per policy the

@@ -1,7 +1,7 @@
 """Fig. 21: omnidirectional capability, the 90 %-success isoline of the four RL experts.
 
-    python experiments/fig21_omni.py --scale small     # about 2 min per policy on 2 cores
-    python experiments/fig21_omni.py --scale thesis
+    python -m experiments.fig21_omni --scale small     # about 2 min per policy on 2 cores
+    python -m experiments.fig21_omni --scale thesis
 
 Scenario ``omni`` (docs/eval.md): 8 directions x magnitudes 0.25-2 m/s, flat, no disturbance;
 success = survived and |mean v_xy - cmd| <= max(25 % |cmd|, 0.1 m/s). Per policy and direction:

@@ -1,7 +1,7 @@
 """Fig. 22: cost of transport (eq. 4.3.7) of the four RL experts vs forward speed, flat ground.
 
-    python experiments/fig22_cot.py --scale small     # about 40 s per policy on 2 cores
-    python experiments/fig22_cot.py --scale thesis
+    python -m experiments.fig22_cot --scale small     # about 40 s per policy on 2 cores
+    python -m experiments.fig22_cot --scale thesis
 
 Scenario ``cot`` (docs/eval.md): (v, 0, 0) for 15 s, v = 0.25 ... 2.5 m/s; per episode the energy
 sum_t sum_j max(tau qdot + 0.3 tau^2, 0) dt over m g times the distance walked, after a 2 s

@@ -1,7 +1,7 @@
 """Fig. 23 (a: base, b: speed): gait (contact pattern) and step frequency vs forward speed.
 
-    python experiments/fig23_gait.py --scale small     # about 40 s per policy on 2 cores
-    python experiments/fig23_gait.py --scale thesis
+    python -m experiments.fig23_gait --scale small     # about 40 s per policy on 2 cores
+    python -m experiments.fig23_gait --scale thesis
 
 Scenario ``gait`` (docs/eval.md): (v, 0, 0) for 15 s, v = 0.25 ... 2.5 m/s, flat; per policy and
 speed the step frequency (the action's f and the feet's touch-downs per second), duty factor and

@@ -3,7 +3,7 @@ alpha in {0.3, 0.6, 0.9}; SP (a) and test MSE (b) over the epochs. The thesis do
 encoding of this figure; we use discrete-discrete, H = 5, dt = 0.02 s as in Table 12. 3 training
 seeds per selector; every epoch's students are evaluated on the same SP episodes and test states.
 
-    python experiments/fig24_selector.py --scale small
+    python -m experiments.fig24_selector --scale small
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@
 length in s, mean over the robots that reset in the iteration; ``mpc_trajectory_cost/<term>`` its split), so the
 curve shows what the cost term did. CSV + PNG (return; the trajectory cost by term; velocity tracking).
 
-    python experiments/mpc_cost_curve.py runs/base_mpc_cost/w0.1_s0 --csv docs/experiments/mpc_cost/learning_curve_w0.1_s0.csv
+    python -m experiments.mpc_cost_curve runs/base_mpc_cost/w0.1_s0 --csv docs/experiments/mpc_cost/learning_curve_w0.1_s0.csv
 """
 
 from __future__ import annotations

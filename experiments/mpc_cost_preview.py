@@ -5,7 +5,7 @@ the same env (same seed, so the same commands) for ``--steps`` policy steps; aft
 (``mpc_trajectory_cost``, no clip) and its planar velocity error are collected. Episodes of the training
 distribution, not the evaluation's validation or test split: exploratory, no interval.
 
-    python experiments/mpc_cost_preview.py docs/policies/base_recipe_student_first_spline_h10.pt2 \
+    python -m experiments.mpc_cost_preview docs/policies/base_recipe_student_first_spline_h10.pt2 \
         runs/base_mpc_cost/w0.1_s0/exported/policy.pt2
 """
 

@@ -3,9 +3,9 @@
 
 Three stages, each resumable (every cell cached under ``<out>/``):
 
-    python experiments/pushes.py calibrate --episodes 96 --seconds 15   # base alone, validation episodes
-    python experiments/pushes.py run --episodes 96 --seconds 15         # the five arms, test episodes
-    python experiments/pushes.py report --episodes 96 --seconds 15      # contrasts -> report.md / report.json
+    python -m experiments.pushes calibrate --episodes 96 --seconds 15   # base alone, validation episodes
+    python -m experiments.pushes run --episodes 96 --seconds 15         # the five arms, test episodes
+    python -m experiments.pushes report --episodes 96 --seconds 15      # contrasts -> report.md / report.json
 
 (the preregistered size; without ``--episodes``/``--seconds`` the ``--scale`` sizes apply, ``small`` = 4 x 5 s,
 a pipeline check).
@@ -114,7 +114,7 @@ def push_speed_of(args) -> float:
         return args.push_speed
     path = args.out / "calibration.json"
     if not path.is_file():
-        raise SystemExit(f"pushes: no {path}; run `python experiments/pushes.py calibrate` first or give --push-speed")
+        raise SystemExit(f"pushes: no {path}; run `python -m experiments.pushes calibrate` first or give --push-speed")
     chosen = json.loads(path.read_text())["chosen_push_speed"]
     if chosen is None:
         raise SystemExit(f"pushes: the calibration found no push speed inside the band ({path}); see its rates")
@@ -141,7 +141,7 @@ def report(args) -> dict:
     results = run_cells(arm_cells(p, args.variant), args)
     missing = [a for a in ARMS if a not in results or "skipped" in results[a]]
     if missing:
-        raise SystemExit(f"pushes: arms not run yet: {missing}; run `python experiments/pushes.py run` first")
+        raise SystemExit(f"pushes: arms not run yet: {missing}; run `python -m experiments.pushes run` first")
     rows = {a: {"survival": survival(results[a]), "rate": results[a]["survival"]["rate"],
                 "return_per_episode_median": results[a]["rl_return"]["median"]} for a in ARMS}
     pairs = [PRIMARY, *SECONDARY]

@@ -6,8 +6,8 @@ with another schedule, so that the difference from DAgger is the data and not th
 ``naive, DAgger's steps`` (epoch i trains on a random (i + 1) x datapoints_per_epoch of the data:
 DAgger's gradient steps and learning rate per step) and ``naive, no lr decay`` (lr 1.0 throughout).
 
-    python experiments/table11_naive_vs_dagger.py --scale small     # minutes on 2 cores
-    python experiments/table11_naive_vs_dagger.py --scale thesis
+    python -m experiments.table11_naive_vs_dagger --scale small     # minutes on 2 cores
+    python -m experiments.table11_naive_vs_dagger --scale thesis
 """
 
 from __future__ import annotations

@@ -17,8 +17,8 @@ expert (``--expert``). Per (collection, data, evaluation): SP of naive and of DA
 seeds resampled independently, ``distill_metrics.sp_difference``). The thesis's gap *appears* in a cell where
 that interval lies wholly below 0.
 
-    python experiments/table11_sweep.py --scale medium --sizes 15000 50000 100000
-    python experiments/table11_sweep.py --scale medium          # all four sizes (the finished runs are kept)
+    python -m experiments.table11_sweep --scale medium --sizes 15000 50000 100000
+    python -m experiments.table11_sweep --scale medium          # all four sizes (the finished runs are kept)
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Table 12 (thesis 7.2.3): DAgger mini-batch size 64 ... 1024, discrete-discrete, H = 5, dt = 0.02 s;
 dataset size and epochs fixed, so a larger batch makes fewer gradient steps; 3 training seeds per row.
 
-    python experiments/table12_batch_size.py --scale small
+    python -m experiments.table12_batch_size --scale small
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 Fig. 25 (a) SP vs H and dt for discrete-discrete, (b) SP per encoding at H = 10, dt = 0.02 s;
 3 training seeds per row, every row on the same data budget, test states and SP episodes.
 
-    python experiments/table13_encodings.py --scale small
+    python -m experiments.table13_encodings --scale small
 """
 
 from __future__ import annotations

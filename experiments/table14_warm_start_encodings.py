@@ -3,7 +3,7 @@
 Δ columns: the RL warm start minus the naive warm start of the same encoding on the same episodes
 (mean over episodes of the per-episode difference, 95 % interval over episodes and sampler seeds).
 
-    python experiments/table14_warm_start_encodings.py --scale small
+    python -m experiments.table14_warm_start_encodings --scale small
 """
 
 from __future__ import annotations

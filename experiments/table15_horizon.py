@@ -12,7 +12,7 @@ student (each with the sampler seeds), and merges a row's students with ``merge_
 dt = 0.02 s) gets a reference row of its own. ``--single-student`` runs the older protocol: one
 student per (dt, H) from ``--students`` (``make_students.sh table15``).
 
-    python experiments/table15_horizon.py --scale small
+    python -m experiments.table15_horizon --scale small
 """
 
 from __future__ import annotations

@@ -2,12 +2,12 @@
 H = 10, dt = 0.02 s, forces only, simple task; Δ: the change against M = 10 000 on the same episodes,
 sum_e (x_e - x_e^10000) / sum_e x_e^10000 over per-episode medians (seed-averaged), with its 95 % interval.
 
-    python experiments/table16_samples.py --scale small
+    python -m experiments.table16_samples --scale small
 
 ``--seed-students DIR``: the RL rows from three students (training seeds, as ``cost_gap.py``), each with the
 sampler seeds, merged per row; e.g. only the headline cells, M = 4 000 and 10 000:
 
-    python experiments/table16_samples.py --scale medium --seed-students runs/students_seeds \
+    python -m experiments.table16_samples --scale medium --seed-students runs/students_seeds \
         --out results/experiments/table16_seeds --only rl_warm_start_M4000_seed{0,1,2} \
         rl_warm_start_M10000_seed{0,1,2} naive_warm_start_M4000 naive_warm_start_M10000
 """

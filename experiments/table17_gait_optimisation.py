@@ -2,12 +2,12 @@
 and naive warm starts at forward speeds 0.1, 0.5 and 1.5 m/s (v_y = omega_z = 0, flat), first-spline,
 H = 10, dt = 0.02 s, M = 10 000; RL reward, initial cost and survival; the RL baseline beside them.
 
-    python experiments/table17_gait_optimisation.py --scale small
+    python -m experiments.table17_gait_optimisation --scale small
 
 ``--seed-students DIR``: the RL warm-start rows from three students (training seeds, as ``cost_gap.py``), each with
 the sampler seeds, merged per row; e.g. only the 1.5 m/s headline cells:
 
-    python experiments/table17_gait_optimisation.py --scale medium --seed-students runs/students_seeds \
+    python -m experiments.table17_gait_optimisation --scale medium --seed-students runs/students_seeds \
         --out results/experiments/table17_seeds --only rl_warm_start_no_v1.5_seed{0,1,2} \
         rl_warm_start_full_v1.5_seed{0,1,2} rl_baseline_v1.5
 """

@@ -30,8 +30,8 @@ episodes (paired):
 Students: ``docs/policies/<expert>_student_first_spline_h10.pt`` (``--policy-dir``); a missing one
 skips its cells with a note.
 
-    python experiments/table18_multi_policy.py --scale small
-    python experiments/table18_multi_policy.py --scale small --stairs   # item 6: stairs, blind vs aware
+    python -m experiments.table18_multi_policy --scale small
+    python -m experiments.table18_multi_policy --scale small --stairs   # item 6: stairs, blind vs aware
 """
 
 from __future__ import annotations

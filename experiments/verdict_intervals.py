@@ -225,7 +225,8 @@ def gap(folder: str, a: str, b: str | tuple[str, str], key: str = "initial_cost"
 
 
 def relative_gap_difference(folder: str, a: tuple[str, str], b: tuple[str, str], key: str = "initial_cost",
-                            draws: int = 2000, seed: int = 0, paired_seeds: tuple[bool, bool] = (False, False)) -> Interval:
+                            draws: int = 2000, seed: int = 0,
+                            paired_seeds: tuple[bool, bool] = (False, False)) -> Interval:
     """(Δ_a - Δ_b) in points of %, Δ = sum_e (x_e - ref_e) / sum_e ref_e (Table 16's Δ) of two (cell, reference)
     pairs on the same episodes; the interval resamples the episodes jointly for the four cells and each cell's
     seeds on its own (the two-level bootstrap of ``paired_difference``), or, for a pair marked in

@@ -1,7 +1,7 @@
 """How high each expert carries its CoM while walking: the MPC's height reference to match it (``--com-height``).
 
-    python experiments/walking_height.py --variant recipe            # base, speed and rough, retrained
-    python experiments/walking_height.py --variant thesis --tasks base
+    python -m experiments.walking_height --variant recipe            # base, speed and rough, retrained
+    python -m experiments.walking_height --variant thesis --tasks base
 
 The sampling MPC's cost pulls the CoM towards one height (``mpc.srbd.com_height_reference``, ~0.324 m: the RL
 task's base height target). The RL reward weighs height little (thesis 7.3.7), so an expert may walk elsewhere,

@@ -24,7 +24,8 @@ def seed_student_path(students: Path, sampler: dict, k: int) -> Path:
     """``<students>/<p>-<F>_H<H>_dt<dt>_seed<k>/exported/student.pt2``: training seed k's student of the setting
     of ``sampler`` (SamplerConfig overrides), as ``make distill ... --seed k`` writes it (cost_gap.py's docstring)."""
     cfg = SamplerConfig(**sampler)
-    return students / f"{cfg.encoding_p}-{cfg.encoding_F}_H{cfg.horizon}_dt{cfg.dt:g}_seed{k}" / "exported" / "student.pt2"
+    setting = f"{cfg.encoding_p}-{cfg.encoding_F}_H{cfg.horizon}_dt{cfg.dt:g}_seed{k}"
+    return students / setting / "exported" / "student.pt2"
 
 
 def seed_student_cells(cells: list[Cell], students: Path, only: list[str] | None = None,

@@ -36,7 +36,7 @@ def paired(results: dict, a: str, b: str, key: str, digits: int = 1, relative: b
     from dls_quadruped.eval.metrics import paired_difference
 
     sa, sb = results.get(a) or {}, results.get(b) or {}
-    if "per_episode" not in sa or "per_episode" not in sb or key not in sa["per_episode"] or key not in sb["per_episode"]:
+    if any("per_episode" not in s or key not in s["per_episode"] for s in (sa, sb)):
         return "-"
     same = sa.get("students") is not None and sa.get("students") == sb.get("students")
     d = paired_difference(np.array(sa["per_episode"][key]), np.array(sb["per_episode"][key]), paired_seeds=same)

@@ -5,7 +5,7 @@ Each task's env runs on ``warp-cpu`` with generous sizes (no overflow can cut th
 terrain row, and random actions large enough that robots stumble, fall and are reset; after every physics step the backend's ``collision_stats`` gives the
 most contacts, contact candidates and constraint rows in one world. Writes ``results/warp_contact_sizes.csv``.
 
-    python experiments/warp_contact_sizes.py --tasks base rough speed climb --num-envs 16 --steps 100
+    python -m experiments.warp_contact_sizes --tasks base rough speed climb --num-envs 16 --steps 100
 """
 
 from __future__ import annotations

@@ -149,11 +149,11 @@ def test_walking_height_help_and_a_bad_variant():
     import subprocess
     import sys
 
-    script = str(rl_common.REPO / "experiments" / "walking_height.py")
-    ok = subprocess.run([sys.executable, script, "--help"], capture_output=True, text=True, timeout=120, check=False)
+    cmd = [sys.executable, "-m", "experiments.walking_height"]
+    ok = subprocess.run([*cmd, "--help"], cwd=rl_common.REPO, capture_output=True, text=True, timeout=120, check=False)
     assert ok.returncode == 0 and "--com-height" in ok.stdout and "validation" in ok.stdout
-    bad = subprocess.run([sys.executable, script, "--variant", "bogus"], capture_output=True, text=True, timeout=120,
-                         check=False)
+    bad = subprocess.run([*cmd, "--variant", "bogus"], cwd=rl_common.REPO, capture_output=True, text=True,
+                         timeout=120, check=False)
     assert bad.returncode == 2 and "invalid choice: 'bogus'" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
 
 
