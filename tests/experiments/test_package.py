@@ -18,7 +18,7 @@ PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")),
          *(p for sub in ("experiments", "reports", "tasks", "tutorials") for p in sorted((REPO / "docs" / sub).glob("*.md")))]
 MODULE_COMMAND = re.compile(r"python[0-9.]*(?: +-[A-Za-z]+)* +-m +experiments\.([A-Za-z0-9_.]+)")
 """``python -m experiments.NAME`` (also ``.venv/bin/python -u -m ...``)."""
-PATH_COMMAND = re.compile(r"python[0-9.]*(?: +-[A-Za-z]+)* +(?:\./)?experiments/[A-Za-z0-9_]+\.py")
+PATH_COMMAND = re.compile(r"python[0-9.]*(?: +-[A-Za-z]+)* +(?:\./)?experiments/[^\s/`]+\.py")
 """``python experiments/NAME.py``: runs the file as a script, whose ``from experiments...`` imports then fail."""
 SYS_PATH_EDIT = re.compile(r"sys\.path\s*(?:\.\s*(?:insert|append|extend)\s*\(|\+?=|\[)")
 
@@ -38,6 +38,7 @@ def test_the_pattern_tells_the_two_forms_apart():
     assert not PATH_COMMAND.search(text)
     assert PATH_COMMAND.search("python experiments/verdicts.py --check") and not MODULE_COMMAND.search(
         "python experiments/verdicts.py")
+    assert PATH_COMMAND.search("| `python experiments/<script>.py --scale small` |")
     assert SYS_PATH_EDIT.search("sys.path.insert(0, str(REPO))") and SYS_PATH_EDIT.search("sys.path += [x]")
     assert not SYS_PATH_EDIT.search("a path the sys module keeps")
 

@@ -76,7 +76,7 @@ def test_cells_are_parsed_as_the_files_print_them():
 
 def test_the_documented_table_is_the_one_the_result_files_give():
     """docs/experiments.md's table is ``render()``: a result file that changes changes the verdicts, and the page
-    must follow (``python experiments/verdicts.py`` prints the new table)."""
+    must follow (``python -m experiments.verdicts`` prints the new table)."""
     assert documented() == render()
 
 
