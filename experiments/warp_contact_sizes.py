@@ -56,7 +56,7 @@ def measure(task: str, num_envs: int, steps: int, action_scale: float, seed: int
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = ArgumentParser(prog="warp_contact_sizes.py", description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--tasks", nargs="+", default=["base", "rough", "speed", "climb"])
     p.add_argument("--num-envs", type=int, default=16)
     p.add_argument("--steps", type=int, default=100, help="policy steps (50 Hz)")

@@ -483,6 +483,8 @@ def test_modules_scripts_and_flags_exist():
 
     for page, cmd in commands:
         if cmd.kind == "module":
+            if PLACEHOLDER.search(cmd.name):
+                continue  # python -m experiments.<script>: any of them
             if cmd.name.split(".")[0] in ("dls_quadruped", "experiments"):
                 if _module_file(cmd.name) is None:
                     wrong.append(f"{page}: python -m {cmd.name}: no such module")
