@@ -45,7 +45,8 @@ from dls_quadruped.learning.distill_config import load_distill_config
 
 REPO = Path(__file__).resolve().parents[1]
 TASK = "base"
-"""Env task of every experiment (the expert's; tests swap in a tiny one)."""
+"""Env task of every experiment, trained and evaluated (the expert's; tests swap in a tiny one here and in
+``distill_eval``, which imports it)."""
 HIDDEN, ACTIVATION = [512, 256, 128], "elu"
 SCALES = {
     "small": {"seeds": 3, "train": {"epochs": 5, "datapoints_per_epoch": 3000, "dataset_cap": 800_000},
