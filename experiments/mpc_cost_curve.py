@@ -6,6 +6,8 @@ length in s, mean over the robots that reset in the iteration; ``mpc_trajectory_
 curve shows what the cost term did. CSV + PNG (return; the trajectory cost by term; velocity tracking).
 
     python -m experiments.mpc_cost_curve runs/base_mpc_cost/w0.1_s0 --csv docs/experiments/mpc_cost/learning_curve_w0.1_s0.csv
+    python -m experiments.mpc_cost_curve runs/base_mpc_cost/w0.05_s0_cont --append \
+        --csv docs/experiments/mpc_cost/learning_curve_w0.05_s0.csv   # a resumed run's later iterations
 """
 
 from __future__ import annotations
@@ -81,11 +83,20 @@ def main(argv: list[str] | None = None) -> Path:
     p.add_argument("run_dir", type=Path)
     p.add_argument("--csv", type=Path, required=True)
     p.add_argument("--png", type=Path, default=None, help="default: the CSV's path with .png")
+    p.add_argument("--append", action="store_true",
+                   help="a resumed run: keep the CSV's rows and add the run's later iterations after them")
     args = p.parse_args(argv)
     try:
         rows = read_rewards(args.run_dir)
     except FileNotFoundError as err:
         raise UserError(str(err)) from None
+    if args.append:
+        if not args.csv.is_file():
+            raise UserError(f"--append: {args.csv} not found")
+        with open(args.csv, newline="") as fh:
+            kept = [{k: float(v) for k, v in r.items() if v != ""} for r in csv.DictReader(fh)]
+        last = max(r["iteration"] for r in kept)
+        rows = kept + [r for r in rows if r["iteration"] > last]
     write(rows, args.csv, args.png or args.csv.with_suffix(".png"))
     print(f"{len(rows)} iterations -> {args.csv}")
     return args.csv
