@@ -53,7 +53,7 @@ OUTPUTS = ("runs/", "results/", "exported/", "dataset/", "selection/", "play/", 
 PLACEHOLDER = re.compile(r"[<>*{}$~…]|\.\.\.|\bRUN\b|\bDIR\b|\bPATH\b|\bCKPT\b")
 RANGE = re.compile(r"[a-z][0-9]+-[0-9]+$")
 """``experiments/fig17-23``: a range of files."""
-OUTPUT_FLAGS = {"--checkpoint-copy", "--out", "--out-dir", "--run-dir", "--csv", "--png"}
+OUTPUT_FLAGS = {"--checkpoint-copy", "--out", "--out-dir", "--run-dir", "--csv", "--png", "--export"}
 PATH_ROOTS = ("dls_quadruped/", "docs/", "tasks/", "tests/", "experiments/")
 """A token inside a command is taken for a repository path when it starts with one of these."""
 PATH_LIKE = re.compile(r"^[\w.\-]+(?:/[\w.\-]+)*/?(?:::[\w\[\]\-]+)?$")
