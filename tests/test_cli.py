@@ -79,7 +79,8 @@ def test_train_subprocess_prints_one_line(tmp_path):
                          cwd=REPO, capture_output=True, text=True, timeout=300, check=False)
     assert out.returncode == 2
     assert out.stderr.strip().splitlines() == [
-        f"dls_quadruped.learning.train: error: {tmp_path / 'bad.yaml'}: env.decimation: must be an integer, got float 2.5"]
+        (f"dls_quadruped.learning.train: error: {tmp_path / 'bad.yaml'}: env.decimation: must be an integer, "
+         "got float 2.5")]
 
 
 def test_mpc_run_short_run_writes_strict_json(tmp_path, capsys):

@@ -44,7 +44,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")),
-         *(p for sub in ("experiments", "reports", "tasks", "tutorials") for p in sorted((REPO / "docs" / sub).glob("*.md"))),
+         *(p for sub in ("experiments", "reports", "tasks",
+                         "tutorials") for p in sorted((REPO / "docs" / sub).glob("*.md"))),
          REPO / "docs" / "policies" / "README.md"]
 
 OUTPUTS = ("runs/", "results/", "exported/", "dataset/", "selection/", "play/", "cells/", "wheels/",

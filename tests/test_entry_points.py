@@ -65,7 +65,8 @@ def test_every_known_entry_point_is_found():
     expected = {"dls_quadruped.eval", "dls_quadruped.closed_loop", "dls_quadruped.learning.train",
                 "dls_quadruped.learning.distill", "dls_quadruped.learning.play", "dls_quadruped.learning.export",
                 "dls_quadruped.mpc.run", "dls_quadruped.demo", "dls_quadruped.bench.env", "dls_quadruped.bench.mpc",
-                "dls_quadruped.bench.rl_env", "dls_quadruped.bench.dynamics", "experiments.table14_warm_start_encodings"}
+                "dls_quadruped.bench.rl_env", "dls_quadruped.bench.dynamics",
+                "experiments.table14_warm_start_encodings"}
     assert expected <= set(TARGETS), sorted(expected - set(TARGETS))
     assert "dls_quadruped.cli" not in TARGETS  # its `__main__` is in the docstring only
 

@@ -29,7 +29,8 @@ def _differences(new: dict, names: tuple[str, ...], exact: bool) -> list[str]:
         a, b = GOLDEN[key], new[key]
         if a.shape != b.shape:
             bad.append(f"{key}: shape {b.shape}, golden {a.shape}")
-        elif exact and not np.array_equal(a, b, equal_nan=True) or not exact and not np.allclose(a, b, rtol=1e-3, atol=1e-4, equal_nan=True):
+        elif exact and not np.array_equal(a, b, equal_nan=True) or \
+                not exact and not np.allclose(a, b, rtol=1e-3, atol=1e-4, equal_nan=True):
             bad.append(f"{key}: max |diff| {np.nanmax(np.abs(b.astype(float) - a.astype(float))):.3g}")
     return bad
 
@@ -40,7 +41,8 @@ def test_golden_trajectories_are_bit_identical():
     new = record()
     assert set(new) == set(GOLDEN.files)
     bad = _differences(new, tuple({k.split(".", 1)[0] for k in GOLDEN.files}), exact=True)
-    assert not bad, "behaviour changed (re-record with `python -m tests.golden.record` only if meant):\n" + "\n".join(bad)
+    assert not bad, ("behaviour changed (re-record with `python -m tests.golden.record` only if meant):\n"
+                     + "\n".join(bad))
 
 
 def test_smooth_golden_runs_agree_within_tolerance():

@@ -9,9 +9,9 @@ process it times the kernel alone for one robot (M = 10 000, N = 10), so the thr
 against the machine's kernel speed (our machines differ by 3-5x there).
 
 With ``--paths fused torch`` (``make bench-closed-loop``: B = 16 and 64) each row runs on the fused solve
-(``SamplingMPC.fused``) and on the torch path around the kernel, back to back in the same process: the kernel's share of the wall time, the
-robot-seconds per second of the two and their ratio, and robot-seconds per CPU-second of the process (what other
-jobs on shared cores do not inflate).
+(``SamplingMPC.fused``) and on the torch path around the kernel, back to back in the same process: the kernel's share of
+the wall time, the robot-seconds per second of the two and their ratio, and robot-seconds per CPU-second of the process
+(what other jobs on shared cores do not inflate).
 
 With ``--students 1 2`` each ``rl_warm_start`` row runs with one student and with the same student twice (two
 sample groups sharing the M samples of one batched solve): a multi-policy solve should cost
@@ -87,7 +87,8 @@ def run(controller: str, robots: int, seconds: float, samples: int, horizon: int
         env.close()
     t = tr.timing
     wall = t["wall"]
-    return {"controller": controller, "path": path, "students": students, "robots": robots, "seconds": seconds, "samples": samples, "horizon": horizon,
+    return {"controller": controller, "path": path, "students": students, "robots": robots, "seconds": seconds,
+            "samples": samples, "horizon": horizon,
             "num_workers": num_workers, "robot_seconds_per_second": t["robot_seconds_per_second"],
             "robot_seconds_per_cpu_second": robots * seconds / cpu, "cpu_s": cpu,
             "wall_s": wall, "share": {k: t[k] / wall for k in ("kernel", "policy", "probe", "env_and_sim")}
@@ -139,7 +140,8 @@ def main(argv: list[str] | None = None) -> dict:
     write_json(res, args.out / "closed_loop.json", indent=1)
     print(f"{res['cpu']}, load average {[round(x, 2) for x in load_start]} -> "
           f"{[round(x, 2) for x in res['load_avg_at_end']]}")
-    print("| controller | path | groups | B | threads | sim workers | robot-s/s | vs torch path | robot-s per CPU-s | vs torch path "
+    print("| controller | path | groups | B | threads | sim workers | robot-s/s | vs torch path | robot-s per CPU-s | "
+          "vs torch path "
           "| kernel | rest of solve | policy | probe | env+sim | kernel alone B=1 [ms] |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     key = lambda r: (r["controller"], r["students"], r["robots"], r["threads"], r["num_workers"])
@@ -148,8 +150,9 @@ def main(argv: list[str] | None = None) -> dict:
         s, ref = r["share"], torch_rows.get(key(r))
         speed, speed_cpu = (f"{r[k] / ref[k]:.2f}x" if ref else "-"
                             for k in ("robot_seconds_per_second", "robot_seconds_per_cpu_second"))
-        print(f"| {r['controller']} | {r['path']} | {r['students']} | {r['robots']} | {r['threads']} | {r['num_workers']} | "
-              f"{r['robot_seconds_per_second']:.2f} | {speed} | {r['robot_seconds_per_cpu_second']:.2f} | {speed_cpu} | "
+        print(f"| {r['controller']} | {r['path']} | {r['students']} | {r['robots']} | {r['threads']} | "
+              f"{r['num_workers']} | {r['robot_seconds_per_second']:.2f} | {speed} | "
+              f"{r['robot_seconds_per_cpu_second']:.2f} | {speed_cpu} | "
               f"{100 * s['kernel']:.0f} % | "
               f"{100 * s['solve_without_kernel']:.0f} % | {100 * s['policy']:.0f} % | {100 * s['probe']:.0f} % | "
               f"{100 * s['env_and_sim']:.0f} % | {r['kernel_alone_ms_B1']:.2f} |")

@@ -95,7 +95,8 @@ def env_steps(task: str, num_envs: int, device: torch.device, backend: str, step
     finally:
         env.close()
     return {"task": task, "num_envs": num_envs, "steps": steps, "wall_s": wall, "steps_per_s": num_envs * steps / wall,
-            "resets": int(resets), "capture": capture, "compile": compile, **({"capture_errors": capture_errors} if capture_errors else {})}
+            "resets": int(resets), "capture": capture, "compile": compile,
+            **({"capture_errors": capture_errors} if capture_errors else {})}
 
 
 def mpc_solve(samples: int, horizon: int, device: torch.device, kernel: str, solves: int) -> dict:

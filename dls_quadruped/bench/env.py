@@ -108,13 +108,16 @@ def main() -> None:
         workers = full_backend(model, n, args.seconds, workers=-1)
         inproc = full_backend(model, n, args.seconds, workers=0)
         rows.append({"num_envs": n, "raw_steps_per_s": raw, "raw_no_self_collision_steps_per_s": raw_noself,
-                     "self_collision_cost": 1.0 - raw / raw_noself, "python_loop_mj_step_per_s": loop, "backend_workers_steps_per_s": workers,
+                     "self_collision_cost": 1.0 - raw / raw_noself, "python_loop_mj_step_per_s": loop,
+                     "backend_workers_steps_per_s": workers,
                      "backend_inprocess_steps_per_s": inproc, "ratio_workers_to_raw": workers / raw,
                      "ratio_inprocess_to_raw": inproc / raw})
-        print(f"N={n}: raw {raw:,.0f}/s (without self-collision {raw_noself:,.0f}/s), (python mj_step loop {loop:,.0f}/s), backend ({cores} workers) {workers:,.0f}/s ({workers / raw:.2f} x raw), "
+        print(f"N={n}: raw {raw:,.0f}/s (without self-collision {raw_noself:,.0f}/s), (python mj_step loop "
+              f"{loop:,.0f}/s), backend ({cores} workers) {workers:,.0f}/s ({workers / raw:.2f} x raw), "
               f"in-process {inproc:,.0f}/s ({inproc / raw:.2f} x raw)", flush=True)
     result = {
-        "machine": {"cpu": platform.processor() or platform.machine(), "cores": cores, "python": platform.python_version(),
+        "machine": {"cpu": platform.processor() or platform.machine(), "cores": cores,
+                    "python": platform.python_version(),
                     "torch": torch.__version__, "mujoco": mujoco.__version__},
         "seconds_per_config": args.seconds,
         "rows": rows,
@@ -123,12 +126,15 @@ def main() -> None:
     tmp = args.out / "env_throughput.json.tmp"
     tmp.write_text(json.dumps(result, indent=2))
     tmp.replace(args.out / "env_throughput.json")
-    print("\n| N | raw Batch physics [steps/s] | raw, no self-collision | python mj_step loop [steps/s] | full backend, workers [steps/s] | ratio "
+    print("\n| N | raw Batch physics [steps/s] | raw, no self-collision | python mj_step loop [steps/s] | full "
+          "backend, workers [steps/s] | ratio "
           "| full backend, in-process [steps/s] | ratio |")
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['num_envs']} | {r['raw_steps_per_s']:,.0f} | {r['raw_no_self_collision_steps_per_s']:,.0f} | {r['python_loop_mj_step_per_s']:,.0f} | {r['backend_workers_steps_per_s']:,.0f} | "
-              f"{r['ratio_workers_to_raw']:.2f} | {r['backend_inprocess_steps_per_s']:,.0f} | {r['ratio_inprocess_to_raw']:.2f} |")
+        print(f"| {r['num_envs']} | {r['raw_steps_per_s']:,.0f} | {r['raw_no_self_collision_steps_per_s']:,.0f} | "
+              f"{r['python_loop_mj_step_per_s']:,.0f} | {r['backend_workers_steps_per_s']:,.0f} | "
+              f"{r['ratio_workers_to_raw']:.2f} | {r['backend_inprocess_steps_per_s']:,.0f} | "
+              f"{r['ratio_inprocess_to_raw']:.2f} |")
 
 
 if __name__ == "__main__":

@@ -95,7 +95,8 @@ def versions(device: torch.device) -> dict:
         out["warp_cuda_driver"] = ".".join(map(str, wp.get_cuda_driver_version() or ()))
         out["conditional_graphs"] = bool(wp.is_conditional_graph_supported())
         try:
-            smi = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version,memory.total", "--format=csv,noheader"],
+            smi = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version,memory.total",
+                                  "--format=csv,noheader"],
                                  capture_output=True, text=True, timeout=20, check=False)
             out["nvidia_smi"] = smi.stdout.strip()
         except (OSError, subprocess.TimeoutExpired) as err:
@@ -184,7 +185,8 @@ def mpc_rows(device: torch.device, sizes: tuple[int, ...], solves: int, report: 
     return {"rows": rows}
 
 
-def train(device: torch.device, backend: str, num_envs: int, seconds: float, out: Path, iterations: int = 100000) -> dict:
+def train(device: torch.device, backend: str, num_envs: int, seconds: float, out: Path,
+          iterations: int = 100000) -> dict:
     """PPO on base for about ``seconds`` or ``iterations`` (SIGTERM at the time: the trainer saves at the end of
     its iteration)."""
     run_dir = Path(os.environ.get("TMPDIR", "/tmp")) / f"gpu_check_train_{os.getpid()}"

@@ -54,7 +54,8 @@ def measure(task: str, num_envs: int, rounds: int, steps: int, num_workers: int 
     finally:
         view.close()
     native, gym = statistics.median(rates["native"]), statistics.median(rates["gymnasium"])
-    return {"task": task, "final_obs": final_obs, "num_envs": num_envs, "workers": env.scene.sim.num_workers, "rounds": rounds,
+    return {"task": task, "final_obs": final_obs, "num_envs": num_envs, "workers": env.scene.sim.num_workers,
+            "rounds": rounds,
             "steps": steps, "native_steps_per_s": native, "gymnasium_steps_per_s": gym,
             "overhead": 1.0 - gym / native, "view_steps_with_a_reset": resets / (rounds * steps), "rates": rates}
 
@@ -77,7 +78,8 @@ def main(argv: list[str] | None = None) -> dict:
            "load_avg_after": os.getloadavg()}
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(res, args.out / f"gym_env_{args.final_obs}.json", indent=1)
-    print(f"[bench.gym_env] {res['task']} N={res['num_envs']} final_obs={res['final_obs']}: native {res['native_steps_per_s']:,.0f} steps/s, "
+    print(f"[bench.gym_env] {res['task']} N={res['num_envs']} final_obs={res['final_obs']}: native "
+          f"{res['native_steps_per_s']:,.0f} steps/s, "
           f"gymnasium view {res['gymnasium_steps_per_s']:,.0f} steps/s, overhead {100 * res['overhead']:+.1f} % "
           f"({100 * res['view_steps_with_a_reset']:.0f} % of the view's steps reset a robot)")
     return res

@@ -1,4 +1,5 @@
-"""The CPU model for bench scripts: :func:`dls_quadruped.core.machine.cpu_model`, which code below ``bench/`` imports."""
+"""The CPU model for bench scripts: :func:`dls_quadruped.core.machine.cpu_model`, which code below ``bench/``
+imports."""
 
 from dls_quadruped.core.machine import cpu_model
 

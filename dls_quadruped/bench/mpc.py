@@ -13,8 +13,8 @@ Then (or alone, ``--builds-only``) the C++ kernel built three ways is timed side
 N = 10: for the host (``-march=native``), for ``x86-64-v3`` (AVX2 + FMA: a machine without
 AVX-512) and without auto-vectorisation (``scalar``), taking turns solve by solve; full solve and kernel
 call medians, speed-ups over ``scalar`` and the kernel's share of the machine's fp32 peak go to
-results/bench/mpc_builds.json (and, with ``--update-docs``, the "## MPC C++ kernel builds" section of docs/benchmarks.md):
-:mod:`dls_quadruped.bench.mpc_builds`.
+results/bench/mpc_builds.json (and, with ``--update-docs``, the "## MPC C++ kernel builds" section of
+docs/benchmarks.md): :mod:`dls_quadruped.bench.mpc_builds`.
 
 Last, the fused solve vs the torch path side by side (:mod:`dls_quadruped.bench.mpc_path`).
 """
@@ -83,7 +83,8 @@ def markdown_table(results: list[dict]) -> str:
         cpp = keyed.get((dev, n, m, "cpp"))
         cell = lambda r, k: f"{r[k]:.2f}" if r else "-"
         speed = f"{ref['median_ms'] / fast['median_ms']:.1f}x" if fast and ref else "-"
-        lines.append(f"| {dev} | {n} | {m} | {cell(fast, 'median_ms')} | {cell(fast, 'p90_ms')} | {cell(fast, 'min_ms')} | "
+        lines.append(f"| {dev} | {n} | {m} | {cell(fast, 'median_ms')} | {cell(fast, 'p90_ms')} | "
+                     f"{cell(fast, 'min_ms')} | "
                      f"{cell(cpp, 'median_ms')} | {cell(cpp, 'p90_ms')} | {cell(cpp, 'min_ms')} | "
                      f"{cell(ref, 'median_ms')} | {cell(ref, 'p90_ms')} | {speed} |")
     return "\n".join(lines)
@@ -98,7 +99,8 @@ def plot(results: list[dict], path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for dev, kernel, n in sorted({(r["device"], r["kernel"], r["N"]) for r in results}):
-        rows = sorted((r for r in results if (r["device"], r["kernel"], r["N"]) == (dev, kernel, n)), key=lambda r: r["M"])
+        rows = sorted((r for r in results if (r["device"], r["kernel"], r["N"]) == (dev, kernel, n)),
+                      key=lambda r: r["M"])
         ax.plot([r["M"] for r in rows], [r["median_ms"] for r in rows], marker="o",
                 linestyle={"fast": "-", "cpp": "-."}.get(kernel, "--"), label=f"{kernel} {dev} N={n}")
     ax.axhline(4.0, color="grey", linewidth=0.8, linestyle=":", label="4 ms target (CPU)")
@@ -112,7 +114,8 @@ def plot(results: list[dict], path: Path) -> None:
 
 def update_docs(table: str, info: dict, results: list[dict], path: Path) -> None:
     """Replace (or append) the '## MPC solve time' section of docs/benchmarks.md."""
-    ref10 = [r for r in results if r["kernel"] == "reference" and r["N"] == 10 and r["M"] == 10000 and r["device"] == "cpu"]
+    ref10 = [r for r in results
+             if r["kernel"] == "reference" and r["N"] == 10 and r["M"] == 10000 and r["device"] == "cpu"]
     fast10 = [r for r in results if r["kernel"] == "fast" and r["N"] == 10 and r["M"] == 10000 and r["device"] == "cpu"]
     cpp10 = [r for r in results if r["kernel"] == "cpp" and r["N"] == 10 and r["M"] == 10000 and r["device"] == "cpu"]
     headline = ""
@@ -162,7 +165,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--builds-only", action="store_true",
                         help="only time the C++ kernel builds (native, x86-64-v3, scalar) side by side")
     parser.add_argument("--render", type=Path, default=None,
-                        help="only re-render the table and plot (and with --update-docs the docs) from an existing mpc.json")
+                        help="only re-render the table and plot (and with --update-docs the docs) from an existing "
+                             "mpc.json")
     args = parser.parse_args(argv)
     if args.render is not None:
         data = json.loads(args.render.read_text())

@@ -32,7 +32,8 @@ from dls_quadruped.core.progress import progress
 from dls_quadruped.mpc import SamplerConfig, SamplingMPC, cpp_kernel, warm_start
 
 ROLLOUT_MFLOP = 30.0
-"""fp32 work of one solve's kernel at M = 10 000, N = 10 (an estimate from the kernel's arithmetic), scaled by M N elsewhere."""
+"""fp32 work of one solve's kernel at M = 10 000, N = 10 (an estimate from the kernel's arithmetic), scaled by M N
+elsewhere."""
 FLOP_PER_CYCLE = 32
 """fp32 FLOP per cycle and core with two 256-bit FMA pipes (2 x 8 lanes x 2): AMD Zen 2-4 (Zen 4 runs
 AVX-512 on the same two 256-bit pipes), Intel cores since Haswell. Peak per core = clock x this."""
@@ -147,7 +148,8 @@ def build_notes(rows: list[dict]) -> list[str]:
                      f"{r['solve_median_ms'] / scalar['solve_median_ms']:.2f}x the scalar build's "
                      f"{scalar['solve_median_ms']:.2f} ms; kernel call {r['kernel_median_ms']:.2f} ms = "
                      f"{r['kernel_median_ms'] / scalar['kernel_median_ms']:.2f}x the scalar "
-                     f"{scalar['kernel_median_ms']:.2f} ms (speed-up {scalar['kernel_median_ms'] / r['kernel_median_ms']:.1f}x)")
+                     f"{scalar['kernel_median_ms']:.2f} ms "
+                     f"(speed-up {scalar['kernel_median_ms'] / r['kernel_median_ms']:.1f}x)")
     return notes
 
 
@@ -158,7 +160,8 @@ def update_builds_docs(rows: list[dict], info: dict, path: Path) -> None:
     load = max(info["load_avg_1_5_15"][0], (info.get("load_avg_end") or [0.0])[0])
     load_note = (f"the {info['cpu_count']} cores were shared with other jobs (load above 1.5), which hits the "
                  "multi-threaded rows hardest (OpenMP waits for a descheduled thread): compare builds within a "
-                 "thread count, the 1-thread rows are the steadiest" if load > 1.5 else "the machine was otherwise idle")
+                 "thread count, the 1-thread rows are the steadiest"
+                 if load > 1.5 else "the machine was otherwise idle")
     peak_note = (f"fp32 peak per core {peak:.0f} GFLOP/s = {info['cpu_mhz']:.0f} MHz x {FLOP_PER_CYCLE} FLOP/cycle "
                  "(two 256-bit FMA pipes), times the threads used" if peak else "fp32 peak unknown (no clock)")
     body = (

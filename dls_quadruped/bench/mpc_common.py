@@ -32,8 +32,9 @@ def solve_problem(device: str) -> tuple[SRBDState, Refs, torch.Tensor]:
     roll, pitch and roll rate, feet under the hips), the references (0.5 m/s at 0.33 m) and the trot's phase (1, 4)."""
     feet = torch.tensor([[0.24, 0.134, 0.0265], [0.24, -0.134, 0.0265], [-0.24, 0.134, 0.0265],
                          [-0.24, -0.134, 0.0265]])
-    state = SRBDState(torch.tensor([[0.0, 0.0, 0.32]]), torch.tensor([[0.3, 0.0, 0.0]]), torch.tensor([[0.02, -0.01, 0.0]]),
-                      torch.tensor([[0.1, 0.0, 0.0]]), feet[None].clone()).to(device)
+    state = SRBDState(torch.tensor([[0.0, 0.0, 0.32]]), torch.tensor([[0.3, 0.0, 0.0]]),
+                      torch.tensor([[0.02, -0.01, 0.0]]), torch.tensor([[0.1, 0.0, 0.0]]),
+                      feet[None].clone()).to(device)
     refs = Refs(torch.tensor([0.33]), torch.tensor([[0.5, 0.0]]), torch.tensor([0.0]), feet[None].clone()).to(device)
     phase = torch.tensor([[0.1, 0.6, 0.6, 0.1]], device=device)
     return state, refs, phase

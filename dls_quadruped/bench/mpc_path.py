@@ -76,7 +76,8 @@ def time_paths(num_samples: int = 10000, horizon: int = 10, solves: int = 200, w
 def table(rows: list[dict]) -> str:
     """Markdown rows per path."""
     lines = [("| path | solve [ms] | kernel call [ms] | solve / kernel | solve CPU time [ms] | solve CPU / kernel | "
-              "solve, min [ms] | kernel, min [ms] | min / min | naive warm start [ms] | (warm start + solve) / kernel |"),
+              "solve, min [ms] | kernel, min [ms] | min / min | naive warm start [ms] | "
+              "(warm start + solve) / kernel |"),
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['path']} | {r['solve_median_ms']:.3f} | {r['kernel_median_ms']:.3f} | "

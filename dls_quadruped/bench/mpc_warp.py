@@ -83,7 +83,8 @@ def problem(b: int, device: torch.device) -> tuple[SRBDState, Refs, torch.Tensor
     euler[:, 2] = 0.3 * torch.randn(b, generator=gen)
     state = SRBDState(torch.tensor([[0.0, 0.0, 0.32]]).repeat(b, 1), torch.tensor([[0.3, 0.0, 0.0]]).repeat(b, 1),
                       euler, torch.tensor([[0.1, 0.0, 0.0]]).repeat(b, 1), feet).to(device)
-    refs = Refs(torch.full((b,), 0.33), torch.tensor([[0.5, 0.0]]).repeat(b, 1), torch.zeros(b), feet.clone()).to(device)
+    refs = Refs(torch.full((b,), 0.33), torch.tensor([[0.5, 0.0]]).repeat(b, 1), torch.zeros(b),
+                feet.clone()).to(device)
     phase = (torch.tensor([[0.1, 0.6, 0.6, 0.1]]) + torch.rand(b, 1, generator=gen)) % 1.0
     return state, refs, phase.to(device)
 

@@ -30,9 +30,9 @@ import numpy as np
 import torch
 
 from dls_quadruped.cli import ArgumentParser, run_cli
+from dls_quadruped.control.action_config import LatentActionConfig
 from dls_quadruped.control.balance import BalanceController
 from dls_quadruped.control.latent_action import (
-    LatentActionConfig,
     clip,
     flat_ground,
     to_world,

@@ -32,7 +32,8 @@ TIMERS = ("POS_KINEMATICS", "COL_BROAD", "COL_NARROW", "CONSTRAINT")
 
 
 def step_cost(model: mujoco.MjModel, x: float, y: float, z_ground: float, steps: int) -> dict[str, float]:
-    """Mean wall and CPU time [us] of ``mj_step`` and MuJoCo's (wall-clock) timers, robot standing at (x, y, z_ground)."""
+    """Mean wall and CPU time [us] of ``mj_step`` and MuJoCo's (wall-clock) timers, robot standing at
+    (x, y, z_ground)."""
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, 0)
     data.qpos[:3] = (x, y, C.STANDING_BASE_HEIGHT + z_ground - 0.0005)
@@ -74,7 +75,8 @@ def markdown(result: dict) -> str:
     plane = result["plane"]
 
     def row(name: str, r: dict) -> str:
-        return (f"| {name} | {r['step_us']:.1f} | {r['step_us'] / plane['step_us']:.1f} | {r['pos_kinematics_us']:.1f} | "
+        return (f"| {name} | {r['step_us']:.1f} | {r['step_us'] / plane['step_us']:.1f} | "
+                f"{r['pos_kinematics_us']:.1f} | "
                 f"{r['col_broad_us']:.1f} | {r['col_narrow_us']:.1f} | {r['constraint_us']:.1f} | {r['contacts']} |")
 
     lines.append(row("plane", plane))

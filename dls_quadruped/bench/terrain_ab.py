@@ -100,7 +100,8 @@ def measure(n: int, rounds: int, steps: int, baseline) -> dict[str, dict[str, fl
         envs["rough_baseline_terrain"] = make_env("rough", n, baseline, {"scene": {"terrain_regions": False}})
     rates = interleaved_rates(envs, n, rounds, steps, desc=f"N={n} rounds")
     base = statistics.median(rates["base"])
-    return {k: {"median": statistics.median(v), "min": min(v), "max": max(v), "ratio_to_base": statistics.median(v) / base}
+    return {k: {"median": statistics.median(v), "min": min(v), "max": max(v),
+                "ratio_to_base": statistics.median(v) / base}
             for k, v in rates.items()}
 
 

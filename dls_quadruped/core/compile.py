@@ -10,10 +10,23 @@ Compiling costs seconds on the first call (and a C++ compiler on the CPU), so it
 not repaid: ``SimConfig.compile`` is None by default, meaning on for CUDA devices and off elsewhere. A function
 that fails to compile (no compiler, an unsupported operator) runs eagerly from then on, after one
 ``RuntimeWarning`` naming it and the error: a run never stops because fusing did not work.
+
+A method is written once and fused per instance with :func:`fused_method`::
+
+    class PhysicsRate:
+        def __init__(self, sim, compile):
+            self.compile = compile_wanted(compile, sim.device)
+
+        @fused_method("WarpSim settle")
+        def _settle(self, qpos, qvel): ...
+
+``self._settle(...)`` runs the instance's :class:`Fused` (compiled when ``self.compile``), ``self._settle.fn(...)``
+the same method eagerly.
 """
 
 from __future__ import annotations
 
+import operator
 import warnings
 from collections.abc import Callable
 from typing import Any
@@ -26,7 +39,8 @@ def compile_wanted(setting: bool | None, device: torch.device | str) -> bool:
     if setting is None:
         return torch.device(device).type == "cuda"
     if not isinstance(setting, bool):
-        raise ValueError(f"compile must be true, false or null (null: on for CUDA devices), got {setting!r}")  # noqa: TRY004
+        raise ValueError(  # noqa: TRY004
+            f"compile must be true, false or null (null: on for CUDA devices), got {setting!r}")
     return setting
 
 
@@ -102,6 +116,46 @@ class FusedCache:
         if fn not in self._fused:
             self._fused[fn] = Fused(fn, self.enabled, name, dynamic=dynamic)
         return self._fused[fn]
+
+
+class fused_method:  # lower case: a decorator, named like the built-in ones (property, staticmethod)
+    """Decorator: the method, called through one :class:`Fused` per instance, made on first access.
+
+    Args:
+        name: what the compile-failure warning calls it.
+        dynamic: ``Fused``'s (a batch size that changes from call to call).
+        enabled: whether to compile, read from the instance once, on first access: a dotted attribute (``"compile"``,
+            ``"env.compile"``) or a function of the instance (``lambda m: getattr(m.env, "compile", False)``).
+
+    The decorated function may be a ``staticmethod``. On an instance, the attribute is its ``Fused`` (kept in the
+    instance's ``__dict__``, so later accesses are plain attribute reads); ``.fn`` is the method itself, eager.
+    """
+
+    def __init__(self, name: str, dynamic: bool = False, enabled: str | Callable[[Any], bool] = "compile"):
+        self.name, self.dynamic = name, dynamic
+        self._enabled = operator.attrgetter(enabled) if isinstance(enabled, str) else enabled
+        self.fn: Any = None
+        self.attr = ""
+
+    def __call__(self, fn: Any) -> fused_method:
+        if self.fn is not None:
+            raise TypeError(f"fused_method({self.name!r}) decorates one function, got a second: {fn!r}")
+        self.fn = fn
+        return self
+
+    def __set_name__(self, owner: type, attr: str) -> None:
+        self.attr = attr
+
+    def __get__(self, obj: Any, owner: type | None = None) -> Any:
+        if obj is None:
+            return self
+        enabled = self._enabled(obj)
+        if not isinstance(enabled, bool):
+            raise TypeError(f"fused_method({self.name!r}): {type(obj).__name__}'s enabled attribute must be a bool, "
+                            f"got {enabled!r}")
+        fused = Fused(self.fn.__get__(obj, owner), enabled, self.name, dynamic=self.dynamic)
+        obj.__dict__[self.attr] = fused
+        return fused
 
 
 def _is_compile_error(err: BaseException) -> bool:

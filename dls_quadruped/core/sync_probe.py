@@ -9,13 +9,15 @@ frame inside ``package`` (``path/file.py:function:line``, path relative to the p
 
 Counted (``kind``): ``item``, ``cpu``, ``numpy``, ``tolist``, ``__bool__``, ``__int__``, ``__float__``,
 ``__index__``, ``__array__`` (host reads of a tensor's values); ``nonzero`` (``torch.nonzero``,
-``Tensor.nonzero``: its output size is read back); ``upload`` (``torch.as_tensor``, ``torch.tensor``, ``torch.from_numpy`` of numpy arrays,
-Python lists or scalars). A call nested in a counted one (``__array__`` calls ``numpy``) counts once.
+``Tensor.nonzero``: its output size is read back); ``upload`` (``torch.as_tensor``, ``torch.tensor``,
+``torch.from_numpy`` of numpy arrays, Python lists or scalars). A call nested in a counted one (``__array__`` calls
+``numpy``) counts once.
 
 Not seen: reads made inside C++ or another library without a Python call to these entry points
 (``.to("cpu")``, ``torch.equal``), and boolean-mask indexing ``t[mask]`` (wrapping ``__getitem__`` on
-the tensor type would leave a sequence slot behind that turns 0-d tensors into sequences). On CUDA, ``torch.cuda.set_sync_debug_mode("warn")`` sees those too; the
-probe is for code review and tests on machines without a GPU.
+the tensor type would leave a sequence slot behind that turns 0-d tensors into sequences). On CUDA,
+``torch.cuda.set_sync_debug_mode("warn")`` sees those too; the probe is for code review and tests on machines without a
+GPU.
 
 Usage::
 

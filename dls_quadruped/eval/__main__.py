@@ -9,8 +9,8 @@ committed ``docs/policies/base_actor.pt``) or an
 rsl-rl checkpoint (``runs/base/<run>/model_<it>.pt``). Writes ``<out>/<scenario>.json`` and
 ``<out>/<scenario>.png`` (default: :func:`default_out`, ``results/eval/<task>/<run>/<policy stem>`` for a file of a
 training run, ``results/eval/<policy stem>`` for any other) and prints the headline figures
-and the targets. ``--split validation`` plays disjoint episodes of the same scenario, for choosing checkpoints; reports use
-the default ``test``. ``--episodes`` is per condition (speed, step height, grid cell); each scenario has a
+and the targets. ``--split validation`` plays disjoint episodes of the same scenario, for choosing checkpoints; reports
+use the default ``test``. ``--episodes`` is per condition (speed, step height, grid cell); each scenario has a
 small default. Scenarios: see ``dls_quadruped/eval/scenarios.py`` and docs/eval.md.
 """
 
@@ -64,7 +64,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=None,
                    help="output folder (default: results/eval/<task>/<run>/<policy stem> for a file of a training run "
                         "runs/<task>/<run>/, else results/eval/<policy stem>)")
-    add_set_argument(p, f"of the base task every scenario starts from, in its sections {', '.join(OVERRIDABLE_SECTIONS)}: "
+    add_set_argument(p, f"of the base task every scenario starts from, in its sections "
+                        f"{', '.join(OVERRIDABLE_SECTIONS)}: "
                         f"the scenario sets {', '.join(FIXED_SECTIONS)} itself, so a key there is refused; recorded "
                         "in the JSON as task_overrides")
     args = p.parse_args(argv)

@@ -47,7 +47,8 @@ PAIRED_METRICS = {"survived": "survival [share]", "reward": "mean reward per ste
                   "speed_ratio": "speed: achieved / commanded v_x (0 if fell)"}
 """Per-episode values compared between two evaluations, when the scenario records them."""
 
-CLOSED_LOOP_METRICS = {"survived": "survival [share]", "rl_reward": "RL reward per step", "initial_cost": "initial cost",
+CLOSED_LOOP_METRICS = {"survived": "survival [share]", "rl_reward": "RL reward per step",
+                       "initial_cost": "initial cost",
                        "rollout_cost": "rollout cost, state", "rollout_cost_full": "rollout cost, full J",
                        "vel_error": "velocity error [m/s]", "cost_of_transport": "cost of transport",
                        "reached_top": "stairs: reached the top", "climbed_fraction": "stairs: climbed fraction"}
@@ -238,8 +239,8 @@ def _load(spec: str) -> dict:
     if controller is not None and isinstance(data.get(controller), dict) and "cell" in data[controller]:
         return cell_result(data[controller], path.parent / "config.json")
     if controller is not None:
-        raise UserError(f"{path} is not a closed-loop summary (no 'controllers' and 'settings'): ':{controller}' names a "
-                        "controller of one; name an evaluation JSON without it")
+        raise UserError(f"{path} is not a closed-loop summary (no 'controllers' and 'settings'): ':{controller}' "
+                        "names a controller of one; name an evaluation JSON without it")
     return data
 
 

@@ -176,7 +176,9 @@ def summary(res: dict) -> str:
     for r in res["per_speed"]:
         s = r["sync"]
         lines.append(f"  v_cmd {r['command_v_x']:.2f}: f {r['f_policy']['mean']:.2f} Hz (action), "
-                     f"{r['f_contacts']['mean']:.2f} Hz (touch-downs; {r['contact_rising_edges_per_s']['mean']:.2f} rising edges/s), duty {r['duty_contacts']['mean']:.2f}; "
+                     f"{r['f_contacts']['mean']:.2f} Hz (touch-downs; "
+                     f"{r['contact_rising_edges_per_s']['mean']:.2f} rising edges/s), "
+                     f"duty {r['duty_contacts']['mean']:.2f}; "
                      f"sync diag {s['diagonal']['mean']:.2f} lat {s['lateral']['mean']:.2f} "
                      f"front {s['front']['mean']:.2f} rear {s['rear']['mean']:.2f}; survival {S.pct(r['survival'])}")
     return "\n".join(lines)

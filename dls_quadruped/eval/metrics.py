@@ -187,9 +187,9 @@ def paired_difference(a: np.ndarray, b: np.ndarray, draws: int = 2000, seed: int
 
     Returns:
         {"mean": mean over episodes of d_e = mean_s a_se - mean_s b_se, "ci95": its 95 % interval (two-level
-        bootstrap: episodes resampled together for a and b, seeds independently unless ``paired_seeds``), "relative": sum_e d_e /
-        sum_e b_e (e.g. Table 16's delta), "relative_ci95", "median": the median over episodes of d_e (robust to
-        a few episodes where one side stumbled) and "median_ci95" (the same resamples), "episodes": episodes
+        bootstrap: episodes resampled together for a and b, seeds independently unless ``paired_seeds``), "relative":
+        sum_e d_e / sum_e b_e (e.g. Table 16's delta), "relative_ci95", "median": the median over episodes of d_e
+        (robust to a few episodes where one side stumbled) and "median_ci95" (the same resamples), "episodes": episodes
         where both are finite}.
         Episodes where either side has no finite value are left out of both.
     """
@@ -210,7 +210,8 @@ def paired_difference(a: np.ndarray, b: np.ndarray, draws: int = 2000, seed: int
 
     def stats(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
         with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # a resample of all-NaN seeds: NaN, dropped from the interval
+            # a resample of all-NaN seeds: NaN, dropped from the interval
+            warnings.simplefilter("ignore", RuntimeWarning)
             xm, ym = np.nanmean(x, axis=-2), np.nanmean(y, axis=-2)  # per episode, over seeds
             d = xm - ym
             return np.nanmean(d, axis=-1), np.nansum(d, axis=-1) / np.nansum(ym, axis=-1), np.nanmedian(d, axis=-1)

@@ -5,8 +5,8 @@ Every episode is commanded (m cos(theta), m sin(theta), 0) in the base frame for
 theta from ``DIRECTIONS`` (0 = forward, 90 deg = left) and m from ``MAGNITUDES`` (``--episodes``
 per cell), on the evaluation env of ``simple`` (flat, no noise, no perturbation). An episode
 *succeeds* when it survives and its mean planar velocity after a 2 s settle is within
-max(``TOLERANCE`` x m, ``TOLERANCE_ABS``) of the command (|mean v_xy - cmd_xy| <= max(0.25 m, 0.1 m/s)). Per cell: success and survival
-rates (Wilson 95 %). Per direction: the isoline, the edge of the region where the rate is at
+max(``TOLERANCE`` x m, ``TOLERANCE_ABS``) of the command (|mean v_xy - cmd_xy| <= max(0.25 m, 0.1 m/s)). Per cell:
+success and survival rates (Wilson 95 %). Per direction: the isoline, the edge of the region where the rate is at
 least 90 % (``metrics.threshold_crossing(outermost=True)``: after the largest magnitude at or above
 90 %, linear interpolation to the next grid magnitude; the grid end when the last one is at or
 above; a failure at a low magnitude, e.g. drift above the 0.1 m/s floor, shows in the cells, not
@@ -76,7 +76,8 @@ def summarize(rec: Recording, group: np.ndarray, directions_deg: tuple[float, ..
                            "ci95": M.crossing_interval(magnitudes, k, n, LEVEL, seed=d, outermost=True),
                            "beyond_grid": bool(rates[-1] >= LEVEL), "below_grid": bool(not (rates >= LEVEL).any())}
         isolines.append(entry)
-    return {"settle_s": settle_s, "tolerance": TOLERANCE, "tolerance_abs": TOLERANCE_ABS, "level": LEVEL, "directions_deg": list(directions_deg),
+    return {"settle_s": settle_s, "tolerance": TOLERANCE, "tolerance_abs": TOLERANCE_ABS, "level": LEVEL,
+            "directions_deg": list(directions_deg),
             "magnitudes": list(magnitudes),
             "cells": [{"direction_deg": directions_deg[g // K], "magnitude": magnitudes[g % K], "success": success[g],
                        "survival": survival[g]} for g in range(D * K)],
@@ -118,7 +119,8 @@ def plot(res: dict, path: Path) -> None:
     ax1.set_rmax(max(res["magnitudes"]))
     ax1.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0.8, -0.1))
     fig.suptitle(f"omni: {Path(res['policy']).name}, isolines of {100 * res['level']:.0f} % (95 % band); "
-                 f"success = survived and |v - cmd| <= max({res['tolerance']:g} |cmd|, {res['tolerance_abs']:g} m/s)", fontsize=9)
+                 f"success = survived and |v - cmd| <= max({res['tolerance']:g} |cmd|, {res['tolerance_abs']:g} m/s)",
+                 fontsize=9)
     S.savefig(fig, path)
 
 

@@ -84,7 +84,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="per-episode metric to maximise (default: survived for survival scenarios, "
                         "climbed_fraction for stairs, else reward)")
     p.add_argument("--every", type=positive_int, default=None,
-                   help="only checkpoints whose iteration is a positive multiple of this, and the newest (default: all)")
+                   help="only checkpoints whose iteration is a positive multiple of this, and the newest "
+                        "(default: all)")
     p.add_argument("--episodes", type=positive_int, default=None, help="validation episodes (default: the scenario's)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--num-workers", type=int, default=-1)

@@ -112,7 +112,8 @@ def summary(res: dict) -> str:
         lines.append(f"  v_cmd {s['command_v_x']:.2f}: survival {S.pct(s['survival'])}, achieved {a['mean']:.3f} "
                      f"[{a['ci95'][0]:.3f}, {a['ci95'][1]:.3f}] m/s")
     c = res["survival_crossing"]
-    lines.append(f"  survival < {100 * c['level']:.0f} % from {c['speed']:.2f} m/s [{c['ci95'][0]:.2f}, {c['ci95'][1]:.2f}]")
+    lines.append(f"  survival < {100 * c['level']:.0f} % from {c['speed']:.2f} m/s [{c['ci95'][0]:.2f}, "
+                 f"{c['ci95'][1]:.2f}]")
     return "\n".join(lines)
 
 

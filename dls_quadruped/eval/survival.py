@@ -24,8 +24,8 @@ range, ``SWEEP_ROWS`` rows from 0 (nearly flat: rugged +-1 cm, 5 cm steps) to 1 
 hardest row), with the rough task's own disturbances (``SWEEP_STRENGTH`` = 1: friction 0.4-0.8,
 +-10 N, pushes of +-0.5 m/s every 8-12 s), reported as survival per row and the difficulty where
 it first drops below 50 % (with a 95 % interval). Where every expert is near 0 % on ``survival``
-(a few per cent at most, docs/experiments/experts.md Fig. 18), this says how far below that each one still stands. With ``survival``'s
-doubled disturbances the sweep is at the floor too (docs/experiments/experts.md, Fig. 18b).
+(a few per cent at most, docs/experiments/experts.md Fig. 18), this says how far below that each one still stands. With
+``survival``'s doubled disturbances the sweep is at the floor too (docs/experiments/experts.md, Fig. 18b).
 """
 
 from __future__ import annotations
@@ -141,7 +141,8 @@ def _evaluate(policy_path: Path, opts: EvalOptions, name: str, description: str,
             "terrain": terrain, "events": task.data["events"],
             "observation_noise_scale": task.data["observations"]["policy"]["noise_scale"],
             "survival": S.survival_of(rec)[0],
-            "length_s": {"mean": M.mean_ci(rec.length * rec.step_dt), "quartiles": M.median_iqr(rec.length * rec.step_dt)},
+            "length_s": {"mean": M.mean_ci(rec.length * rec.step_dt),
+                         "quartiles": M.median_iqr(rec.length * rec.step_dt)},
             "per_type": {t: s for t, s in zip(types, S.survival_of(rec, col, len(types)))},
             "per_row": [{"row": r, "rough_difficulty": d, **{f: _lerp(terrain[f], r / max(rows - 1, 1))
                                                              for f in DIFFICULTY_FIELDS}, "survival": s}
@@ -166,7 +167,8 @@ def _bars(ax, labels, cells, title):
 def plot(res: dict, path: Path) -> None:
     plt = S.pyplot()
     fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(11, 4))
-    _bars(ax0, [f"{t}\nn={c['n']}" for t, c in res["per_type"].items()], list(res["per_type"].values()), "per terrain type")
+    _bars(ax0, [f"{t}\nn={c['n']}" for t, c in res["per_type"].items()], list(res["per_type"].values()),
+          "per terrain type")
     _bars(ax1, [f"row {r['row']}\nd={r['rough_difficulty']:.2f}, n={r['survival']['n']}" for r in res["per_row"]],
           [r["survival"] for r in res["per_row"]], "per row (fraction of the rough task's difficulty)")
     fig.suptitle(f"{res['scenario']}: {Path(res['policy']).name}: {S.pct(res['survival'])}", fontsize=10)

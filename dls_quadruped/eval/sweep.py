@@ -116,7 +116,8 @@ def place_on_rows(env, rows: np.ndarray) -> None:
     """Move every env to terrain row ``rows[i]`` of its column and restart its episode there."""
     target = torch.as_tensor(rows, dtype=torch.long, device=env.device)
     if target.shape != (env.num_envs,) or target.min() < 0 or target.max() >= env.scene.terrain.num_rows:
-        raise ValueError(f"rows must be ({env.num_envs},) in [0, {env.scene.terrain.num_rows}), got {tuple(target.shape)}")
+        raise ValueError(f"rows must be ({env.num_envs},) in [0, {env.scene.terrain.num_rows}), got "
+                         f"{tuple(target.shape)}")
     ids = torch.arange(env.num_envs, device=env.device)
     env.scene.update_levels(ids, target - env.scene.terrain_levels)
     env.reset()

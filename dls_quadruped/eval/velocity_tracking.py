@@ -74,7 +74,8 @@ def mirrored_pairs(first: np.ndarray) -> np.ndarray:
 def simple_commands(episodes: int, seed: int) -> np.ndarray:
     """(episodes, 3) simple-task commands in mirrored pairs (``episodes`` must be even)."""
     if episodes < 2 or episodes % 2:
-        raise ValueError(f"the simple task pairs each command with its mirror: episodes must be even and >= 2, got {episodes}")
+        raise ValueError(f"the simple task pairs each command with its mirror: episodes must be even and >= 2, got "
+                         f"{episodes}")
     rng = np.random.default_rng(seed)
     lo, hi = np.array(SIMPLE_RANGES).T
     return mirrored_pairs(rng.uniform(lo, hi, size=(episodes // 2, 3)))

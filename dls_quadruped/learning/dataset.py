@@ -131,7 +131,8 @@ class DiskDataset:
         """Append rows (N, obs_dim), (N, label_dim); beyond the cap the oldest rows go (FIFO)."""
         obs = np.asarray(torch.as_tensor(obs, dtype=torch.float32).cpu())
         labels = np.asarray(torch.as_tensor(labels, dtype=torch.float32).cpu())
-        if obs.ndim != 2 or obs.shape[1] != self._state["obs_dim"] or labels.shape != (len(obs), self._state["label_dim"]):
+        expected_labels = (len(obs), self._state["label_dim"])
+        if obs.ndim != 2 or obs.shape[1] != self._state["obs_dim"] or labels.shape != expected_labels:
             raise DatasetError(f"rows must be (N, {self._state['obs_dim']}) and (N, {self._state['label_dim']}), "
                                f"got {obs.shape} and {labels.shape}")
         n_in = len(obs)

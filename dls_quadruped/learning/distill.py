@@ -79,7 +79,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--run-dir", type=Path, default=None, help="default: a new runs/distill/<time>")
     p.add_argument("--log-root", type=Path, default=Path("runs") / "distill")
     p.add_argument("--resume", action="store_true",
-                   help="continue after the last finished epoch, with the run's stored settings (flags given override them)")
+                   help="continue after the last finished epoch, with the run's stored settings (flags given "
+                        "override them)")
     p.add_argument("--out", type=Path, default=None,
                    help="also copy student.pt2/.json, metrics.json and mse_sp.png here")
     return p.parse_args(argv)
@@ -287,7 +288,8 @@ def main(argv: list[str] | None = None) -> Path:
         (run_dir / RESOLVED).write_text(f"# resolved distillation settings (from {cfg.path})\n"
                                         + yaml.safe_dump(cfg.to_dict(), sort_keys=False))
         trainer.writer = SummaryWriter(log_dir=str(run_dir))
-        print(f"[distill] run dir {run_dir}: {cfg.algorithm}, {trainer.enc.p}-{trainer.enc.F}, H={trainer.enc.horizon}, "
+        print(f"[distill] run dir {run_dir}: {cfg.algorithm}, {trainer.enc.p}-{trainer.enc.F}, "
+              f"H={trainer.enc.horizon}, "
               f"dt={cfg.encoding.dt:g} s (every {trainer.stride} env steps), output {trainer.meta['output_dim']}, "
               f"{env.num_envs} envs, expert {cfg.expert}", flush=True)
         trainer.collect_test_set()

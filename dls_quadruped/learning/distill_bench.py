@@ -85,7 +85,8 @@ def main(argv: list[str] | None = None) -> dict:
                                                          + out["table7_projection"]["train_s"]) / 60
     out["load_average"] = {"before": load_before, "after": os.getloadavg()}
     write_json(out, args.out)
-    print(f"[distill_bench] {out['cpu']} ({out['cores']} cores), load {load_before[0]:.1f} -> {os.getloadavg()[0]:.1f}: "
+    print(f"[distill_bench] {out['cpu']} ({out['cores']} cores), load {load_before[0]:.1f} -> "
+          f"{os.getloadavg()[0]:.1f}: "
           f"collection {out['collect_beta_1']['datapoints_per_s']:.0f} datapoints/s (expert drives), "
           f"{rate_c:.0f}/s (DAgger beta 0.6); training {out['train']['steps_per_s']:.0f} steps/s (batch 64); "
           f"Table-7 run ~{out['table7_projection']['total_min_without_sp']:.0f} min + SP; wrote {args.out}", flush=True)

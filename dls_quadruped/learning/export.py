@@ -144,7 +144,8 @@ def main(argv: list[str] | None = None) -> Path:
     args = p.parse_args(argv)
     if args.checkpoint is not None:
         if args.source is not None or args.out_dir is None:
-            raise UserError("--checkpoint exports to --out-dir; give --checkpoint CKPT --out-dir DIR and no positional files")
+            raise UserError("--checkpoint exports to --out-dir; give --checkpoint CKPT --out-dir DIR and no "
+                            "positional files")
         exported = checkpoint_to_policy(args.checkpoint, args.out_dir, args.task)
         print(f"[export] {args.checkpoint} -> {exported}")
         return Path(exported["program"])

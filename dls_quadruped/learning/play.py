@@ -165,7 +165,8 @@ def default_out(source: Path | None, task: str, log_root: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> Path:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--task", default="base", help="task name in tasks/ (python -m dls_quadruped.list_tasks) or a YAML path")
+    p.add_argument("--task", default="base",
+                   help="task name in tasks/ (python -m dls_quadruped.list_tasks) or a YAML path")
     p.add_argument("--checkpoint", type=Path, default=None,
                    help=f"what to play: {CHECKPOINT_KINDS}; default: the newest readable model_<it>.pt of the "
                         "task's latest run under --log-root")
@@ -212,7 +213,8 @@ def main(argv: list[str] | None = None) -> Path:
     np.savez(out / "play.npz", **trace)
     plot_tracking(trace, out / "tracking.png")
     plot_gait(trace, out / "gait.png", env.step_dt)
-    print(f"[play] wrote {out}: tracking.png, gait.png, play.npz" + (", video.gif" if (out / "video.gif").is_file() else ""))
+    video = ", video.gif" if (out / "video.gif").is_file() else ""
+    print(f"[play] wrote {out}: tracking.png, gait.png, play.npz{video}")
     return out
 
 

@@ -49,7 +49,8 @@ def label_scale(cfg: EncodingConfig) -> torch.Tensor:
     sl = block_slices(cfg)
     for name, kind in (("p", cfg.p), ("F", cfg.F)):
         if kind == "spline":
-            block = scale[sl[name]].view(-1, SPLINE_PARAMS)  # (n, 4), scalar-major [theta_-1, theta_0, theta_1, theta_2]
+            # (n, 4), scalar-major [theta_-1, theta_0, theta_1, theta_2]
+            block = scale[sl[name]].view(-1, SPLINE_PARAMS)
             block[:, 0] = 1.0 / CURVATURE_SCALE
             block[:, 3] = 1.0 / CURVATURE_SCALE
     return scale

@@ -244,7 +244,8 @@ def check_symmetry_cfg(env, train_cfg: dict) -> None:
         want = (2 * n, obs[group].shape[-1])
         if tuple(obs_aug[group].shape) != want:
             raise SymmetryError(f"symmetry function {name!r}: observation group {group!r} of shape "
-                                f"{tuple(obs[group].shape)} became {tuple(obs_aug[group].shape)}; expected (2 N, D) = {want}")
+                                f"{tuple(obs[group].shape)} became {tuple(obs_aug[group].shape)}; "
+                                f"expected (2 N, D) = {want}")
     if tuple(act_aug.shape) != (2 * n, env.num_actions):
         raise SymmetryError(f"symmetry function {name!r}: actions of shape {tuple(act.shape)} became "
                             f"{tuple(act_aug.shape)}; expected {(2 * n, env.num_actions)}")

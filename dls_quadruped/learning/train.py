@@ -2,7 +2,8 @@
 
     python -m dls_quadruped.learning.train --task rough --num-envs 64 --iterations 100 --device cpu --seed 0
     python -m dls_quadruped.learning.train --task rough --resume          # continue the latest run
-    python -m dls_quadruped.learning.train --task base --set agent.algorithm.entropy_coef=0.005 --set env.episode_length_s=10
+    python -m dls_quadruped.learning.train --task base --set agent.algorithm.entropy_coef=0.005 \\
+        --set env.episode_length_s=10
     python -m dls_quadruped.learning.train --task speed --init-from docs/policies/base_networks.pt
     python -m dls_quadruped.learning.train --task base --checkpoint-copy docs/policies/base_resume.pt
     python -m dls_quadruped.learning.train --task base --resume-from docs/policies/base_resume.pt  # another machine

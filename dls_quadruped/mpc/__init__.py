@@ -3,7 +3,8 @@
 Usage (B robots, 100 Hz, the thesis's model-based baseline optimising the forces only)::
 
     import torch
-    from dls_quadruped.mpc import Refs, SamplerConfig, SamplingMPC, com_height_reference, srbd_state_from_robot_state, warm_start
+    from dls_quadruped.mpc import (Refs, SamplerConfig, SamplingMPC, com_height_reference,
+                                   srbd_state_from_robot_state, warm_start)
 
     cfg = SamplerConfig(num_samples=10000, horizon=10, sigma_f=0.0, sigma_d=0.0, sigma_p=0.0)
     mpc = SamplingMPC(cfg, device="cpu", seed=0)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields
 
-from dls_quadruped.control.latent_action import LatentActionConfig
+from dls_quadruped.control.action_config import LatentActionConfig
 from dls_quadruped.mpc.kernel_registry import KERNEL_REGISTRY
 
 ENCODING_KINDS = ("discrete", "spline", "first")

@@ -46,7 +46,8 @@ class Refs:
         for name, shape in expected.items():
             value = getattr(self, name)
             if not isinstance(value, torch.Tensor) or tuple(value.shape) != shape:
-                raise ValueError(f"Refs.{name} must have shape {shape} (B = {batch}), got {tuple(getattr(value, 'shape', ()))}")
+                raise ValueError(f"Refs.{name} must have shape {shape} (B = {batch}), got "
+                                 f"{tuple(getattr(value, 'shape', ()))}")
 
     def to(self, device: torch.device | str, dtype: torch.dtype = torch.float32) -> Refs:
         """Copy on another device/dtype."""
@@ -116,7 +117,8 @@ def rollout_cost_reference(
     return nan_to_inf(rollout_step_costs(x0, contact, foot_target_w, force_w, refs, model, weights, dt).sum(-1))
 
 
-def input_step_costs(foot_target_w: torch.Tensor, force_w: torch.Tensor, refs: Refs, weights: CostWeights) -> torch.Tensor:
+def input_step_costs(foot_target_w: torch.Tensor, force_w: torch.Tensor, refs: Refs,
+                     weights: CostWeights) -> torch.Tensor:
     """(B, M, N) input cost (u_k - u_ref)^T R (u_k - u_ref) of each horizon step; foot_target_w, force_w:
     (B, M, N, 4, 3) world. With Tables 9-10's R this is the foothold-deviation term alone (R = 1000 on
     the touch-down x, y; 0 on the forces): zero for footholds at the reference (the naive warm start's

@@ -1,9 +1,9 @@
 """The ``cpp`` kernel: the whole per-sample pipeline in hand-written C++ (rollout_kernel.cpp), CPU only.
 
 Same inputs and semantics as :func:`dls_quadruped.mpc.kernel.reference_costs` (counter-hash noise,
-box clip, decode, forces from gravity-compensation offsets, Table 1 limits, frames, contacts, explicit-Euler SRBD, quadratic cost, NaN -> +inf),
-computed per sample in registers: one OpenMP loop over blocks of 16 samples, the N steps inside,
-only the (B, M) costs are written. float32 like the torch kernels.
+box clip, decode, forces from gravity-compensation offsets, Table 1 limits, frames, contacts, explicit-Euler SRBD,
+quadratic cost, NaN -> +inf), computed per sample in registers: one OpenMP loop over blocks of 16 samples, the N steps
+inside, only the (B, M) costs are written. float32 like the torch kernels.
 
 Build: the source is compiled at first use with the system C++ compiler into a plain shared library
 (``g++ -O3 -march=native -fopenmp``; if that fails, generic ``-O3 -fopenmp``, then without OpenMP, and a

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import torch
 
-from dls_quadruped.control.latent_action import LatentActionConfig
+from dls_quadruped.control.action_config import LatentActionConfig
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.mpc import warm_start
 from dls_quadruped.mpc.config import CostWeights, EncodingConfig, SamplerConfig

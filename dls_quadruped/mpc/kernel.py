@@ -200,7 +200,8 @@ def _build_fused(cfg: SamplerConfig, model: SRBDModel) -> Callable[..., torch.Te
                 sfx, sfy, sfz = sfx + fx, sfy + fy, sfz + fz
                 tx, ty, tz = tx + ry * fz - rz * fy, ty + rz * fx - rx * fz, tz + rx * fy - ry * fx
                 new_feet.append(tuple(feet[i][a] + (1.0 - ci) * (tgt[k][i][a] - feet[i][a]) for a in range(3)))
-            cr, sr, cp, sp, cy, sy = torch.cos(ro), torch.sin(ro), torch.cos(pi), torch.sin(pi), torch.cos(ya), torch.sin(ya)
+            cr, sr, cp, sp = torch.cos(ro), torch.sin(ro), torch.cos(pi), torch.sin(pi)
+            cy, sy = torch.cos(ya), torch.sin(ya)
             # R = Rz Ry Rx; torque_b = R^T torque_w (columns of R dotted with torque_w)
             r00, r10, r20 = cy * cp, sy * cp, -sp
             r01, r11, r21 = cy * sp * sr - sy * cr, sy * sp * sr + cy * cr, cp * sr

@@ -52,4 +52,5 @@ KERNEL_REGISTRY.register("reference", lazy_kernel("dls_quadruped.mpc.kernel:refe
 KERNEL_REGISTRY.register("cpp", lazy_kernel("dls_quadruped.mpc.kernel:cpp_costs"),
                          "hand-written C++/OpenMP built at first use, the CPU default; warp on CUDA (SamplingMPC)")
 KERNEL_REGISTRY.register("warp", lazy_kernel("dls_quadruped.mpc.warp_kernel:warp_costs"),
-                         "one Warp kernel, a thread per sample; CUDA or Warp's CPU device; the solve without host reads")
+                         "one Warp kernel, a thread per sample; CUDA or Warp's CPU device; the solve without host "
+                         "reads")

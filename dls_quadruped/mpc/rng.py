@@ -7,8 +7,8 @@ generator is a pure elementwise function of (seed, counter), so inductor fuses i
 rollout kernel (no noise tensor is ever written), every path (fast, reference, re-drawing the
 best sample) gets the same numbers, and it runs unchanged on CUDA.
 
-Construction: two 32-bit integer hashes (``core.hashing.hash32``) per counter give two uniforms; Box-Muller turns them into two
-independent standard normals (cosine and sine branch). The seed itself comes from a
+Construction: two 32-bit integer hashes (``core.hashing.hash32``) per counter give two uniforms; Box-Muller turns them
+into two independent standard normals (cosine and sine branch). The seed itself comes from a
 ``torch.Generator``, so solves are deterministic under a seed.
 """
 

@@ -108,12 +108,14 @@ def main(argv: list[str] | None = None) -> dict:
     except ValueError as err:
         raise UserError(str(err)) from None
     if args.seconds < cfg.sampler.mpc_period:
-        raise UserError(f"--seconds must cover at least one MPC period ({cfg.sampler.mpc_period} s), got {args.seconds}")
+        raise UserError(f"--seconds must cover at least one MPC period ({cfg.sampler.mpc_period} s), "
+                        f"got {args.seconds}")
     t0 = time.perf_counter()
     run = run_baseline(cmd, args.seconds, cfg=cfg, seed=args.seed, device=args.device)
     wall = time.perf_counter() - t0
     summary = {"command": cmd, "seconds": args.seconds, "samples": args.samples, "horizon": args.horizon,
-               "kernel": args.kernel, "device": args.device, "anchor_share": args.anchor_share, **summarize(run, cmd), "wall_seconds": wall}
+               "kernel": args.kernel, "device": args.device, "anchor_share": args.anchor_share,
+               **summarize(run, cmd), "wall_seconds": wall}
     args.out.mkdir(parents=True, exist_ok=True)
     text = write_json(summary, args.out / "summary.json")
     plot_baseline(run, cmd, args.out / "baseline.png")

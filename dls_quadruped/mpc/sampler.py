@@ -17,14 +17,14 @@ finite action.
 from __future__ import annotations
 
 import importlib.util
-import math
 import time
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import torch
 
 from dls_quadruped.core.device import checked_device
-from dls_quadruped.mpc import arbitration, cpp_kernel, solve_glue, warm_start
+from dls_quadruped.mpc import arbitration, solve_glue, solve_inputs, warm_start
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import (
     STATE_TERMS,
@@ -37,19 +37,11 @@ from dls_quadruped.mpc.encodings import encoded_dim
 from dls_quadruped.mpc.kernel import KernelInputs
 from dls_quadruped.mpc.kernel_registry import KERNEL_REGISTRY
 from dls_quadruped.mpc.samples import decode_samples, group_layout, sample_encoded
-from dls_quadruped.mpc.solution import (
-    MPCResult,
-    action_finite,
-    check_phase,
-    check_tensor,
-    describe_bad,
-)
-from dls_quadruped.mpc.srbd import (
-    SRBDModel,
-    SRBDState,
-    robot_srbd_model,
-    rotation_from_euler,
-)
+from dls_quadruped.mpc.solution import MPCResult, action_finite, describe_bad
+from dls_quadruped.mpc.srbd import SRBDModel, SRBDState, robot_srbd_model
+
+if TYPE_CHECKING:
+    from dls_quadruped.mpc.warp_solve import DeviceSolve, DeviceSolver
 
 
 def resolved_kernel(name: str, device: torch.device) -> str:
@@ -95,13 +87,15 @@ class SamplingMPC:
         """With the ``cpp`` kernel on the CPU, run the fused solve (:mod:`solve_glue`: input cleaning, kernel +
         argmin and the winner's decoding in C++ calls, preallocated buffers); the same result bit for bit as the
         torch path that ``fused = False`` runs (and any other kernel or device)."""
-        self._workspaces: dict[tuple[int, int], solve_glue.Workspace] = {}
+        self.fused_solve = solve_glue.FusedSolve()
+        """The fused path's libraries and buffers (:class:`solve_glue.FusedSolve`)."""
         self.capture = True
         """With the ``warp`` kernel (:mod:`warp_solve`), replay each solve from a captured Warp graph (False: launch
         its four kernels one by one; the same numbers)."""
-        self._device_solves: dict[tuple, object] = {}
+        self.device_solver: DeviceSolver | None = None
+        """The device path's prepared solves (:class:`warp_solve.DeviceSolver`), made on the first device solve."""
         self._solve_counter: torch.Tensor | None = None
-        self.last_device_solve = None
+        self.last_device_solve: DeviceSolve | None = None
         """The :class:`warp_solve.DeviceSolve` of the last device solve (its flags: :meth:`fallback_report`)."""
 
     # ------------------------------------------------------------------ warm starts
@@ -119,7 +113,8 @@ class SamplingMPC:
         """
         if self.last_result is None or self._forgotten is not None:
             if default is None:
-                raise ValueError("naive_warm_start: there is no previous solution yet; pass default=(B, D) encoded action")
+                raise ValueError("naive_warm_start: there is no previous solution yet; pass default=(B, D) encoded "
+                                 "action")
             default = default.to(self.device, torch.float32)
             if self.last_result is None:
                 return default
@@ -200,52 +195,8 @@ class SamplingMPC:
                         frame: tuple = (None, None, None)) -> tuple[torch.Tensor, tuple[float, ...]]:
         """The argument checks that read no tensor data: types, shapes, proportions, M >= G. Returns the (B, G, D)
         warm starts on the device and the proportions."""
-        return self._validate(state, refs, warm_starts, proportions, phase, read_data=False, frame=frame)
-
-    def _validate(self, state: SRBDState, refs: Refs, warm_starts: Sequence[torch.Tensor],
-                  proportions: Sequence[float] | None, phase: torch.Tensor, read_data: bool = True,
-                  frame: tuple = (None, None, None)) -> tuple[torch.Tensor, tuple[float, ...]]:
-        if not isinstance(state, SRBDState):
-            raise ValueError(f"state must be an SRBDState, got {type(state).__name__}")  # noqa: TRY004
-        state.validate()
-        b = state.batch_size
-        refs.validate(b)
-        check_tensor("phase", phase, (b, 4))
-        for name, value, shape in zip(("base_xy_w", "base_yaw", "terrain_z_w"), frame, ((b, 2), (b,), (b, 4)),
-                                      strict=True):
-            if value is not None:
-                check_tensor(name, value, shape)
-        if read_data:
-            check_phase(phase)
-        if isinstance(warm_starts, torch.Tensor) or len(warm_starts) == 0:
-            raise ValueError("warm_starts must be a non-empty list of (B, D) or (D,) encoded actions "
-                             f"(D = {self.dim} for encoding p={self.cfg.encoding_p!r}, F={self.cfg.encoding_F!r})")
-        num_ws = len(warm_starts)
-        rows = []
-        for g, ws in enumerate(warm_starts):
-            if not isinstance(ws, torch.Tensor) or tuple(ws.shape) not in ((b, self.dim), (self.dim,)):
-                raise ValueError(
-                    f"warm_starts[{g}] must have shape (B, D) = ({b}, {self.dim}) or ({self.dim},) for encoding "
-                    f"p={self.cfg.encoding_p!r}, F={self.cfg.encoding_F!r}, H={self.cfg.horizon}; "
-                    f"got {tuple(getattr(ws, 'shape', ()))}"
-                )
-            if read_data and not solve_glue.all_finite(ws):
-                raise ValueError(f"warm_starts[{g}] contains NaN/inf; every entry must be finite")
-            rows.append(ws.to(self.device, torch.float32).expand(b, self.dim))
-        if self.cfg.num_samples < num_ws:
-            raise ValueError(f"num_samples (M = {self.cfg.num_samples}) must be >= the number of warm starts "
-                             f"({num_ws}): each warm start needs at least its own sample")
-        if proportions is None:
-            if num_ws != 1:
-                raise ValueError(f"proportions must be given (one per warm start, summing to 1) for {num_ws} warm starts")
-            props = (1.0,)
-        else:
-            props = tuple(float(p) for p in proportions)
-            if len(props) != num_ws:
-                raise ValueError(f"proportions must have one entry per warm start ({num_ws}), got {len(props)}")
-            if any(not (p >= 0.0) for p in props) or not math.isclose(sum(props), 1.0, abs_tol=1e-6):
-                raise ValueError(f"proportions must be >= 0 and sum to 1, got {props} (sum {sum(props)})")
-        return torch.stack(rows, dim=1), props
+        return solve_inputs.validate(self.cfg, self.dim, self.device, state, refs, warm_starts, proportions, phase,
+                                     read_data=False, frame=frame)
 
     def solve(
         self,
@@ -282,45 +233,21 @@ class SamplingMPC:
         if isinstance(warm_starts, Sequence) and self.uses_device_solve(len(warm_starts)):
             from dls_quadruped.mpc import warp_solve  # imports Warp: only on this path
 
-            return warp_solve.solve(self, state, refs, warm_starts, proportions, phase, base_xy_w, base_yaw,
-                                    terrain_z_w)
-        ws, props = self._validate(state, refs, warm_starts, proportions, phase)
-        if self.fused and self.cfg.kernel == "cpp" and self.device.type == "cpu":
-            kernel_lib = cpp_kernel.load()
-            glue = solve_glue.load() if kernel_lib is not None else None
-            if glue is not None:
-                return solve_glue.solve(self, kernel_lib, glue, ws, props, state, refs, phase, base_xy_w, base_yaw,
-                                        terrain_z_w)
-        b, dev = state.batch_size, self.device
-        state = state.to(dev)
-        refs = refs.to(dev)
-        bad_inputs: dict[str, torch.Tensor] = {"state": ~state.finite_mask()}
-        finite = ~bad_inputs["state"]
-        x0 = torch.where(finite[:, None], state.as_vector(), torch.zeros(()).to(dev))  # keep NaN out of the kernel
-        safe_state = SRBDState.from_vector(x0)
-        if base_yaw is None:
-            base_yaw = safe_state.euler[:, 2]
-        if base_xy_w is None:
-            rot = rotation_from_euler(safe_state.euler)
-            c_b = torch.tensor(self.model.com_offset_b, dtype=torch.float32, device=dev)
-            base_xy_w = (safe_state.com_pos_w - rot @ c_b)[:, :2]
-        if terrain_z_w is None:
-            terrain_z_w = torch.zeros(b, 4, device=dev)
-        for name, value, shape in (("base_xy_w", base_xy_w, (b, 2)), ("base_yaw", base_yaw, (b,)),
-                                   ("terrain_z_w", terrain_z_w, (b, 4))):
-            check_tensor(name, value, shape)
-        # every other per-robot input: a non-finite row sends that robot to the fallback, zeros go to the kernel
-        inputs = {"phase": phase, "base_xy_w": base_xy_w, "base_yaw": base_yaw, "terrain_z_w": terrain_z_w,
-                  "refs.com_height_w": refs.com_height_w, "refs.lin_vel_w": refs.lin_vel_w,
-                  "refs.yaw_rate": refs.yaw_rate, "refs.foothold_w": refs.foothold_w}
-        clean = {}
-        for name, value in inputs.items():
-            value = value.to(dev, torch.float32)
-            ok = torch.isfinite(value).reshape(b, -1).all(dim=1)
-            bad_inputs[name] = ~ok
-            clean[name] = torch.where(torch.isfinite(value), value, torch.zeros((), device=dev))
-        refs = Refs(clean["refs.com_height_w"], clean["refs.lin_vel_w"], clean["refs.yaw_rate"], clean["refs.foothold_w"])
-        finite = ~torch.stack(list(bad_inputs.values())).any(dim=0)
+            if self.device_solver is None:
+                self.device_solver = warp_solve.DeviceSolver()
+            result, self.last_device_solve, seconds = self.device_solver.solve(
+                self, state, refs, warm_starts, proportions, phase, base_xy_w, base_yaw, terrain_z_w)
+            self.kernel_seconds += seconds
+            self.remember(result)
+            return result
+        frame = (base_xy_w, base_yaw, terrain_z_w)
+        ws, props = solve_inputs.validate(self.cfg, self.dim, self.device, state, refs, warm_starts, proportions,
+                                          phase, frame=frame)
+        on_cpu_cpp = self.cfg.kernel == "cpp" and self.device.type == "cpu"
+        if self.fused and on_cpu_cpp and self.fused_solve.ready():
+            return self._solve_fused(ws, props, state, refs, phase, frame)
+        dev = self.device
+        x0, clean, refs, bad_inputs = solve_inputs.clean(state, refs, phase, frame, self.model, dev)
         group, perturb = self.sample_layout(props)
         seed = torch.randint(0, 2**31 - 1, (), generator=self.generator).to(dev)
         inp = KernelInputs(seed, ws, group, perturb, x0, clean["phase"], clean["base_xy_w"], clean["base_yaw"],
@@ -332,11 +259,36 @@ class SamplingMPC:
         self.kernel_seconds += time.perf_counter() - tic
         best_cost, best_index = self._arbitrate(costs, props, *costs.min(dim=1))
         result = self.decode_winners(inp, best_index, best_cost, initial_cost(x0, refs, self.cfg.weights))
-        # last guard: whatever the cause, a non-finite action never leaves with fallback = False
-        bad_inputs["solution"] = finite & ~action_finite(result)
-        bad = torch.stack(list(bad_inputs.values())).any(dim=0)
-        if bool(bad.any()):
-            result = self.fall_back(result, bad, inp, describe_bad(bad_inputs))
+        return self._finish(result, inp, bad_inputs)
+
+    def _solve_fused(self, ws: torch.Tensor, props: tuple[float, ...], state: SRBDState, refs: Refs,
+                     phase: torch.Tensor, frame: solve_inputs.Frame) -> MPCResult:
+        """:meth:`solve` on the fused CPU path (:mod:`solve_glue`) after its argument checks: the same result bit for
+        bit as the torch path."""
+        fused = self.fused_solve
+        group, perturb = self.sample_layout(props)
+        seed = torch.randint(0, 2**31 - 1, (), generator=self.generator)
+        run = fused.costs(self.cfg, self.model, ws, group, perturb, seed, state, refs, phase, *frame)
+        self.kernel_seconds += run.seconds
+        best_cost, best_index = self._arbitrate(run.costs, props, run.best_cost, run.best_index)
+        init_cost, ws_index = fused.winner_noise(run, best_index)
+        if self.record_step_costs:  # the winner's reference rollout needs the torch decoding
+            init_cost = torch.where(torch.isnan(init_cost), torch.full_like(init_cost, float("inf")), init_cost)
+            result, num_bad = self.decode_winners(run.inp, best_index, best_cost, init_cost), -1
+        else:
+            result, num_bad = fused.decode_winner(run, best_index, best_cost, init_cost, ws_index)
+        return self._finish(result, run.inp, fused.bad_inputs(run) if num_bad else None)  # num_bad < 0: not counted
+
+    def _finish(self, result: MPCResult, inp: KernelInputs, bad_inputs: dict[str, torch.Tensor] | None) -> MPCResult:
+        """The last guard, then :meth:`remember`: robots flagged in ``bad_inputs`` ((B,) bool per input; None: none
+        flagged) or whose action is not finite get :meth:`fall_back`'s action, so ``fallback = False`` always means a
+        finite action."""
+        if bad_inputs is not None:
+            finite = ~torch.stack(list(bad_inputs.values())).any(dim=0)
+            bad_inputs["solution"] = finite & ~action_finite(result)
+            bad = torch.stack(list(bad_inputs.values())).any(dim=0)
+            if bool(bad.any()):
+                result = self.fall_back(result, bad, inp, describe_bad(bad_inputs))
         self.remember(result)
         return result
 

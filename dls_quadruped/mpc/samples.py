@@ -5,8 +5,8 @@ Pure, batched, eager torch. The reference kernel uses these functions directly; 
 the two agree; the controller uses them to re-draw and decode the winning sample.
 
 Sample m of robot b, encoded entry j, is ``ws[b, group[m], j] + perturb[m] sigma_j z_j`` with z the
-counter-based normals of :mod:`dls_quadruped.mpc.rng` (pair counter ``(b M + m) D / 2 + j // 2``); ``perturb`` is 0 for the first
-sample of every warm-start group (the warm start itself) and 1 otherwise.
+counter-based normals of :mod:`dls_quadruped.mpc.rng` (pair counter ``(b M + m) D / 2 + j // 2``); ``perturb`` is 0 for
+the first sample of every warm-start group (the warm start itself) and 1 otherwise.
 
 Forces are encoded as **offsets from gravity compensation** (the shift of Table 5 in newtons): the F
 block decodes to per-step offsets ``dF_i(k)`` (frame H) and the force of leg i at step k is
@@ -25,7 +25,7 @@ import math
 import torch
 
 from dls_quadruped.control import gait
-from dls_quadruped.control.latent_action import LatentActionConfig
+from dls_quadruped.control.action_config import LatentActionConfig
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.encodings import P_SCALARS, block_dim, decode_parts, encoded_dim
 from dls_quadruped.mpc.rng import normals
@@ -59,7 +59,8 @@ def encoded_bounds(cfg: SamplerConfig) -> tuple[tuple[float, ...], tuple[float, 
     return tuple(lo + [-inf] * n_f), tuple(hi + [inf] * n_f)
 
 
-def group_layout(num_samples: int, proportions: tuple[float, ...]) -> tuple[torch.Tensor, torch.Tensor, tuple[int, ...]]:
+def group_layout(num_samples: int,
+                 proportions: tuple[float, ...]) -> tuple[torch.Tensor, torch.Tensor, tuple[int, ...]]:
     """Split M samples into warm-start groups (largest-remainder rounding, at least 1 each).
 
     Returns:

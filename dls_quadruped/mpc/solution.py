@@ -77,7 +77,8 @@ class MPCResult:
 def check_tensor(name: str, value: object, shape: tuple[int, ...]) -> None:
     """Refuse anything but a tensor of exactly ``shape`` (one line naming ``name``, the shape wanted and given)."""
     if not isinstance(value, torch.Tensor) or tuple(value.shape) != shape:
-        raise ValueError(f"{name} must be a tensor of shape {shape}, got {tuple(getattr(value, 'shape', ())) or type(value).__name__}")
+        raise ValueError(f"{name} must be a tensor of shape {shape}, got "
+                         f"{tuple(getattr(value, 'shape', ())) or type(value).__name__}")
 
 
 def check_phase(phase: torch.Tensor) -> None:

@@ -6,18 +6,20 @@ re-drawing and decoding the winner are ~150 small torch ops (docs/benchmarks.md 
 two paths side by side). The fused path keeps every number bit for bit (tests/mpc/test_solve_glue.py compares
 every field of the result with the torch path, ``SamplingMPC.fused = False``) and does:
 
-* input cleaning (non-finite entry -> 0, per-robot flags): :func:`clean_rows` in C++;
+* input cleaning (non-finite entry -> 0, per-robot flags): ``clean_inputs`` in C++;
 * the kernel and the argmin in one C++ call (``mpc_solve`` in rollout_kernel.cpp) into preallocated
-  buffers (:class:`Workspace`, one per (B, M, G)); an arbitration between warm-start groups
+  buffers (:class:`Workspace`, one per (B, G)); the controller's arbitration between warm-start groups
   (:mod:`arbitration`) then re-selects the winner from the same (B, M) costs with the torch path's call;
 * the winner: its noise counters, clip, contacts, forces, limits, frames and input-cost terms in C++
   (``solve_glue.cpp``, built with ``-ffp-contract=off`` and torch's evaluation order); the log, cos, sin,
   the spline matmul and the sums stay torch calls on tensors of the torch path's shapes, because their
   results depend on torch's vector/scalar code paths and summation order.
 
-The library is a plain shared object built at first use like the kernel (:mod:`cpp_kernel`, same cache
-directory); :func:`load` returns None (one ``RuntimeWarning``) if it cannot be built and the solve takes the
-torch path.
+:class:`FusedSolve` is the component ``SamplingMPC`` owns (``SamplingMPC.fused_solve``): the libraries and the
+workspaces, and the steps above as methods that take what they need as arguments (the controller keeps its seed
+generator, arbitration and previous solution). The library is a plain shared object built at first use like the
+kernel (:mod:`cpp_kernel`, same cache directory); :func:`load` returns None (one ``RuntimeWarning``) if it cannot
+be built and the solve takes the torch path.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import subprocess
 import tempfile
 import time
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -48,12 +51,7 @@ from dls_quadruped.mpc.encodings import (
     spline_basis,
 )
 from dls_quadruped.mpc.kernel import KernelInputs
-from dls_quadruped.mpc.solution import (
-    MPCResult,
-    action_finite,
-    check_tensor,
-    describe_bad,
-)
+from dls_quadruped.mpc.solution import MPCResult, check_tensor
 
 SOURCE = Path(__file__).with_name("solve_glue.cpp")
 FLAGS = ["-O2", "-ffp-contract=off", "-fno-math-errno", "-std=gnu++17", "-shared", "-fPIC"]
@@ -188,93 +186,147 @@ def _decoded_block(best: torch.Tensor, w: Workspace, block: str, scalars: int) -
     return values.data_ptr(), scalars * n, 1, n
 
 
-def solve(mpc, kernel_lib: ctypes.CDLL, lib: ctypes.CDLL, ws: torch.Tensor, props: tuple[float, ...], state,
-          refs, phase: torch.Tensor, base_xy_w: torch.Tensor | None, base_yaw: torch.Tensor | None,
-          terrain_z_w: torch.Tensor | None):
-    """:meth:`SamplingMPC.solve` after its argument validation, fused (CPU, ``cpp`` kernel); the same result
-    bit for bit. ``ws``: (B, G, D) validated warm starts; ``props``: their proportions."""
-    b, g = state.batch_size, ws.shape[1]
-    w = mpc._workspaces.get((b, g))
-    if w is None or w.cfg is not mpc.cfg or w.model is not mpc.model:
-        w = mpc._workspaces[(b, g)] = Workspace(mpc.cfg, mpc.model, b, g)
-    m, n, dim, c = w.m, w.n, w.dim, w.clean
-    # ---- inputs: non-finite entries -> 0 and per-robot flags (the state: the whole row); the frame's defaults
-    x = _f32(state.as_vector())
-    if base_yaw is None or base_xy_w is None:
-        lib.clean_inputs(b, x.data_ptr(), *[x.data_ptr()] * 8, w.clean_ptr, w.bad.data_ptr())  # the safe state
-        safe = c["state"]
-        if base_yaw is None:
-            base_yaw = safe[:, 8]
-        if base_xy_w is None:  # com - R c_b: srbd.rotation_from_euler's cos, sin and the matmul stay torch's
-            euler = safe[:, 6:9]
-            cos_e, sin_e, rot = torch.cos(euler), torch.sin(euler), torch.empty(b, 3, 3)
-            lib.rotation_from_cos_sin(b, cos_e.data_ptr(), sin_e.data_ptr(), rot.data_ptr())
-            base_xy_w = (safe[:, 0:3] - rot @ w.com_offset_b)[:, :2]
-    if terrain_z_w is None:
-        terrain_z_w = torch.zeros(b, 4)
-    for name, value, shape in (("base_xy_w", base_xy_w, (b, 2)), ("base_yaw", base_yaw, (b,)),
-                               ("terrain_z_w", terrain_z_w, (b, 4))):
-        check_tensor(name, value, shape)
-    inputs = [_f32(t) for t in (phase, base_xy_w, base_yaw, terrain_z_w, refs.com_height_w, refs.lin_vel_w,
-                                refs.yaw_rate, refs.foothold_w)]
-    lib.clean_inputs(b, x.data_ptr(), *(t.data_ptr() for t in inputs), w.clean_ptr, w.bad.data_ptr())
-    yaw, h_ref, wz_ref = c["base_yaw"].view(b), c["refs.com_height_w"].view(b), c["refs.yaw_rate"].view(b)
-    foothold = c["refs.foothold_w"].view(b, 4, 3)
-    group, perturb = mpc.sample_layout(props)
-    seed_t = torch.randint(0, 2**31 - 1, (), generator=mpc.generator)
-    seed = int(seed_t)
-    # ---- the kernel and the argmin, one call
-    prm, sigma, lo, hi, idx, wts = w.kernel_consts
-    best_cost, best_index = torch.empty(b), torch.empty(b, dtype=torch.int64)
-    args = [t.data_ptr() for t in (prm, sigma, lo, hi, idx, wts, ws, group, perturb, c["state"], c["phase"],
-                                   c["base_xy_w"], yaw, c["terrain_z_w"], h_ref, c["refs.lin_vel_w"], wz_ref,
-                                   foothold, w.costs, best_cost, best_index)]
-    tic = time.perf_counter()
-    rc = kernel_lib.mpc_solve(b, m, n, g, dim, seed, torch.get_num_threads(), *args)
-    mpc.kernel_seconds += time.perf_counter() - tic
-    if rc != 0:
-        raise ValueError(f"C++ MPC kernel rejected the encoded dimension D = {dim} (must be even and <= 512)")
-    best_cost, best_index = mpc._arbitrate(w.costs, props, best_cost, best_index)  # the torch path's call
-    inp = KernelInputs(seed_t, ws, group, perturb, c["state"], c["phase"], c["base_xy_w"], yaw, c["terrain_z_w"],
-                       Refs(h_ref, c["refs.lin_vel_w"], wz_ref, foothold))
-    # ---- the winner: noise arguments and the initial cost's terms (C++), log/sqrt/cos/sin (torch), clip (C++)
-    u1, angle, log_u1, radius, cos_a, sin_a = w.noise_views
-    q_diag = w.glue_consts[3]
-    ws_index = torch.empty(b, dtype=torch.int64)
-    lib.winner_noise_args(b, m, dim, seed, *(t.data_ptr() for t in (
-        best_index, group, ws_index, u1, angle, c["state"], h_ref, c["refs.lin_vel_w"], wz_ref, q_diag,
-        w.init_terms)))
-    init_cost = w.init_terms.sum(-1)  # cost.initial_cost: torch's summation order, then NaN -> +inf
-    if mpc.record_step_costs:  # the winner's reference rollout needs the torch decoding: the torch path
-        init_cost = torch.where(torch.isnan(init_cost), torch.full_like(init_cost, float("inf")), init_cost)
-        result = mpc.decode_winners(inp, best_index, best_cost, init_cost)
-        num_bad = -1
-    else:
+@dataclass
+class FusedCosts:
+    """One fused solve up to its argmin: what :meth:`FusedSolve.winner_noise` and :meth:`FusedSolve.decode_winner`
+    continue from.
+
+    Attributes:
+        inp: the kernel's inputs, cleaned (their tensors are the workspace's until the next solve).
+        costs: (B, M) sample costs (the workspace's buffer); best_cost (B,), best_index (B,) long: the plain argmin.
+        seconds: wall time [s] of the kernel + argmin call.
+        workspace: the buffers of this (B, G).
+    """
+
+    inp: KernelInputs
+    costs: torch.Tensor
+    best_cost: torch.Tensor
+    best_index: torch.Tensor
+    seconds: float
+    workspace: Workspace
+
+
+class FusedSolve:
+    """The fused CPU solve (module doc) of one :class:`SamplingMPC`: the two C++ libraries and one
+    :class:`Workspace` per (B robots, G warm starts), reused solve after solve.
+
+    The controller keeps what lasts between solves (its seed generator, the arbitration, the previous solution) and
+    calls, per solve: :meth:`costs` (cleaning, kernel, argmin), its own arbitration on those costs,
+    :meth:`winner_noise` (the winners' initial costs), then :meth:`decode_winner` or its own torch decoding, and
+    :meth:`bad_inputs` for its last guard when a robot was flagged. :meth:`ready` first, every solve.
+
+    Attributes:
+        workspaces: the buffers, by (B, G).
+    """
+
+    def __init__(self) -> None:
+        self.workspaces: dict[tuple[int, int], Workspace] = {}
+        self.kernel_lib: ctypes.CDLL | None = None
+        self.lib: ctypes.CDLL | None = None
+
+    def ready(self) -> bool:
+        """Whether both libraries are built (built here on first use; False: either cannot be, the torch path
+        runs)."""
+        self.kernel_lib = cpp_kernel.load()
+        self.lib = load() if self.kernel_lib is not None else None
+        return self.lib is not None
+
+    def workspace(self, cfg: SamplerConfig, model, b: int, g: int) -> Workspace:
+        """The buffers of B robots and G warm starts for ``cfg`` and ``model`` (new when either changed)."""
+        w = self.workspaces.get((b, g))
+        if w is None or w.cfg is not cfg or w.model is not model:
+            w = self.workspaces[(b, g)] = Workspace(cfg, model, b, g)
+        return w
+
+    def costs(self, cfg: SamplerConfig, model, ws: torch.Tensor, group: torch.Tensor, perturb: torch.Tensor,
+              seed_t: torch.Tensor, state, refs, phase: torch.Tensor, base_xy_w: torch.Tensor | None,
+              base_yaw: torch.Tensor | None, terrain_z_w: torch.Tensor | None) -> FusedCosts:
+        """Clean the inputs, cost every sample and take the argmin, for ``SamplingMPC.solve``'s validated arguments.
+
+        Args:
+            cfg, model: the controller's configuration and SRBD model.
+            ws: (B, G, D) validated warm starts; group, perturb: (M,) the sample layout of their proportions.
+            seed_t: () int64 this solve's noise seed.
+            state, refs, phase, base_xy_w, base_yaw, terrain_z_w: the solve's (``SamplingMPC.solve``).
+        """
+        b, g = state.batch_size, ws.shape[1]
+        lib, w = self.lib, self.workspace(cfg, model, b, g)
+        m, n, dim, c = w.m, w.n, w.dim, w.clean
+        # ---- inputs: non-finite entries -> 0 and per-robot flags (the state: the whole row); the frame's defaults
+        x = _f32(state.as_vector())
+        if base_yaw is None or base_xy_w is None:
+            lib.clean_inputs(b, x.data_ptr(), *[x.data_ptr()] * 8, w.clean_ptr, w.bad.data_ptr())  # the safe state
+            safe = c["state"]
+            if base_yaw is None:
+                base_yaw = safe[:, 8]
+            if base_xy_w is None:  # com - R c_b: srbd.rotation_from_euler's cos, sin and the matmul stay torch's
+                euler = safe[:, 6:9]
+                cos_e, sin_e, rot = torch.cos(euler), torch.sin(euler), torch.empty(b, 3, 3)
+                lib.rotation_from_cos_sin(b, cos_e.data_ptr(), sin_e.data_ptr(), rot.data_ptr())
+                base_xy_w = (safe[:, 0:3] - rot @ w.com_offset_b)[:, :2]
+        if terrain_z_w is None:
+            terrain_z_w = torch.zeros(b, 4)
+        for name, value, shape in (("base_xy_w", base_xy_w, (b, 2)), ("base_yaw", base_yaw, (b,)),
+                                   ("terrain_z_w", terrain_z_w, (b, 4))):
+            check_tensor(name, value, shape)
+        inputs = [_f32(t) for t in (phase, base_xy_w, base_yaw, terrain_z_w, refs.com_height_w, refs.lin_vel_w,
+                                    refs.yaw_rate, refs.foothold_w)]
+        lib.clean_inputs(b, x.data_ptr(), *(t.data_ptr() for t in inputs), w.clean_ptr, w.bad.data_ptr())
+        yaw, h_ref, wz_ref = c["base_yaw"].view(b), c["refs.com_height_w"].view(b), c["refs.yaw_rate"].view(b)
+        foothold = c["refs.foothold_w"].view(b, 4, 3)
+        # ---- the kernel and the argmin, one call
+        prm, sigma, lo, hi, idx, wts = w.kernel_consts
+        best_cost, best_index = torch.empty(b), torch.empty(b, dtype=torch.int64)
+        args = [t.data_ptr() for t in (prm, sigma, lo, hi, idx, wts, ws, group, perturb, c["state"], c["phase"],
+                                       c["base_xy_w"], yaw, c["terrain_z_w"], h_ref, c["refs.lin_vel_w"], wz_ref,
+                                       foothold, w.costs, best_cost, best_index)]
+        tic = time.perf_counter()
+        rc = self.kernel_lib.mpc_solve(b, m, n, g, dim, int(seed_t), torch.get_num_threads(), *args)
+        seconds = time.perf_counter() - tic
+        if rc != 0:
+            raise ValueError(f"C++ MPC kernel rejected the encoded dimension D = {dim} (must be even and <= 512)")
+        inp = KernelInputs(seed_t, ws, group, perturb, c["state"], c["phase"], c["base_xy_w"], yaw, c["terrain_z_w"],
+                           Refs(h_ref, c["refs.lin_vel_w"], wz_ref, foothold))
+        return FusedCosts(inp, w.costs, best_cost, best_index, seconds, w)
+
+    def winner_noise(self, run: FusedCosts, best_index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The winners' noise arguments (kept in the workspace for :meth:`decode_winner`) and their initial cost.
+
+        Args:
+            run: this solve's :meth:`costs`; best_index: (B,) long the winners (after any arbitration).
+
+        Returns:
+            (B,) initial cost (``cost.initial_cost`` in torch's summation order, NaN not yet +inf), (B,) long the
+            winners' warm-start groups.
+        """
+        w, inp = run.workspace, run.inp
+        b, m, dim = w.b, w.m, w.dim
+        ws_index = torch.empty(b, dtype=torch.int64)
+        self.lib.winner_noise_args(b, m, dim, int(inp.seed), *(t.data_ptr() for t in (
+            best_index, inp.group, ws_index, *w.noise_views[:2], inp.x0, inp.refs.com_height_w, inp.refs.lin_vel_w,
+            inp.refs.yaw_rate, w.glue_consts[3], w.init_terms)))
+        return w.init_terms.sum(-1), ws_index
+
+    def decode_winner(self, run: FusedCosts, best_index: torch.Tensor, best_cost: torch.Tensor,
+                      init_cost: torch.Tensor, ws_index: torch.Tensor) -> tuple[MPCResult, int]:
+        """The winners re-drawn and decoded as ``SamplingMPC.decode_winners`` does (step costs NaN), after
+        :meth:`winner_noise`: (MPCResult, number of robots the last guard has to look at)."""
+        w, inp = run.workspace, run.inp
+        u1, angle, log_u1, radius, cos_a, sin_a = w.noise_views
         torch.log(u1, out=log_u1)
         torch.sqrt(torch.mul(log_u1, -2.0, out=radius), out=radius)  # rng.normal_pair's sqrt(-2 log u1)
         torch.cos(angle, out=cos_a)
         torch.sin(angle, out=sin_a)
-        best = torch.empty(b, dim)
-        lib.winner_sample(b, g, dim, *(t.data_ptr() for t in (
-            ws, group, perturb, best_index, sigma, lo, hi, radius, cos_a, sin_a, best)))
-        result, num_bad = _decode_winner(lib, w, best, inp, best_index, best_cost, init_cost, ws_index)
-    # ---- last guard and fallback, as the torch path
-    if num_bad:  # num_bad < 0: not counted yet
-        _guard(mpc, result, inp, w.bad)
-    else:
-        mpc.remember(result)
-    return mpc.last_result
+        best = torch.empty(w.b, w.dim)
+        sigma, lo, hi = w.kernel_consts[1:4]
+        self.lib.winner_sample(w.b, w.g, w.dim, *(t.data_ptr() for t in (
+            inp.warm_starts, inp.group, inp.perturb, best_index, sigma, lo, hi, radius, cos_a, sin_a, best)))
+        return _decode_winner(self.lib, w, best, inp, best_index, best_cost, init_cost, ws_index)
 
-
-def _guard(mpc, result, inp, bad_in: torch.Tensor) -> None:
-    """SamplingMPC.solve's last guard (torch): robots with a flagged input or a non-finite action fall back."""
-    finite = ~bad_in.any(dim=0)
-    bad_inputs = {name: bad_in[i].clone() for i, name in enumerate(INPUT_WIDTHS)}
-    bad_inputs["solution"] = finite & ~action_finite(result)
-    bad = torch.stack(list(bad_inputs.values())).any(dim=0)
-    if bool(bad.any()):
-        result = mpc.fall_back(result, bad, inp, describe_bad(bad_inputs))
-    mpc.remember(result)
+    @staticmethod
+    def bad_inputs(run: FusedCosts) -> dict[str, torch.Tensor]:
+        """(B,) bool per input of :data:`INPUT_WIDTHS`: the robots whose input had a non-finite entry."""
+        return {name: run.workspace.bad[i].clone() for i, name in enumerate(INPUT_WIDTHS)}
 
 
 def _decode_winner(lib: ctypes.CDLL, w: Workspace, best: torch.Tensor, inp, best_index: torch.Tensor,

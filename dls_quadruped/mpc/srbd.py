@@ -175,14 +175,16 @@ class SRBDState:
     def validate(self) -> None:
         """Raise ValueError naming the field whose shape is not as documented."""
         if not isinstance(self.com_pos_w, torch.Tensor) or self.com_pos_w.dim() != 2:
-            raise ValueError(f"SRBDState.com_pos_w must be a (B, 3) tensor, got {getattr(self.com_pos_w, 'shape', None)}")
+            raise ValueError(f"SRBDState.com_pos_w must be a (B, 3) tensor, got "
+                             f"{getattr(self.com_pos_w, 'shape', None)}")
         b = self.com_pos_w.shape[0]
         expected = {"com_pos_w": (b, 3), "com_vel_w": (b, 3), "euler": (b, 3), "ang_vel_b": (b, 3),
                     "foot_pos_w": (b, NUM_LEGS, 3)}
         for name, shape in expected.items():
             value = getattr(self, name)
             if not isinstance(value, torch.Tensor) or tuple(value.shape) != shape:
-                raise ValueError(f"SRBDState.{name} must have shape {shape} (B = {b}), got {tuple(getattr(value, 'shape', ()))}")
+                raise ValueError(f"SRBDState.{name} must have shape {shape} (B = {b}), got "
+                                 f"{tuple(getattr(value, 'shape', ()))}")
 
     def as_vector(self) -> torch.Tensor:
         """(B, 24) in the order [p_c, v_c, Phi, omega_b, p_f (leg-major)]."""

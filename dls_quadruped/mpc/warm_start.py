@@ -39,7 +39,8 @@ from dls_quadruped.mpc.encodings import (
 from dls_quadruped.mpc.samples import forces_from_offsets, offsets_from_forces
 
 
-def shifted_force_offsets(encoded: torch.Tensor, contact: torch.Tensor, cfg: SamplerConfig, steps: float) -> torch.Tensor:
+def shifted_force_offsets(encoded: torch.Tensor, contact: torch.Tensor, cfg: SamplerConfig,
+                          steps: float) -> torch.Tensor:
     """The F block of the naive warm start: offsets per step, zeroed where the leg swings, shifted, re-encoded.
 
     Per step k the decoded offsets ``dF(k)`` are multiplied by the stance flags ``c(k)`` of the solution
@@ -115,8 +116,8 @@ def check_student_encoding(meta: dict, cfg: SamplerConfig) -> None:
     """Raise ``ValueError`` unless a student's metadata (``learning.student.metadata``) encodes the
     MPC's horizon: same p and F encodings, horizon H = N, spacing dt, constrained fit and output size."""
     enc = meta.get("encoding") if isinstance(meta, dict) else None
-    if not isinstance(enc, dict):
-        raise ValueError(f"student metadata has no 'encoding' section (a distilled student export's "  # noqa: TRY004 -- callers and tests catch ValueError (closed_loop/controllers.py)
+    if not isinstance(enc, dict):  # ValueError, not TypeError: callers catch ValueError (closed_loop/controllers.py)
+        raise ValueError(f"student metadata has no 'encoding' section (a distilled student export's "  # noqa: TRY004
                          f"distill_meta.json has one), got {meta!r:.200}")
     want = {"p": cfg.encoding_p, "F": cfg.encoding_F, "horizon": cfg.horizon, "dt": cfg.dt,
             "constrained_fit": cfg.constrained_fit}

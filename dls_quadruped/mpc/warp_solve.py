@@ -188,28 +188,37 @@ class DeviceSolve:
         return describe_bad({name: flags[:, i] for i, name in enumerate(FLAG_NAMES)})
 
 
-def check_shapes(mpc, state, refs, warm_starts, proportions, phase, frame) -> tuple[torch.Tensor, tuple[float, ...]]:
-    """The solve's argument checks that read no tensor data (shapes, proportions): ``SamplingMPC._validate``
-    without its finiteness and phase-range reads, which the device solve turns into per-robot flags."""
-    return mpc.validate_shapes(state, refs, warm_starts, proportions, phase, frame)
+class DeviceSolver:
+    """The device path of one :class:`SamplingMPC`: one :class:`DeviceSolve` per (B, G, proportions, which frame
+    inputs are given), built on first use.
 
+    Attributes:
+        solves: the prepared solves, by that key.
+    """
 
-def solve(mpc, state, refs, warm_starts, proportions, phase, base_xy_w, base_yaw, terrain_z_w) -> MPCResult:
-    """:meth:`SamplingMPC.solve` on the device (module doc): no host read, one graph replay."""
-    frame = (base_xy_w, base_yaw, terrain_z_w)
-    ws, props = check_shapes(mpc, state, refs, warm_starts, proportions, phase, frame)
-    b, g = state.batch_size, ws.shape[1]
-    given = tuple(v is not None for v in frame)
-    key = (b, g, props, given)
-    work = mpc._device_solves.get(key)
-    if work is None or work.cfg is not mpc.cfg or work.model is not mpc.model:
-        work = mpc._device_solves[key] = DeviceSolve(mpc, b, g, props, given)
-    if mpc.last_result is None:
-        work.have_prev.zero_()  # no previous solution: a fallback robot gets warm start 0 decoded
-    work.stage(state, phase, frame, refs, ws)
-    t0 = time.perf_counter()
-    result = work.run()
-    mpc.kernel_seconds += time.perf_counter() - t0
-    mpc.last_device_solve = work
-    mpc.remember(result)
-    return result
+    def __init__(self) -> None:
+        self.solves: dict[tuple, DeviceSolve] = {}
+
+    def solve(self, mpc, state, refs, warm_starts, proportions, phase, base_xy_w, base_yaw,
+              terrain_z_w) -> tuple[MPCResult, DeviceSolve, float]:
+        """:meth:`SamplingMPC.solve`'s work on the device (module doc): no host read, one graph replay. ``mpc`` is
+        read (its public configuration, layout, counter and previous result), never changed.
+
+        Returns:
+            the result, the :class:`DeviceSolve` that made it (its flags: ``fallback_report``), the wall time [s]
+            of its launch or replay call.
+        """
+        frame = (base_xy_w, base_yaw, terrain_z_w)
+        ws, props = mpc.validate_shapes(state, refs, warm_starts, proportions, phase, frame)
+        b, g = state.batch_size, ws.shape[1]
+        given = tuple(v is not None for v in frame)
+        key = (b, g, props, given)
+        work = self.solves.get(key)
+        if work is None or work.cfg is not mpc.cfg or work.model is not mpc.model:
+            work = self.solves[key] = DeviceSolve(mpc, b, g, props, given)
+        if mpc.last_result is None:
+            work.have_prev.zero_()  # no previous solution: a fallback robot gets warm start 0 decoded
+        work.stage(state, phase, frame, refs, ws)
+        t0 = time.perf_counter()
+        result = work.run()
+        return result, work, time.perf_counter() - t0

@@ -7,7 +7,7 @@ decimation loop by itself; the main process only writes commands into shared mem
 and reads the state back, once per high-level step. This spreads the Pinocchio calls,
 which hold the GIL, over the cores as well as the physics. With ``num_workers=0`` a
 single in-process shard is used (its ``Batch`` uses all threads), which is handy for
-debugging and gives bit-identical results. The worker processes themselves are :mod:`cpu_workers`.
+debugging and gives bit-identical results. The worker processes and their pipes are :mod:`cpu_workers`.
 
 This is the ``cpu`` backend of the seam in ``sim/interface.py`` (``make_backend("cpu", ...)``); inputs may
 live on any device (they are copied to the CPU), the state lives on the CPU.
@@ -22,10 +22,7 @@ Usage::
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
-import signal
-import time
 from typing import Any, Self
 
 import mujoco
@@ -33,15 +30,13 @@ import numpy as np
 import torch
 
 from dls_quadruped.core.state import RobotState
+from dls_quadruped.sim.buffers import STATE_SPECS, SharedBuffers
 from dls_quadruped.sim.cpu_workers import (
-    RUNNING,
     WorkerError,
-    check_main_guard,
+    WorkerPool,
     execute,
     join_rows,
-    process_state,
     shard_rows,
-    worker_main,
 )
 from dls_quadruped.sim.interface import (
     SimConfig,
@@ -49,7 +44,7 @@ from dls_quadruped.sim.interface import (
     robot_weight,
     standing_references,
 )
-from dls_quadruped.sim.shard import STATE_SPECS, Shard, SharedBuffers
+from dls_quadruped.sim.shard import Shard
 
 _BOOL_FIELDS = ("base_contact", "diverged")
 
@@ -64,7 +59,8 @@ class VecSim:
         cfg: backend configuration.
     """
 
-    def __init__(self, model: mujoco.MjModel, num_envs: int, cfg: SimConfig = SimConfig()):  # noqa: B008 -- frozen dataclass: an immutable default
+    def __init__(self, model: mujoco.MjModel, num_envs: int,
+                 cfg: SimConfig = SimConfig()):  # noqa: B008 -- frozen dataclass: an immutable default
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.model = model
@@ -77,26 +73,15 @@ class VecSim:
         self.num_workers = workers
         self.buf = SharedBuffers.allocate(num_envs, shared=workers > 0)
         self._bounds = np.linspace(0, num_envs, max(workers, 1) + 1).round().astype(int)
-        self._conns: list[Any] = []
-        self._procs: list[mp.Process] = []
         self._shard: Shard | None = None
+        self.workers: WorkerPool | None = None
+        """The worker processes (None with ``num_workers=0``: one shard in this process)."""
         self._init_commands()
         if workers == 0:
             self._shard = Shard(model, self.buf, cfg.control, nthread=cfg.nthread, regions=cfg.regions,
                                 leg_dynamics=cfg.leg_dynamics)
         else:
-            check_main_guard()
-            ctx = mp.get_context("spawn")
-            RUNNING.add(self)  # before the first start: a Ctrl-C between two starts still closes the first
-            for w in range(workers):
-                parent, child = ctx.Pipe()
-                rows = self.buf.rows(self._bounds[w], self._bounds[w + 1])
-                proc = ctx.Process(target=worker_main, args=(child, model, rows, cfg), daemon=True)
-                proc.start()
-                child.close()  # only the worker holds its end: a dead worker then reads as EOF, not a hang
-                self._conns.append(parent)
-                self._procs.append(proc)
-            self._gather("start")
+            self.workers = WorkerPool(model, self.buf, cfg, self._bounds)
         self.state = self._make_state()
 
     # ------------------------------------------------------------------ plumbing
@@ -131,51 +116,6 @@ class VecSim:
         self.state.diverged = self.buf.state["diverged"] > 0
         return self.state
 
-    def _died(self, w: int, during: str) -> WorkerError:
-        """The error for a worker that is gone (waits briefly for its exit code)."""
-        proc = self._procs[w]
-        proc.join(timeout=1.0)
-        msg = f"simulator worker {w} (pid {proc.pid}) died with exit code {proc.exitcode} during {during}"
-        if proc.exitcode is not None and proc.exitcode < 0:
-            msg += f" (killed by {signal.Signals(-proc.exitcode).name})"
-        if during == "start":
-            msg += ("; if the script builds the env or VecSim at module level, put that code under "
-                    "`if __name__ == \"__main__\":` (workers are spawned and re-import the script), "
-                    "or use num_workers=0")
-        return WorkerError(msg)
-
-    def _send(self, w: int, message: tuple, during: str) -> None:
-        try:
-            self._conns[w].send(message)
-        except (BrokenPipeError, ConnectionResetError, EOFError, OSError):
-            raise self._died(w, during) from None
-
-    def _recv(self, w: int, during: str) -> tuple[str, Any]:
-        """Worker ``w``'s answer; a dead worker or no answer within the timeout raises ``WorkerError``."""
-        conn, proc = self._conns[w], self._procs[w]
-        timeout = self.cfg.start_timeout_s if during == "start" else self.cfg.reply_timeout_s
-        deadline = time.monotonic() + timeout
-        while not conn.poll(0.5):
-            if not proc.is_alive():
-                raise self._died(w, during)
-            if time.monotonic() > deadline:
-                raise WorkerError(f"simulator worker {w} (pid {proc.pid}) gave no answer within {timeout:g} s "
-                                  f"during {during} (process state: {process_state(proc.pid)}); "
-                                  "SimConfig.reply_timeout_s sets the limit")
-        try:
-            return conn.recv()
-        except (EOFError, ConnectionResetError, OSError):
-            raise self._died(w, during) from None
-
-    def _gather(self, what: str) -> None:
-        errors = []
-        for w in range(len(self._conns)):
-            status, msg = self._recv(w, what)
-            if status != "ok":
-                errors.append(f"worker {w}: {msg}")
-        if errors:
-            raise RuntimeError(f"simulator backend failed during {what}: " + "; ".join(errors))
-
     def _dispatch(self, cmd: str, ids: torch.Tensor | None, payload: Any = None) -> None:
         """Send a command to the shards owning ``ids`` (all shards for None), with shard-local ids."""
         if self._shard is not None:
@@ -185,24 +125,12 @@ class VecSim:
                 arg = ids.numpy() if payload is None else (payload[0], ids.numpy(), payload[1])
             execute(self._shard, cmd, arg)
             return
-        if not self._conns:
+        self._open_workers().dispatch(cmd, ids, payload)
+
+    def _open_workers(self) -> WorkerPool:
+        if self.workers is None or not self.workers.conns:
             raise WorkerError("the simulator is closed (a worker failed earlier or close() was called)")
-        busy = []
-        for w in range(len(self._conns)):
-            lo, hi = self._bounds[w], self._bounds[w + 1]
-            if ids is None:
-                arg = payload
-            else:
-                mask = (ids >= lo) & (ids < hi)
-                if not mask.any():
-                    continue
-                local = (ids[mask] - lo).numpy()
-                arg = local if payload is None else (payload[0], local, payload[1][mask.numpy()])
-            self._send(w, (cmd, arg), cmd)
-            busy.append(w)
-        errors = [msg for w in busy for status, msg in [self._recv(w, cmd)] if status != "ok"]
-        if errors:
-            raise RuntimeError("simulator backend failed: " + "; ".join(errors))
+        return self.workers
 
     @staticmethod
     def _ids(env_ids: torch.Tensor | np.ndarray | list[int]) -> torch.Tensor:
@@ -342,46 +270,18 @@ class VecSim:
         return self._refresh_state()
 
     def _num_shards(self) -> int:
-        return 1 if self._shard is not None else len(self._conns)
+        return 1 if self._shard is not None or self.workers is None else len(self.workers.conns)
 
     def _each(self, cmd: str, args: list[Any]) -> list[Any]:
         """Send ``(cmd, args[w])`` to shard w, every shard; their answers in shard order."""
         if self._shard is not None:
             return [execute(self._shard, cmd, args[0])]
-        if not self._conns:
-            raise WorkerError("the simulator is closed (a worker failed earlier or close() was called)")
-        for w, arg in enumerate(args):
-            self._send(w, (cmd, arg), cmd)
-        answers = [self._recv(w, cmd) for w in range(len(args))]
-        errors = [msg for status, msg in answers if status != "ok"]
-        if errors:
-            raise RuntimeError("simulator backend failed: " + "; ".join(errors))
-        return [msg for _, msg in answers]
+        return self._open_workers().each(cmd, args)
 
     def close(self) -> None:
         """Stop the worker processes (idempotent; a dead or hung worker is killed, not waited for)."""
-        deadline = time.monotonic() + 5.0  # for all workers together
-        for conn in self._conns:
-            try:
-                conn.send(("close", None))
-            except (BrokenPipeError, EOFError, OSError):
-                pass
-        for conn, proc in zip(self._conns, self._procs):
-            try:
-                stopped = process_state(proc.pid).startswith(("T", "t"))  # cannot answer: kill it below
-                if not stopped and conn.poll(max(0.0, deadline - time.monotonic())):
-                    conn.recv()
-            except (BrokenPipeError, EOFError, OSError):
-                pass
-            conn.close()
-        for proc in self._procs:
-            if not process_state(proc.pid).startswith(("T", "t")):
-                proc.join(timeout=max(0.0, deadline - time.monotonic()))
-            if proc.is_alive():
-                proc.kill()  # SIGTERM is ignored by workers; a stopped one ignores everything but SIGKILL
-                proc.join(timeout=5)
-        self._conns, self._procs = [], []
-        RUNNING.discard(self)
+        if self.workers is not None:
+            self.workers.close()
 
     def __enter__(self) -> Self:
         return self

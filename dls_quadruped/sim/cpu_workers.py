@@ -3,10 +3,11 @@
 Each worker owns one :class:`~dls_quadruped.sim.shard.Shard` (a one-thread ``mujoco.batch.Batch``, a
 Pinocchio model and the batched low-level controller) and serves the main process's commands over a pipe:
 ``step`` (k physics steps), ``reset``, ``set_lin_vel``, ``model_field``, ``snapshot``, ``restore`` and
-``close``; state and commands travel through shared memory (:class:`~dls_quadruped.sim.shard.SharedBuffers`).
-Here also: a snapshot cut into shards' rows and joined again, the check that refuses to spawn workers from a
-script's unguarded module-level code, the process-state probe behind the hang diagnostics, and the exit
-handler that closes the simulators a script left open.
+``close``; state and commands travel through shared memory (:class:`~dls_quadruped.sim.buffers.SharedBuffers`).
+The main process's end is :class:`WorkerPool` (start, commands to the shards owning some robots, answers with
+timeouts, close). Here also: a snapshot cut into shards' rows and joined again, the check that refuses to spawn
+workers from a script's unguarded module-level code, the process-state probe behind the hang diagnostics, and the
+exit handler that closes the worker pools a script left open.
 """
 
 from __future__ import annotations
@@ -18,18 +19,17 @@ import multiprocessing.util  # registers its exit handler before ours below, so 
 import os
 import signal
 import sys
+import time
 import weakref
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import mujoco
 import numpy as np
 import torch
 
+from dls_quadruped.sim.buffers import SharedBuffers
 from dls_quadruped.sim.interface import SimConfig
-from dls_quadruped.sim.shard import Shard, SharedBuffers
-
-if TYPE_CHECKING:
-    from dls_quadruped.sim.cpu_backend import VecSim
+from dls_quadruped.sim.shard import Shard
 
 
 def execute(shard: Shard, cmd: str, arg: Any) -> Any:
@@ -75,8 +75,8 @@ class WorkerError(RuntimeError):
     """A simulator worker process died, hung or could not start."""
 
 
-RUNNING: weakref.WeakSet[VecSim] = weakref.WeakSet()
-"""Simulators whose workers are running (added when they start, removed by ``close``)."""
+RUNNING: weakref.WeakSet[WorkerPool] = weakref.WeakSet()
+"""Worker pools whose processes are running (added when they start, removed by ``close``)."""
 
 
 def _close_running() -> None:
@@ -89,9 +89,9 @@ def _close_running() -> None:
     handlers last-registered-first, and this module imports ``multiprocessing.util`` before
     registering, so this runs before that join.
     """
-    for sim in list(RUNNING):
+    for pool in list(RUNNING):
         try:
-            sim.close()
+            pool.close()
         except Exception:  # noqa: BLE001, S110 -- at exit, a failure to close one must not leave the others running
             pass
 
@@ -138,6 +138,149 @@ def worker_main(conn: Any, model: mujoco.MjModel, buffers: SharedBuffers, cfg: S
             answer = ("error", f"{cmd}: {err!r}")
         if not _reply(conn, answer):
             return
+
+
+class WorkerPool:
+    """The main process's end of a ``VecSim``'s worker processes: worker w serves robots ``bounds[w]:bounds[w + 1]``
+    (:func:`worker_main`), started here and waited for.
+
+    Args:
+        model: the MuJoCo model (pickled to each worker).
+        buffers: all robots' shared buffers (each worker gets its rows).
+        cfg: the backend's configuration (timeouts, the shards' settings).
+        bounds: (W + 1,) row bounds of the W workers.
+
+    Attributes:
+        conns, procs: each worker's pipe and process (empty once closed).
+
+    Raises:
+        WorkerError: a worker died or gave no answer while starting (the others are closed).
+    """
+
+    def __init__(self, model: mujoco.MjModel, buffers: SharedBuffers, cfg: SimConfig, bounds: np.ndarray) -> None:
+        check_main_guard()
+        self.cfg, self.bounds = cfg, bounds
+        self.conns: list[Any] = []
+        self.procs: list[mp.Process] = []
+        ctx = mp.get_context("spawn")
+        RUNNING.add(self)  # before the first start: a Ctrl-C between two starts still closes the first
+        try:
+            for w in range(len(bounds) - 1):
+                parent, child = ctx.Pipe()
+                rows = buffers.rows(bounds[w], bounds[w + 1])
+                proc = ctx.Process(target=worker_main, args=(child, model, rows, cfg), daemon=True)
+                proc.start()
+                child.close()  # only the worker holds its end: a dead worker then reads as EOF, not a hang
+                self.conns.append(parent)
+                self.procs.append(proc)
+            self.gather("start")
+        except BaseException:
+            self.close()
+            raise
+
+    def died(self, w: int, during: str) -> WorkerError:
+        """The error for a worker that is gone (waits briefly for its exit code)."""
+        proc = self.procs[w]
+        proc.join(timeout=1.0)
+        msg = f"simulator worker {w} (pid {proc.pid}) died with exit code {proc.exitcode} during {during}"
+        if proc.exitcode is not None and proc.exitcode < 0:
+            msg += f" (killed by {signal.Signals(-proc.exitcode).name})"
+        if during == "start":
+            msg += ("; if the script builds the env or VecSim at module level, put that code under "
+                    "`if __name__ == \"__main__\":` (workers are spawned and re-import the script), "
+                    "or use num_workers=0")
+        return WorkerError(msg)
+
+    def send(self, w: int, message: tuple, during: str) -> None:
+        """``message`` to worker ``w``; a dead worker raises ``WorkerError``."""
+        try:
+            self.conns[w].send(message)
+        except (BrokenPipeError, ConnectionResetError, EOFError, OSError):
+            raise self.died(w, during) from None
+
+    def recv(self, w: int, during: str) -> tuple[str, Any]:
+        """Worker ``w``'s answer; a dead worker or no answer within the timeout raises ``WorkerError``."""
+        conn, proc = self.conns[w], self.procs[w]
+        timeout = self.cfg.start_timeout_s if during == "start" else self.cfg.reply_timeout_s
+        deadline = time.monotonic() + timeout
+        while not conn.poll(0.5):
+            if not proc.is_alive():
+                raise self.died(w, during)
+            if time.monotonic() > deadline:
+                raise WorkerError(f"simulator worker {w} (pid {proc.pid}) gave no answer within {timeout:g} s "
+                                  f"during {during} (process state: {process_state(proc.pid)}); "
+                                  "SimConfig.reply_timeout_s sets the limit")
+        try:
+            return conn.recv()
+        except (EOFError, ConnectionResetError, OSError):
+            raise self.died(w, during) from None
+
+    def gather(self, what: str) -> None:
+        """Every worker's answer to ``what``; a RuntimeError naming the workers that answered with an error."""
+        errors = []
+        for w in range(len(self.conns)):
+            status, msg = self.recv(w, what)
+            if status != "ok":
+                errors.append(f"worker {w}: {msg}")
+        if errors:
+            raise RuntimeError(f"simulator backend failed during {what}: " + "; ".join(errors))
+
+    def dispatch(self, cmd: str, ids: torch.Tensor | None, payload: Any = None) -> None:
+        """Send a command to the workers owning ``ids`` (all for None), with worker-local ids, and wait for them.
+
+        ``payload``: the step count (``ids`` None), or ``(key, values)`` of a model field (values row-aligned with
+        ``ids``)."""
+        busy = []
+        for w in range(len(self.conns)):
+            lo, hi = self.bounds[w], self.bounds[w + 1]
+            if ids is None:
+                arg = payload
+            else:
+                mask = (ids >= lo) & (ids < hi)
+                if not mask.any():
+                    continue
+                local = (ids[mask] - lo).numpy()
+                arg = local if payload is None else (payload[0], local, payload[1][mask.numpy()])
+            self.send(w, (cmd, arg), cmd)
+            busy.append(w)
+        errors = [msg for w in busy for status, msg in [self.recv(w, cmd)] if status != "ok"]
+        if errors:
+            raise RuntimeError("simulator backend failed: " + "; ".join(errors))
+
+    def each(self, cmd: str, args: list[Any]) -> list[Any]:
+        """Send ``(cmd, args[w])`` to worker w, every worker; their answers in worker order."""
+        for w, arg in enumerate(args):
+            self.send(w, (cmd, arg), cmd)
+        answers = [self.recv(w, cmd) for w in range(len(args))]
+        errors = [msg for status, msg in answers if status != "ok"]
+        if errors:
+            raise RuntimeError("simulator backend failed: " + "; ".join(errors))
+        return [msg for _, msg in answers]
+
+    def close(self) -> None:
+        """Stop the worker processes (idempotent; a dead or hung worker is killed, not waited for)."""
+        deadline = time.monotonic() + 5.0  # for all workers together
+        for conn in self.conns:
+            try:
+                conn.send(("close", None))
+            except (BrokenPipeError, EOFError, OSError):
+                pass
+        for conn, proc in zip(self.conns, self.procs):
+            try:
+                stopped = process_state(proc.pid).startswith(("T", "t"))  # cannot answer: kill it below
+                if not stopped and conn.poll(max(0.0, deadline - time.monotonic())):
+                    conn.recv()
+            except (BrokenPipeError, EOFError, OSError):
+                pass
+            conn.close()
+        for proc in self.procs:
+            if not process_state(proc.pid).startswith(("T", "t")):
+                proc.join(timeout=max(0.0, deadline - time.monotonic()))
+            if proc.is_alive():
+                proc.kill()  # SIGTERM is ignored by workers; a stopped one ignores everything but SIGKILL
+                proc.join(timeout=5)
+        self.conns, self.procs = [], []
+        RUNNING.discard(self)
 
 
 def process_state(pid: int) -> str:

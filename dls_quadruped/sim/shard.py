@@ -2,7 +2,7 @@
 
 A shard runs the whole physics/control loop for a contiguous block of robots. The
 backend (``sim/cpu_backend.py``) runs one shard in-process or one per worker process;
-shards talk to the backend only through the shared buffers in :class:`SharedBuffers`,
+shards talk to the backend only through the shared buffers (:class:`~dls_quadruped.sim.buffers.SharedBuffers`),
 so the same code serves both modes.
 
 Per physics step (200 Hz): leg terms at the current state -> low-level torques (batched torch) ->
@@ -27,7 +27,6 @@ Per physics step (200 Hz): leg terms at the current state -> low-level torques (
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import mujoco
@@ -38,87 +37,17 @@ from mujoco.batch import Batch, SimulationError
 from dls_quadruped.control.lowlevel import LegTerms, LowLevelConfig, LowLevelController
 from dls_quadruped.control.torch_dynamics import TorchLegDynamics
 from dls_quadruped.robots.aliengo import constants as C
+from dls_quadruped.sim.buffers import MAX_ABS_QVEL, SharedBuffers, contact_sensor_layout
 from dls_quadruped.sim.regions import RegionConfig, RobotRegions
 
 if TYPE_CHECKING:
     from dls_quadruped.control.dynamics import LegDynamics
-
-MAX_ABS_QVEL = 1.0e3
-"""Generalized velocities beyond this [m/s, rad/s] mark a robot as diverged."""
-
-STATE_SPECS: dict[str, tuple[int, ...]] = {
-    "base_pos_w": (3,),
-    "base_quat_w": (4,),
-    "base_lin_vel_w": (3,),
-    "base_ang_vel_b": (3,),
-    "joint_pos": (12,),
-    "joint_vel": (12,),
-    "joint_torque": (12,),
-    "foot_pos_w": (4, 3),
-    "foot_vel_w": (4, 3),
-    "foot_force_w": (4, 3),
-    "phase": (4,),
-    "contact_cmd": (4,),
-    "base_contact": (),
-    "time": (),
-    "diverged": (),
-}
-"""Shapes (after the batch dim) of the float32 state buffers, named as RobotState fields."""
-
-COMMAND_SPECS: dict[str, tuple[int, ...]] = {
-    "freq": (4,),
-    "duty": (4,),
-    "p_td_w": (4, 3),
-    "F_w": (4, 3),
-    # reset targets, read for the ids of a reset command
-    "reset_qpos": (19,),
-    "reset_qvel": (18,),
-    "reset_phase": (4,),
-    # constant base wrench (world frame) and base-velocity overrides (pushes)
-    "wrench_w": (6,),
-    "set_lin_vel_w": (3,),
-}
-"""Shapes of the float64 command buffers written by the backend and read by shards."""
 
 MJ_STATE_FIELDS = ("time", "qpos", "qvel", "act", "history", "qacc_warmstart", "plugin_state", "ctrl",
                    "qfrc_applied", "xfrc_applied", "eq_active", "mocap_pos", "mocap_quat", "userdata")
 """MjData fields of ``mjSTATE_INTEGRATION``: everything ``mj_step`` reads that it did not compute itself
 (``qacc_warmstart`` included: the constraint solver starts from it, so a restored run that lacked
 it would differ in the last bits)."""
-
-
-def contact_sensor_layout(model: mujoco.MjModel) -> dict[str, slice]:
-    """Where each contact sensor of the AlienGo scene (four feet, trunk, four thighs) lies in ``sensordata``."""
-    out = {}
-    for name in (*(f"{leg}_foot_contact" for leg in C.LEG_NAMES), "trunk_contact",
-                 *(f"{leg}_thigh_contact" for leg in C.LEG_NAMES)):
-        s = model.sensor(name)
-        out[name] = slice(int(s.adr[0]), int(s.adr[0] + s.dim[0]))
-    return out
-
-
-@dataclass
-class SharedBuffers:
-    """Named float tensors for all robots; shards use row slices of them."""
-
-    state: dict[str, torch.Tensor]
-    command: dict[str, torch.Tensor]
-
-    @staticmethod
-    def allocate(num_robots: int, shared: bool) -> SharedBuffers:
-        """Zeroed buffers; ``shared=True`` puts them in shared memory for worker processes."""
-        state = {k: torch.zeros((num_robots, *s), dtype=torch.float32) for k, s in STATE_SPECS.items()}
-        command = {k: torch.zeros((num_robots, *s), dtype=torch.float64) for k, s in COMMAND_SPECS.items()}
-        if shared:
-            for t in (*state.values(), *command.values()):
-                t.share_memory_()
-        return SharedBuffers(state, command)
-
-    def rows(self, start: int, stop: int) -> SharedBuffers:
-        """Views of rows [start, stop)."""
-        return SharedBuffers(
-            {k: v[start:stop] for k, v in self.state.items()}, {k: v[start:stop] for k, v in self.command.items()}
-        )
 
 
 class Shard:
@@ -165,8 +94,8 @@ class Shard:
                     for i in range(model.nsensor) if stage[i] < int(mujoco.mjtStage.mjSTAGE_ACC)]
             self._lagged_cols = np.concatenate(cols) if cols else np.zeros(0, dtype=np.int64)
         else:
-            # Pinocchio is imported here, not at the top: the Warp backends import this module for its layout
-            # helpers and run where `pin` is not installed
+            # Pinocchio is imported here, not at the top: only this path calls it, and a machine that runs the
+            # Warp backends alone may not have `pin`
             from dls_quadruped.control.dynamics import LegDynamics
 
             self.dynamics = LegDynamics(model_path=C.MJCF_PATH)
@@ -365,7 +294,8 @@ class Shard:
         self._update_regions()
         if self.mujoco_terms:  # M, qfrc_bias and contacts of the restored state and models, as a step leaves them
             self._forward_vel()
-        self._terms = self._dynamics_terms()  # a pure function of (qpos, qvel) (and the models: mujoco), as after a step
+        # a pure function of (qpos, qvel) (and the models: mujoco), as after a step
+        self._terms = self._dynamics_terms()
 
     # ------------------------------------------------------------------ output
     def publish(self) -> None:

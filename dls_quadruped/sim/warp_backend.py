@@ -21,7 +21,7 @@ Design:
   integration) advances the state; divergence is checked in torch; ``step1`` runs on the new state. The foot-contact
   sensors are copied after the last ``step2`` of a :meth:`WarpSim.step` (``step1`` zeroes them).
 * **Divergence** without a host sync: after every step, a robot with a non-finite ``qpos``/``qvel`` or ``|qvel| >
-  shard.MAX_ABS_QVEL`` is flagged ``diverged`` and frozen at the model's home keyframe with zero velocity, its clock
+  buffers.MAX_ABS_QVEL`` is flagged ``diverged`` and frozen at the model's home keyframe with zero velocity, its clock
   stopped and its torques zero, until it is reset (the CPU backend's semantics); its published contact forces are
   zero, so no NaN reaches the state.
 
@@ -47,13 +47,13 @@ from dls_quadruped.control.lowlevel import LegTerms, LowLevelController
 from dls_quadruped.control.torch_dynamics import TorchLegDynamics
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.robots.aliengo import constants as C
+from dls_quadruped.sim.buffers import STATE_SPECS, contact_sensor_layout
 from dls_quadruped.sim.interface import (
     SimConfig,
     reset_coordinates,
     robot_weight,
     standing_references,
 )
-from dls_quadruped.sim.shard import STATE_SPECS, contact_sensor_layout
 from dls_quadruped.sim.warp_collision import ALLOCATION_OVERFLOWS, collision_stats
 from dls_quadruped.sim.warp_control import PhysicsRate
 from dls_quadruped.sim.warp_inputs import DeviceInputs

@@ -9,7 +9,7 @@ Per physics step ``WarpSim.step`` (``sim/warp_backend.py``) runs::
     step1       MuJoCo Warp (a captured graph on CUDA)
 
 and after the last physics step of a call ``terms()`` once, for the published foot state. Each of the three is a
-:class:`core.compile.Fused`: compiled with ``torch.compile`` when ``SimConfig.compile`` says so (default: on
+:func:`core.compile.fused_method`: compiled with ``torch.compile`` when ``SimConfig.compile`` says so (default: on
 CUDA), so a physics step is a few fused torch kernels besides MuJoCo Warp's graphs, instead of ~450 operator
 launches (docs/gpu.md "Launches"). Every buffer they write is written in place (the controller's state, the
 torques, ``ctrl``, the flags, the clock): the storage a compiled graph points at never moves.
@@ -26,9 +26,9 @@ from typing import TYPE_CHECKING
 import torch
 
 from dls_quadruped.control.lowlevel import LegTerms
-from dls_quadruped.core.compile import Fused, compile_wanted
+from dls_quadruped.core.compile import compile_wanted, fused_method
+from dls_quadruped.sim.buffers import MAX_ABS_QVEL
 from dls_quadruped.sim.interface import standing_references
-from dls_quadruped.sim.shard import MAX_ABS_QVEL
 from dls_quadruped.sim.warp_collision import ALLOCATION_OVERFLOWS
 from dls_quadruped.sim.warp_worlds import publish_contacts
 
@@ -45,22 +45,17 @@ class PhysicsRate:
         compile: ``SimConfig.compile`` (None: on for CUDA devices).
 
     Attributes:
-        compiled: whether the three functions run compiled (False after a compile failure, with a warning).
+        compile: whether the ``fused_method`` functions below are compiled (``compile`` resolved for the device).
+        compiled: whether the three step functions run compiled (False after a compile failure, with a warning).
     """
 
     def __init__(self, sim: WarpSim, compile: bool | None = None):
         self.sim = sim
-        on = compile_wanted(compile, sim.device)
-        self._control = Fused(self._control_eager, on, "WarpSim physics-step control")
-        self._settle = Fused(self._settle_eager, on, "WarpSim physics-step settle")
-        self._terms = Fused(self._terms_eager, on, "WarpSim leg terms")
-        self._publish = Fused(self._publish_eager, on, "WarpSim publish")
-        self._store = Fused(self._store_eager, on, "WarpSim set_references")
-        self._reset = Fused(self._reset_eager, on, "WarpSim reset rows", dynamic=True)  # a reset's robots vary
+        self.compile = compile_wanted(compile, sim.device)  # each fused_method below is compiled when True
         self.time_before = torch.zeros_like(sim._time)
         # the dynamics' constant tensors (chain parameters, index tables) are built on first use: build them here,
         # eagerly, so the compiled functions find them made (creating them from numpy inside a trace fails)
-        self._terms_eager(sim._qpos, sim._qvel, sim._M, sim._qfrc_bias)
+        self._terms.fn(sim._qpos, sim._qvel, sim._M, sim._qfrc_bias)
 
     @property
     def compiled(self) -> bool:
@@ -85,13 +80,15 @@ class PhysicsRate:
         s = self.sim
         return self._terms(s._qpos, s._qvel, s._M, s._qfrc_bias)
 
-    def _terms_eager(self, qpos, qvel, M, bias) -> LegTerms:
+    @fused_method("WarpSim leg terms")
+    def _terms(self, qpos, qvel, M, bias) -> LegTerms:
         f64 = torch.float64
         return self.sim.dynamics.terms(qpos.to(f64), qvel.to(f64), M, bias)
 
-    def _control_eager(self, qpos, qvel, M, bias, freq, duty, p_td_w, F_w, diverged, tau_out, ctrl, time,
-                       time_before) -> None:
-        terms = self._terms_eager(qpos, qvel, M, bias)
+    @fused_method("WarpSim physics-step control")
+    def _control(self, qpos, qvel, M, bias, freq, duty, p_td_w, F_w, diverged, tau_out, ctrl, time,
+                 time_before) -> None:
+        terms = self._terms.fn(qpos, qvel, M, bias)
         tau = self.sim.controller.compute(terms, freq, duty, p_td_w, F_w)
         diverged |= ~torch.isfinite(tau).all(dim=1)  # non-finite references (set_references)
         tau = tau.masked_fill(diverged[:, None], 0.0)
@@ -99,9 +96,10 @@ class PhysicsRate:
         ctrl.copy_(tau)
         time_before.copy_(time)
 
+    @fused_method("WarpSim physics-step settle")
     @staticmethod
-    def _settle_eager(qpos, qvel, qacc_warmstart, time, time_before, overflow, diverged, key_qpos, contact_sensors,
-                      sensordata) -> None:
+    def _settle(qpos, qvel, qacc_warmstart, time, time_before, overflow, diverged, key_qpos, contact_sensors,
+                sensordata) -> None:
         # robots whose state blew up or whose world ran out of contacts or constraint rows (MuJoCo Warp dropped
         # some: the step was wrong) are flagged; every flagged robot is held at the keyframe, at rest, clock stopped
         bad = ~torch.isfinite(qpos).all(dim=1) | ~torch.isfinite(qvel).all(dim=1)
@@ -123,8 +121,9 @@ class PhysicsRate:
         self._reset(ids, foot_pos_w, phase, s.total_weight(), s._contact_sensors, s._sensordata, s.diverged,
                     s.wrench_w, s.tau, s.command)
 
-    def _reset_eager(self, ids, foot_pos_w, phase, weight, contact_sensors, sensordata, diverged, wrench_w, tau,
-                     command) -> None:
+    @fused_method("WarpSim reset rows", dynamic=True)  # a reset's robots vary
+    def _reset(self, ids, foot_pos_w, phase, weight, contact_sensors, sensordata, diverged, wrench_w, tau,
+               command) -> None:
         contact_sensors[ids] = sensordata[ids]
         diverged.index_fill_(0, ids, False)  # scalar fills: x[ids] = v copies v from the host on CUDA
         wrench_w.index_fill_(0, ids, 0.0)
@@ -137,8 +136,9 @@ class PhysicsRate:
         c = self.sim.command
         self._store(self.sim.inputs.bad_refs, (freq, duty, p_td_w, F_w), (c["freq"], c["duty"], c["p_td_w"], c["F_w"]))
 
+    @fused_method("WarpSim set_references")
     @staticmethod
-    def _store_eager(bad_refs, values, held) -> None:
+    def _store(bad_refs, values, held) -> None:
         for i, (value, dst) in enumerate(zip(values, held)):
             bad_refs[i] |= ~torch.isfinite(value).all()
             dst.copy_(value)
@@ -149,8 +149,9 @@ class PhysicsRate:
         self._publish(s.buf, s._qpos, s._qvel, s.tau, s._terms.foot_pos_w, s._terms.foot_vel_w, s.diverged,
                       s._contact_sensors, s.controller.phase, s.command["duty"], s._time)
 
-    def _publish_eager(self, buf, qpos, qvel, tau, foot_pos_w, foot_vel_w, diverged, contact_sensors, phase, duty,
-                       time) -> None:
+    @fused_method("WarpSim publish")
+    def _publish(self, buf, qpos, qvel, tau, foot_pos_w, foot_vel_w, diverged, contact_sensors, phase, duty,
+                 time) -> None:
         buf["base_pos_w"].copy_(qpos[:, 0:3])
         buf["base_quat_w"].copy_(qpos[:, 3:7])
         buf["base_lin_vel_w"].copy_(qvel[:, 0:3])

@@ -43,7 +43,8 @@ class DeviceInputs:
             return ids.clamp(0, self.num_envs - 1)
         host = torch.as_tensor(env_ids).reshape(-1).cpu().long()
         if len(host) and (int(host.min()) < 0 or int(host.max()) >= self.num_envs):
-            raise ValueError(f"env_ids must be in [0, {self.num_envs}), got min {int(host.min())} max {int(host.max())}")
+            raise ValueError(f"env_ids must be in [0, {self.num_envs}), got min {int(host.min())} "
+                             f"max {int(host.max())}")
         return host.to(self.device)
 
     def flag(self, name: str) -> torch.Tensor:

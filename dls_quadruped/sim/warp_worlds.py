@@ -2,10 +2,10 @@
 
 :class:`WarpWorlds` puts the host ``mujoco.MjModel`` on the device once (``mujoco_warp.put_model``) with
 ``nworld = N`` worlds in one ``Data``, installs the terrain culling (``sim/warp_collision.py``), wraps the
-two step phases, ``forward`` and the masked ``reset_data`` in captured graphs (``sim/warp_graph.py``) and holds ``warp.to_torch`` views (zero-copy) of
-the arrays the backend reads and writes every physics step. Per-robot model values (``geom_friction``,
-``body_mass``, any field MuJoCo Warp can batch) become ``(N, ...)`` arrays the first time one is written,
-shared ``(1, ...)`` arrays until then. A snapshot's part of the simulation is :data:`WARP_STATE_FIELDS`
+two step phases, ``forward`` and the masked ``reset_data`` in captured graphs (``sim/warp_graph.py``) and holds
+``warp.to_torch`` views (zero-copy) of the arrays the backend reads and writes every physics step. Per-robot model
+values (``geom_friction``, ``body_mass``, any field MuJoCo Warp can batch) become ``(N, ...)`` arrays the first time one
+is written, shared ``(1, ...)`` arrays until then. A snapshot's part of the simulation is :data:`WARP_STATE_FIELDS`
 plus those per-robot fields.
 """
 

@@ -93,7 +93,8 @@ def task_tables(name: str) -> str:
             + f"; robots start at level {d['scene'].get('max_init_level', 0)} or below.", ""]
     out += ["**Rewards** (weights per second; the manager multiplies by the step, [api/mdp](../api/mdp.md)):", ""]
     out += _table(["term", "function", "weight", "parameters", "from"],
-                  [[f"`{k}`", f"`{t.get('func', k)}`", _value(t["weight"]), _params(t), _source(task, f"rewards.{k}.weight")]
+                  [[f"`{k}`", f"`{t.get('func', k)}`", _value(t["weight"]), _params(t),
+                    _source(task, f"rewards.{k}.weight")]
                    for k, t in d["rewards"].items()])
     obs = d["observations"]["policy"]
     out += ["", (f"**Observations** (`policy` group, noise scale {_value(obs.get('noise_scale', 0.0))}: "
@@ -115,7 +116,8 @@ def task_tables(name: str) -> str:
     algo, actor = d["agent"]["algorithm"], d["agent"]["actor"]
     dist = actor.get("distribution_cfg", {})
     out += [f"**PPO**: entropy coefficient {_value(algo['entropy_coef'])}, learning rate "
-            f"{_value(algo['learning_rate'])} ({algo.get('schedule', 'fixed')}, KL target {_value(algo.get('desired_kl'))}), "
+            f"{_value(algo['learning_rate'])} ({algo.get('schedule', 'fixed')}, "
+            f"KL target {_value(algo.get('desired_kl'))}), "
             f"initial std {_value(dist.get('init_std'))}"
             + (f", std range {_value(dist['std_range'])}" if "std_range" in dist else "")
             + f", mirror symmetry {'on' if 'symmetry_cfg' in algo else 'off'}; "

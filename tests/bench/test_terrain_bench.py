@@ -31,7 +31,8 @@ def test_terrain_ab_swaps_in_the_given_terrain_module(tmp_path):
     from dls_quadruped.bench import terrain_ab
     from dls_quadruped.sim import terrain as current
 
-    src = Path(current.__file__).read_text().replace("    return model, terrain\n", "    terrain.marker = 'baseline'\n    return model, terrain\n")
+    src = Path(current.__file__).read_text().replace("    return model, terrain\n",
+                                                     "    terrain.marker = 'baseline'\n    return model, terrain\n")
     path = tmp_path / "baseline_terrain.py"
     path.write_text(src)
     module = terrain_ab.load_terrain_module(path)

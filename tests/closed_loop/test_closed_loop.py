@@ -72,7 +72,8 @@ def test_last_action_is_the_applied_mpc_action_and_nan_student_falls_back() -> N
         res = ctrl.mpc.last_result
         # the last solve's action, normalised with the stance count it was applied with
         applied = env.action_manager.applied_action
-        raw = normalise(LatentAction(res.f, res.d, res.p_h, res.F_h), env.action_manager.applied_physical.new_zeros(2), ctrl.sampler_cfg.action)
+        raw = normalise(LatentAction(res.f, res.d, res.p_h, res.F_h), env.action_manager.applied_physical.new_zeros(2),
+                        ctrl.sampler_cfg.action)
         torch.testing.assert_close(applied[:, :16], raw[:, :16], atol=1e-5, rtol=0)  # f, d, p need no stance count
         torch.testing.assert_close(env.action_manager.applied_physical[:, 16:], res.F_h.flatten(-2), atol=1e-3, rtol=0)
         torch.testing.assert_close(obs["policy"][:, 33:61], applied)  # last_action term of the observation

@@ -22,8 +22,9 @@ def _state(base_z: float, vel_w=(0.0, 0.0, 0.0), yaw: float = 0.0, ang_b=(0.0, 0
     return RobotState(base_pos_w=torch.tensor([[0.3, -0.2, float(base_z)]], dtype=torch.float32), base_quat_w=quat,
                       base_lin_vel_w=torch.tensor([vel_w]), base_ang_vel_b=torch.tensor([ang_b]),
                       joint_pos=z(12), joint_vel=z(12), joint_torque=z(12), foot_pos_w=feet, foot_vel_w=z(4, 3),
-                      foot_force_w=z(4, 3), phase=z(4), contact_cmd=torch.ones(b, 4), base_contact=torch.zeros(b, dtype=torch.bool),
-                      time=z(), diverged=torch.zeros(b, dtype=torch.bool))
+                      foot_force_w=z(4, 3), phase=z(4), contact_cmd=torch.ones(b, 4),
+                      base_contact=torch.zeros(b, dtype=torch.bool), time=z(),
+                      diverged=torch.zeros(b, dtype=torch.bool))
 
 
 def test_initial_cost_of_known_states() -> None:
@@ -36,7 +37,8 @@ def test_initial_cost_of_known_states() -> None:
     terms = probe.terms(_state(C.BASE_HEIGHT_TARGET + 0.01), stand)[0]
     assert float(terms[0]) == pytest.approx(11.15, rel=1e-4) and float(terms[1:].abs().max()) < 1e-6
     # commanded 0.5 m/s forward while standing still: Q_vx 0.5^2 = 5 000 x 0.25 = 1 250
-    assert float(probe(_state(C.BASE_HEIGHT_TARGET), torch.tensor([[0.5, 0.0, 0.0]]))) == pytest.approx(1250.0, rel=1e-5)
+    cost = float(probe(_state(C.BASE_HEIGHT_TARGET), torch.tensor([[0.5, 0.0, 0.0]])))
+    assert cost == pytest.approx(1250.0, rel=1e-5)
     # the command is in the heading frame: facing +y (yaw 90 deg) and moving at 0.5 m/s along +y is on target
     moving = _state(C.BASE_HEIGHT_TARGET, vel_w=(0.0, 0.5, 0.0), yaw=np.pi / 2)
     assert float(probe(moving, torch.tensor([[0.5, 0.0, 0.0]]))) == pytest.approx(0.0, abs=1e-3)

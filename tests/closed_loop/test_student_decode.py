@@ -52,10 +52,12 @@ def test_mpc_decodes_the_student_warm_start_like_the_student_horizon() -> None:
     out = 0.3 * torch.randn(3, encoded_dim(cfg.encoding), generator=torch.Generator().manual_seed(0))
     phase = torch.rand(3, 4, generator=torch.Generator().manual_seed(1))
     actions, contact = W.student_horizon(out, cfg, phase)
-    dec = decode_samples(W.from_student(out, cfg)[:, None], phase, torch.zeros(3, 2), torch.zeros(3), torch.zeros(3, 4), cfg)
+    dec = decode_samples(W.from_student(out, cfg)[:, None], phase, torch.zeros(3, 2), torch.zeros(3), torch.zeros(3, 4),
+                         cfg)
     assert torch.equal(dec["contact"][:, 0], contact)
     torch.testing.assert_close(dec["p_h"][:, 0].flatten(-2), actions[..., 8:16].clamp(-0.1, 0.1), atol=1e-5, rtol=0)
-    torch.testing.assert_close(dec["F_h"][:, 0, ..., 2], actions[..., 18::3].clamp(0, cfg.action.weight), atol=1e-3, rtol=0)
+    torch.testing.assert_close(dec["F_h"][:, 0, ..., 2], actions[..., 18::3].clamp(0, cfg.action.weight), atol=1e-3,
+                               rtol=0)
 
 
 def test_check_student_encoding_names_every_mismatch() -> None:

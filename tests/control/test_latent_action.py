@@ -8,11 +8,11 @@ import re
 import pytest
 import torch
 
+from dls_quadruped.control.action_config import LatentActionConfig
 from dls_quadruped.control.latent_action import (
     ACTION_COMPONENT_NAMES,
     ActionInterface,
     LatentAction,
-    LatentActionConfig,
     clip,
     denormalise,
     flat_ground,

@@ -169,7 +169,8 @@ def test_full_foot_jacobian_matches_mujoco(tdyn, case, mj_model):
         for leg, name in enumerate(C.FOOT_NAMES):
             mujoco.mj_jacSite(mj_model, d, jacp, None, mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_SITE, name))
             np.testing.assert_allclose(kin.J_base[b, leg].numpy(), jacp[:, 0:6], rtol=0, atol=1e-13)
-            np.testing.assert_allclose(kin.J_leg[b, leg].numpy(), jacp[:, 6 + 3 * leg : 9 + 3 * leg], rtol=0, atol=1e-13)
+            np.testing.assert_allclose(kin.J_leg[b, leg].numpy(), jacp[:, 6 + 3 * leg : 9 + 3 * leg], rtol=0,
+                                       atol=1e-13)
     qd = torch.tensor(qvel[:, 6:]).view(-1, 4, 3, 1)
     v = (kin.J_base @ torch.tensor(qvel[:, None, 0:6, None])).squeeze(-1) + (kin.J_leg @ qd).squeeze(-1)
     torch.testing.assert_close(v, kin.foot_vel_w, rtol=0, atol=1e-13)
@@ -265,7 +266,8 @@ def test_controller_torques_agree_on_a_simulated_trajectory():
         qvel = np.stack([d.qvel for d in datas])
         r = pin_dyn.compute(qpos, qvel)
         ref = LegTerms(*(torch.from_numpy(getattr(r, k).copy()) for k in NAMES))
-        new = tdyn.terms(torch.from_numpy(qpos), torch.from_numpy(qvel), torch.from_numpy(np.stack([d.M for d in datas])),
+        new = tdyn.terms(torch.from_numpy(qpos), torch.from_numpy(qvel),
+                         torch.from_numpy(np.stack([d.M for d in datas])),
                          torch.from_numpy(np.stack([d.qfrc_bias for d in datas])))
         return ref, new
 

@@ -1,4 +1,5 @@
-"""``core/compile.py``: when to compile, and a function that cannot be compiled runs eagerly after one warning."""
+"""``core/compile.py``: when to compile, a function that cannot be compiled runs eagerly after one warning, and a
+method written once is fused per instance (``fused_method``)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from dls_quadruped.core.compile import (
     Fused,
     FusedCache,
     compile_wanted,
+    fused_method,
 )
 
 
@@ -90,3 +92,59 @@ def test_a_dynamic_function_runs_eagerly_once_before_it_is_traced_and_the_recomp
     with pytest.warns(RuntimeWarning, match="torch.compile of branchy failed"):  # traced on the second call
         assert torch.equal(f(-x - 1.0), -x - 2.0)
     assert torch._dynamo.config.recompile_limit >= RECOMPILE_LIMIT
+
+
+class _Scaled:
+    """Two fused methods (one static), one of them calling the other's eager function, as ``PhysicsRate`` does."""
+
+    def __init__(self, compile: bool, scale: float):
+        self.compile, self.scale, self.calls = compile, scale, 0
+
+    @fused_method("Scaled.branchy")
+    def _branchy(self, x: torch.Tensor) -> torch.Tensor:
+        self.calls += 1
+        return _branchy(x) * self.scale
+
+    @fused_method("Scaled.offset")
+    @staticmethod
+    def _offset(x: torch.Tensor) -> torch.Tensor:
+        return x + 1.0
+
+
+class _Nested:
+    def __init__(self, owner: _Scaled):
+        self.owner = owner
+
+    @fused_method("Nested.double", enabled="owner.compile")
+    def _double(self, x: torch.Tensor) -> torch.Tensor:
+        return x * 2.0
+
+    @fused_method("Nested.half", enabled=lambda n: getattr(n.owner, "compile", False))
+    def _half(self, x: torch.Tensor) -> torch.Tensor:
+        return x / 2.0
+
+
+def test_a_fused_method_is_one_fused_per_instance_with_the_instances_setting():
+    eager, other = _Scaled(False, 3.0), _Scaled(False, 5.0)
+    f = eager._branchy
+    assert isinstance(f, Fused) and eager._branchy is f and other._branchy is not f  # made once, per instance
+    assert not f.compiled and f.name == "Scaled.branchy"
+    x = torch.arange(3.0)
+    assert torch.equal(f(x), x * 6.0) and torch.equal(other._branchy(x), x * 10.0)  # bound to its own instance
+    assert torch.equal(f.fn(x), x * 6.0) and eager.calls == 2  # .fn: the method itself, eager
+    assert torch.equal(eager._offset(x), x + 1.0) and torch.equal(eager._offset.fn(x), x + 1.0)
+    assert isinstance(_Scaled._branchy, fused_method)  # on the class: the decorator itself
+    assert _Nested(_Scaled(True, 1.0))._double.compiled and not _Nested(eager)._double.compiled  # a dotted setting
+    assert _Nested(_Scaled(True, 1.0))._half.compiled and not _Nested(object())._half.compiled  # a function of it
+
+
+def test_a_fused_method_falls_back_to_its_eager_method_and_refuses_a_non_boolean_setting():
+    compiled = _Scaled(True, 2.0)
+    x = torch.arange(3.0)
+    with pytest.warns(RuntimeWarning, match="torch.compile of Scaled.branchy failed, running it eagerly"):
+        assert torch.equal(compiled._branchy(x), x * 4.0)
+    assert not compiled._branchy.compiled and torch.equal(compiled._branchy(-x - 1.0), (-x - 2.0) * 2.0)
+    with pytest.raises(TypeError, match="_Scaled's enabled attribute must be a bool, got None"):
+        _ = _Scaled(None, 1.0)._offset  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="decorates one function"):
+        fused_method("twice")(_branchy)(_branchy)

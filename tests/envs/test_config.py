@@ -39,7 +39,8 @@ def test_unknown_param_names_file_key_and_allowed(tmp_path):
 
 def test_unknown_term_function_and_key(tmp_path):
     p = _write(tmp_path, "t.yaml", "rewards:\n  speed: {func: go_fast, weight: 1.0}\n")
-    with pytest.raises(ConfigError, match=r"t.yaml: rewards.speed.func: unknown term function 'go_fast'.*track_lin_vel_xy"):
+    with pytest.raises(ConfigError, match=r"t.yaml: rewards.speed.func: unknown term function "
+                                          r"'go_fast'.*track_lin_vel_xy"):
         resolve_terms(load_task(p, validate=False), "rewards", reward_mdp, {"weight": ...})
     p = _write(tmp_path, "u.yaml", "rewards:\n  lin_vel_z: {wieght: 1.0}\n")
     with pytest.raises(ConfigError, match=r"u.yaml: rewards.lin_vel_z.wieght: unknown key; allowed"):

@@ -58,7 +58,8 @@ def test_events_touch_only_targeted_envs():
     env = make_env("rough")
     try:
         captured = {}
-        env.scene.sim.set_model_field = lambda name, ids, values, index=None: captured.__setitem__(name, (ids, values, index))
+        env.scene.sim.set_model_field = lambda name, ids, values, index=None: captured.__setitem__(
+            name, (ids, values, index))
         ids = torch.tensor([1, 3])
         ev_mdp.randomize_friction(env, ids, friction_range=(0.4, 0.8))
         got_ids, values, index = captured["geom_friction"]
@@ -161,7 +162,8 @@ def test_terrain_curriculum_keeps_a_perfect_tracker_on_an_arc_and_demotes_a_fall
         scene, cm = env.scene, env.command_manager
         scene.update_levels(torch.arange(4), 1 - scene.terrain_levels)
         chord = _arc(torch.tensor([0.8, 0.0]), 0.5, 0.0, 15.0)
-        assert 1.8 < float(torch.linalg.vector_norm(chord)) < 0.5 * scene.terrain.cfg.tile_size  # not far enough to go up
+        # not far enough to go up
+        assert 1.8 < float(torch.linalg.vector_norm(chord)) < 0.5 * scene.terrain.cfg.tile_size
         cm.commanded_disp[:] = chord
         cm.command[:] = torch.tensor([0.8, 0.0, 0.5])  # what the straight-line rule read
         state = env.state.clone()
@@ -324,7 +326,8 @@ def test_reset_placement_runs_before_other_reset_events(tmp_path):
 
     p = tmp_path / "t.yaml"
     p.write_text(f"inherit: {TASKS_DIR / 'base.yaml'}\nevents:\n  reset_robot: null\n"
-                 "  wrench: {func: external_wrench, mode: reset, params: {force_range: [5, 10], torque_range: [0, 0]}}\n"
+                 "  wrench: {func: external_wrench, mode: reset,"
+                 " params: {force_range: [5, 10], torque_range: [0, 0]}}\n"
                  "  place: {func: reset_robot, mode: reset}\n")
     task = load_task(p, overrides=SMALL)
     env = LocomotionEnv(task, num_envs=2, verbose=False)
@@ -344,7 +347,8 @@ def test_velocity_tracking_metric_is_the_episode_mean_planar_error():
         by_hand = torch.zeros(4)
         for _ in range(9):
             env.step(torch.zeros(4, 28))
-            by_hand += torch.linalg.vector_norm(obs_mdp.base_lin_vel(env)[:, :2] - env.command_manager.command[:, :2], dim=-1)
+            by_hand += torch.linalg.vector_norm(obs_mdp.base_lin_vel(env)[:, :2] - env.command_manager.command[:, :2],
+                                                dim=-1)
         torch.testing.assert_close(env._vel_err_sum, by_hand)
         _, _, dones, extras = env.step(torch.zeros(4, 28))
         assert dones.bool().all()

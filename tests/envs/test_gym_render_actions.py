@@ -77,7 +77,8 @@ finally:
 
 
 def test_rgb_array_frames_pass_check_env():
-    run = subprocess.run([sys.executable, "-c", RENDER], cwd=REPO, capture_output=True, text=True, timeout=300, check=False,
+    run = subprocess.run([sys.executable, "-c", RENDER], cwd=REPO, capture_output=True, text=True, timeout=300,
+                         check=False,
                          env={**os.environ, "PYTHONPATH": str(REPO), "MUJOCO_GL": "egl", "OMP_NUM_THREADS": "1"})
     assert run.returncode == 0, run.stderr[-3000:]
     out = json.loads(run.stdout.strip().splitlines()[-1])

@@ -27,7 +27,8 @@ def test_ssek_stiff_across_slack_along():
     # 0.15 m/s faster: also inside the (symmetric) plateau
     assert float(K.ssek_velocity(v_ref + 0.15 * u, v_ref, sigma, alpha)) == pytest.approx(1.0)
     # 0.3 m/s slower: h = 0.3 - 0.2 = 0.1 -> exp(-0.01 / 0.125)
-    assert float(K.ssek_velocity(v_ref - 0.3 * u, v_ref, sigma, alpha)) == pytest.approx(math.exp(-0.01 / 0.125), rel=1e-5)
+    assert float(K.ssek_velocity(v_ref - 0.3 * u, v_ref, sigma, alpha)) == \
+        pytest.approx(math.exp(-0.01 / 0.125), rel=1e-5)
     # 0.15 m/s sideways: stiff, same as SEK exp(-0.0225 / 0.125)
     side = float(K.ssek_velocity(v_ref + 0.15 * n, v_ref, sigma, alpha))
     assert side == pytest.approx(math.exp(-0.0225 / 0.125), rel=1e-5)

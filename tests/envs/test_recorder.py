@@ -25,7 +25,8 @@ class ScriptedEnv:
     def __init__(self):
         self.k = 0
         self.episode_k = torch.zeros(3)
-        self.command_manager = SimpleNamespace(command=torch.tensor([[0.5, 0.0, 0.0], [0.2, 0.1, 0.0], [0.0, 0.0, 1.0]]))
+        self.command_manager = SimpleNamespace(
+            command=torch.tensor([[0.5, 0.0, 0.0], [0.2, 0.1, 0.0], [0.0, 0.0, 1.0]]))
 
     def get_observations(self) -> TensorDict:
         return TensorDict({"policy": torch.full((3, 1), float(self.k))}, batch_size=[3])

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-sb3 = pytest.importorskip("stable_baselines3", reason="Stable-Baselines3 is not installed (pip install stable-baselines3)")
+sb3 = pytest.importorskip("stable_baselines3", reason="Stable-Baselines3 is not installed (pip install "
+                                                      "stable-baselines3)")
 
 
 @pytest.mark.slow

@@ -139,7 +139,8 @@ def test_two_controllers_see_bit_identical_episodes_whatever_falls():
     for e in range(4):  # every robot: commands and push timers identical, bit for bit, while both play episode 0
         both = a["first"][:, e] & b["first"][:, e]
         assert both.sum() > 5
-        assert torch.equal(a["cmd"][both, e], b["cmd"][both, e]) and torch.equal(a["timer"][both, e], b["timer"][both, e])
+        assert torch.equal(a["cmd"][both, e], b["cmd"][both, e])
+        assert torch.equal(a["timer"][both, e], b["timer"][both, e])
     # the commands do change during the run (resampled), so the equality is not one of constants
     assert int((a["cmd"][1:] != a["cmd"][:-1]).any(dim=-1).sum()) >= 8  # resamples, over the four robots
 

@@ -141,7 +141,8 @@ def test_command_line_end_to_end(name, zero_policy, tiny_grids, tmp_path):
     saved = json.loads((out / f"{name}.json").read_text())
     assert (out / f"{name}.png").stat().st_size > 0 and saved["scenario"] == name == res["scenario"]
     assert saved["episode_steps"] == 20
-    per = {"survival": None, "survival_sweep": None, "stairs": "per_height", "speed": "per_speed", "omni": "cells", "cot": "per_speed",
+    per = {"survival": None, "survival_sweep": None, "stairs": "per_height", "speed": "per_speed", "omni": "cells",
+           "cot": "per_speed",
            "gait": "per_speed"}[name]
     if per is None:
         assert saved["survival"]["n"] == 2 and len(saved["per_row"]) == 2

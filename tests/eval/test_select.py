@@ -35,7 +35,8 @@ def test_validation_commands_differ_from_the_test_commands():
 
 def test_eval_cli_split_sets_the_episode_seed(tmp_path):
     assert eval_args(["--policy", "p.pt"]).episode_seed == 0
-    assert eval_args(["--policy", "p.pt", "--seed", "2", "--split", "validation"]).episode_seed == 2 + VALIDATION_SEED_OFFSET
+    assert eval_args(["--policy", "p.pt", "--seed", "2", "--split",
+                      "validation"]).episode_seed == 2 + VALIDATION_SEED_OFFSET
     with pytest.raises(SystemExit):
         eval_args(["--policy", "p.pt", "--split", "holdout"])
 
@@ -77,7 +78,8 @@ def test_select_uses_cached_validation_results_and_writes_the_choice(tmp_path, m
     for it, reward in ((50, 1.5), (100, 2.25), (120, 2.0)):
         (run / f"model_{it}.pt").write_bytes(b"")
         (out / f"model_{it}.json").write_text(json.dumps(
-            {"scenario": "simple", "seed": seed, "episodes": 8, "per_episode": {"reward": [reward] * 8, "fell": [0] * 8}}))
+            {"scenario": "simple", "seed": seed, "episodes": 8,
+             "per_episode": {"reward": [reward] * 8, "fell": [0] * 8}}))
 
     def no_eval(*args, **kwargs):
         raise AssertionError("a cached validation result was evaluated again")

@@ -138,7 +138,8 @@ def test_gait_figures_of_an_ideal_trot():
                           "duty": np.full((500, 1, 4), 0.5, np.float32)})
     res = gait.summarize(rec, group, (0.5,), settle_s=2.0)
     row = res["per_speed"][0]
-    assert row["f_policy"]["mean"] == pytest.approx(2.0) and row["duty_contacts"]["mean"] == pytest.approx(0.5, abs=0.01)
+    assert row["f_policy"]["mean"] == pytest.approx(2.0)
+    assert row["duty_contacts"]["mean"] == pytest.approx(0.5, abs=0.01)
     d = res["diagrams"][0]
     assert d["episode"] == 0 and len(d["contact"]["FL"]) == round(gait.WINDOW_S / DT)
     assert d["contact"]["FL"] == d["contact"]["RR"] != d["contact"]["FR"]

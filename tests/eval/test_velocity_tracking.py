@@ -47,7 +47,8 @@ class ScriptedEnv:
         dones = fall | time_out
         self.vel[self.ended | dones] = 999.0
         self.ended |= dones
-        return self.get_observations(), torch.full((self.num_envs,), 2.0 * STEP_DT), dones.long(), {"time_outs": time_out}
+        return self.get_observations(), torch.full((self.num_envs,),
+                                                   2.0 * STEP_DT), dones.long(), {"time_outs": time_out}
 
 
 def scripted_policy(obs: TensorDict) -> torch.Tensor:

@@ -262,7 +262,8 @@ def test_cost_gap_merges_three_students_and_splits_the_gap_by_term(tmp_path: Pat
                                                                  "+30.00 [+30.00, +30.00]"]
         vx = rows[(f"{p}, {F}", "term vx")]["RL - naive (3 students)"]
         assert vx.replace("-", "+") == "+0.00 [+0.00, +0.00]"  # round-off may print -0.00
-        assert rows[(f"{p}, {F}", "initial cost (mean per episode)")]["RL - naive (3 students)"] == "+20.0 [+10.0, +30.0]"
+        assert rows[(f"{p}, {F}",
+                     "initial cost (mean per episode)")]["RL - naive (3 students)"] == "+20.0 [+10.0, +30.0]"
         assert rows[(f"{p}, {F}", "rollout term vx")]["RL - naive (3 students)"] == "+10.0 [+5.0, +15.0]"
         assert rows[(f"{p}, {F}", "rollout term z")]["RL - naive (3 students)"].replace("-", "+") == "+0.0 [+0.0, +0.0]"
         key = "rollout cost, state (mean per episode, recorded solves)"
@@ -276,7 +277,8 @@ def test_cost_gap_without_students_names_the_missing_file(tmp_path: Path) -> Non
     from dls_quadruped.cli import UserError
     from experiments import cost_gap
 
-    with pytest.raises(UserError, match=r"no student .*first-spline_H10_dt0.02_seed0/exported/student.pt2 \(and 5 more\)"):
+    with pytest.raises(UserError, match=r"no student .*first-spline_H10_dt0.02_seed0/exported/student.pt2 \(and 5 "
+                                        r"more\)"):
         cost_gap.cells(tmp_path)
 
 
@@ -340,7 +342,8 @@ def test_table16_students_as_seeds_merge_each_rl_row(tmp_path: Path, monkeypatch
 @pytest.mark.parametrize("argv, code, text", [(["--help"], 0, "--seed-students"),
                                               (["--seed-students"], 2, "expected one argument"),
                                               (["--seed-students", "nowhere"], 2,
-                                               "error: --seed-students nowhere: no student nowhere/first-spline_H10_dt0.02_seed0")])
+                                               ("error: --seed-students nowhere: no student "
+                                                "nowhere/first-spline_H10_dt0.02_seed0"))])
 def test_table16_and_17_help_a_bad_flag_and_a_missing_student(monkeypatch, capsys, tmp_path, script, argv, code, text):
     import importlib
 

@@ -143,7 +143,8 @@ def _baseline() -> dict:
     return {"qpos": np.asarray(run.qpos)}
 
 
-RUNS = {"env": _env, "rough": lambda: _env("rough", 15), "eval": _eval, "closed_loop": _closed_loop, "balance": _balance, "baseline": _baseline}
+RUNS = {"env": _env, "rough": lambda: _env("rough", 15), "eval": _eval, "closed_loop": _closed_loop,
+        "balance": _balance, "baseline": _baseline}
 
 
 def record(names: tuple[str, ...] = tuple(RUNS)) -> dict[str, np.ndarray]:

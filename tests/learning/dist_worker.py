@@ -1,5 +1,6 @@
 """torchrun worker for ``test_distributed.py``: ``train.main`` unchanged, plus a dump of this rank's
-networks, optimiser and learning rate before and after ``learn`` (and its last rollout's rewards) into ``$DLS_RANK_DUMP_DIR/rank<r>.pt``
+networks, optimiser and learning rate before and after ``learn`` (and its last rollout's rewards) into
+``$DLS_RANK_DUMP_DIR/rank<r>.pt``
 (rank 1 saves nothing of its own, so this is the only way to see its weights)."""
 
 from __future__ import annotations

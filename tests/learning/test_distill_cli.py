@@ -80,9 +80,11 @@ def test_bad_input_is_one_line(tmp_path, tiny_task, one_line_error, save_policy)
     (tmp_path / "junk.pt").write_bytes(b"not a model")
     assert "not a TorchScript actor" in one_line_error(distill.main, tiny_args(tiny_task, run, "--expert",
                                                                                str(tmp_path / "junk.pt")))
-    line = one_line_error(distill.main, tiny_args(tiny_task, run, "--expert", str(save_policy(torch.nn.Linear(72, 28), 72, tmp_path / "o.pt2"))))
+    expert = save_policy(torch.nn.Linear(72, 28), 72, tmp_path / "o.pt2")
+    line = one_line_error(distill.main, tiny_args(tiny_task, run, "--expert", str(expert)))
     assert "takes 72 observations; the task gives 259" in line
-    line = one_line_error(distill.main, tiny_args(tiny_task, run, "--expert", str(save_policy(torch.nn.Linear(259, 12), 259, tmp_path / "a.pt2"))))
+    expert = save_policy(torch.nn.Linear(259, 12), 259, tmp_path / "a.pt2")
+    line = one_line_error(distill.main, tiny_args(tiny_task, run, "--expert", str(expert)))
     assert "outputs (12,) actions per robot; the task needs 28" in line
     assert not run.exists()  # nothing was written for a refused run
     assert "--resume: no checkpoint.pt" in one_line_error(distill.main, ["--resume", "--run-dir", str(run)])

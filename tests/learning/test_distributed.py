@@ -93,5 +93,6 @@ def test_torchrun_two_cpu_ranks_end_with_identical_weights(tmp_path):
     proc = subprocess.run(cmd, check=False, env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode != 0
     refusals = [line for line in (proc.stdout + proc.stderr).splitlines() if "is not empty; add --resume" in line]
-    assert len(refusals) == 2 and all(line.startswith("dist_worker.py: error: --run-dir") for line in refusals), refusals
+    assert len(refusals) == 2, refusals
+    assert all(line.startswith("dist_worker.py: error: --run-dir") for line in refusals), refusals
     assert sorted((p.name, p.stat().st_mtime_ns) for p in run_dir.rglob("*")) == before

@@ -136,8 +136,8 @@ def test_one_update_equals_rsl_rl_stock_update(rollout, threads):
 
 
 def test_mixed_precision_reaches_the_fast_update(rollout):
-    """rsl-rl's ``use_mixed_precision`` (bf16 autocast; `make bench-ppo BENCH_PPO_ARGS="--variants fast fast_bf16"`) is honoured by
-    the fast update: its losses match the stock bf16 update's and differ from the float32 update's."""
+    """rsl-rl's ``use_mixed_precision`` (bf16 autocast; `make bench-ppo BENCH_PPO_ARGS="--variants fast fast_bf16"`)
+    is honoured by the fast update: its losses match the stock bf16 update's and differ from the float32 update's."""
     env, cfg, stock_runner = rollout
     losses = {}
     for name, mixed, fast in (("fp32", False, False), ("stock_bf16", True, False), ("fast_bf16", True, True)):

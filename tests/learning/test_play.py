@@ -29,7 +29,8 @@ def tiny(tmp_path_factory) -> tuple[Path, Path]:
     task = root / "tiny.yaml"
     task.write_text(yaml.safe_dump({"inherit": str(TASKS_DIR / "base.yaml"), "scene": {"num_workers": 0},
                                     "agent": {"actor": {"hidden_dims": [8]}, "critic": {"hidden_dims": [8]}}}))
-    run_dir = train.main(["--task", str(task), "--num-envs", "2", "--iterations", "1", "--log-root", str(root / "runs")])
+    run_dir = train.main(["--task", str(task), "--num-envs", "2", "--iterations", "1", "--log-root",
+                          str(root / "runs")])
     return task, run_dir
 
 
@@ -68,7 +69,8 @@ def test_play_default_is_the_newest_readable_checkpoint_of_the_latest_run(tiny, 
             shutil.copy(run_dir / "model_0.pt", run / name)
         shutil.copy(run_dir / "agent.yaml", run / "agent.yaml")
     (latest / "model_7.pt").write_bytes(b"killed mid-save")  # the highest iteration, unreadable: skipped
-    for path, t in ((older / "model_9.pt", 1e9), *((latest / n, 2e9) for n in ("model_0.pt", "model_3.pt", "model_7.pt"))):
+    newer = ((latest / n, 2e9) for n in ("model_0.pt", "model_3.pt", "model_7.pt"))
+    for path, t in ((older / "model_9.pt", 1e9), *newer):
         os.utime(path, (t, t))
     capsys.readouterr()
     out = play.main(["--task", str(task), "--log-root", str(tmp_path / "runs"), *SHORT])

@@ -95,7 +95,8 @@ def test_resume_without_the_episodes_in_progress_differs(uninterrupted, tmp_path
     torch.save(ckpt, portable)
     state = (torch.get_rng_state(), np.random.get_state(), random.getstate())
     try:
-        resumed = train.main(train_args(task, tmp_path / "resumed", "--iterations", "1", "--resume-from", str(portable)))
+        resumed = train.main(train_args(task, tmp_path / "resumed", "--iterations", "1", "--resume-from",
+                                        str(portable)))
     finally:
         torch.set_rng_state(state[0]), np.random.set_state(state[1]), random.setstate(state[2])
     moved = differences(read_checkpoint(run_dir / "model_2.pt"), read_checkpoint(resumed / "model_2.pt"))

@@ -34,7 +34,8 @@ def test_switching_cost_by_hand() -> None:
     assert index.tolist() == [1, 3, 1, 3, 0, 3, 0]
     assert cost.tolist() == [3.0, 20.0, 2.0, 0.5, 20.0, 1.0, INF]  # the winner's own cost, no penalty added
     assert average[:6].tolist() == [[3.0, 1.5], [40.0, 20.0], [2.0, 2.5], [1.0, 0.5], [20.0, 10.0], [9.0, 1.0]]
-    assert costs.min(dim=1).indices.tolist() == [4, 3, 1, 3, 3, 3, 0]  # rows 0 and 4 are the ones the switching cost changed
+    # rows 0 and 4 are the ones the switching cost changed
+    assert costs.min(dim=1).indices.tolist() == [4, 3, 1, 3, 3, 3, 0]
 
 
 def test_running_group_cost_by_hand() -> None:

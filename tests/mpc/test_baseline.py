@@ -55,7 +55,8 @@ def test_anchor_share_adds_a_nominal_trot_group():
                                         [-0.24, -0.134, 0.0265]])
     cmd = torch.tensor([[0.5, 0.0, 0.0]])
     for share, groups in ((0.0, {0}), (0.25, {0, 1})):
-        ctrl = ModelBasedBaseline(1, BaselineConfig(anchor_share=share, sampler=SamplerConfig(num_samples=64, kernel="reference")))
+        sampler = SamplerConfig(num_samples=64, kernel="reference")
+        ctrl = ModelBasedBaseline(1, BaselineConfig(anchor_share=share, sampler=sampler))
         seen = {int(ctrl.step(state, cmd)[0].warm_start_index[0]) for _ in range(20)}
         assert seen <= groups
         assert list(ctrl.mpc._layouts) == [(1.0,) if share == 0.0 else (0.75, 0.25)]  # the proportions solved with

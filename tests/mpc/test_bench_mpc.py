@@ -25,7 +25,8 @@ def test_table_speedup():
 
 def test_docs_section_replaced_and_others_kept(tmp_path):
     doc = tmp_path / "benchmarks.md"
-    doc.write_text(f"# Benchmarks\n\n## Env step time\n\nkeep me\n\n{SECTION}\n\nold numbers\n\n## Training\n\nkeep too\n")
+    doc.write_text(f"# Benchmarks\n\n## Env step time\n\nkeep me\n\n{SECTION}\n\nold numbers\n\n## Training\n\nkeep "
+                   f"too\n")
     info = {"cpu": "AMD EPYC", "cpu_count": 2, "torch_threads": 2, "torch": "2.13", "load_avg_1_5_15": [1, 1, 1]}
     update_docs(markdown_table(_results()), info, _results(), doc)
     text = doc.read_text()
@@ -48,8 +49,10 @@ def test_builds_table_ratios_and_peak_share():
     # v3: 4 / 20 = 0.20x solve, 2 / 16 = 0.12x kernel (0.125 -> "0.12"), 30 MFLOP / 2 ms = 15 GFLOP/s,
     # of a 100 GFLOP/s core = 15 %
     table = builds_table(_build_rows(), peak_core=100.0)
-    assert "| 1 | x86-64-v3 | `-O3 -march=x86-64-v3` | 4.00 | 4.50 | 2.00 | 1.80 | 0.20x | 0.12x | 15.0 | 15.0 % |" in table
-    assert "| 1 | scalar | `-O3 -fno-tree-vectorize` | 20.00 | 21.00 | 16.00 | 15.00 | 1.00x | 1.00x | 1.9 | 1.9 % |" in table
+    assert ("| 1 | x86-64-v3 | `-O3 -march=x86-64-v3` | 4.00 | 4.50 | 2.00 | 1.80 | 0.20x | 0.12x | 15.0 | "
+            "15.0 % |") in table
+    assert ("| 1 | scalar | `-O3 -fno-tree-vectorize` | 20.00 | 21.00 | 16.00 | 15.00 | 1.00x | 1.00x | 1.9 | "
+            "1.9 % |") in table
     two = [{**r, "threads": 2, "kernel_median_ms": r["kernel_median_ms"] / 2} for r in _build_rows()]
     assert "| 2 | native | `-O3 -march=native` | 3.00 | 3.50 | 0.50 | 0.90 | 0.15x | 0.06x | 60.0 | 30.0 % |" in \
         builds_table(_build_rows() + two, peak_core=100.0)  # ratios against the scalar build on as many threads
@@ -62,7 +65,8 @@ def test_builds_section_goes_after_solve_time_then_is_replaced(tmp_path):
     doc = tmp_path / "benchmarks.md"
     doc.write_text(f"# Benchmarks\n\n{SECTION}\n\nsolve numbers\n\n## Learning curve\n\nkeep\n")
     info = {"cpu": "AMD EPYC", "cpu_count": 2, "cpu_mhz": 2600.0, "peak_gflops_per_core": 83.2, "torch": "2.13",
-            "simd_flags": ["avx2", "fma"], "compiler": "g++ 12", "load_avg_1_5_15": [1, 1, 1], "load_avg_end": [1, 1, 1]}
+            "simd_flags": ["avx2", "fma"], "compiler": "g++ 12", "load_avg_1_5_15": [1, 1, 1],
+            "load_avg_end": [1, 1, 1]}
     update_builds_docs(_build_rows(), info, doc)
     update_builds_docs(_build_rows()[1:], info, doc)  # second run replaces the section in place
     text = doc.read_text()

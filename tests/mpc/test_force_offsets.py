@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from dls_quadruped.control.latent_action import LatentActionConfig
+from dls_quadruped.control.action_config import LatentActionConfig
 from dls_quadruped.mpc import cpp_kernel, warm_start
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import rollout_cost_reference
@@ -33,7 +33,8 @@ def test_forces_from_offsets_by_hand():
     # FL, RL, RR in stance, FR swinging: m g / 3 each + offset; FR zero whatever its (large) parameters
     F = forces_from_offsets(offset, torch.tensor([True, False, True, True]), act)
     third = WEIGHT / 3  # 80.57 N
-    expected = torch.tensor([[1.0, 2.0, third + 3.0], [0.0, 0.0, 0.0], [-4.0, 5.0, third - 6.0], [7.0, 8.0, third + 9.0]])
+    expected = torch.tensor([[1.0, 2.0, third + 3.0], [0.0, 0.0, 0.0], [-4.0, 5.0, third - 6.0],
+                             [7.0, 8.0, third + 9.0]])
     torch.testing.assert_close(F, expected)
     # all four down: m g / 4 = 60.4 N each; none down: no force at all (the shift's max(n, 1) keeps it finite)
     torch.testing.assert_close(forces_from_offsets(torch.zeros(4, 3), torch.ones(4, dtype=torch.bool), act)[:, 2],
@@ -45,7 +46,8 @@ def test_forces_from_offsets_by_hand():
 
 
 def test_decoded_samples_zero_swing_force_and_share_the_weight():
-    """decode_samples (the reference kernel's decode): the F block's offsets on top of m g / (stance legs of each step)."""
+    """decode_samples (the reference kernel's decode): the F block's offsets on top of m g / (stance legs of each
+    step)."""
     cfg = SamplerConfig(num_samples=1, horizon=10, encoding_p="first", encoding_F="discrete")
     act = torch.zeros(1, 10, 28)
     act[..., 0:4], act[..., 4:8] = 1.5, 0.6
@@ -53,7 +55,8 @@ def test_decoded_samples_zero_swing_force_and_share_the_weight():
     act[..., 16 + 3 * 1] = 999.0  # FR's F_x offset: large, only felt while FR is down
     # phases: FL, RR at 0.55 (stance until 0.6, then swing), FR, RL at 0.05 (stance throughout 10 steps)
     phase = torch.tensor([[0.55, 0.05, 0.05, 0.55]])
-    dec = decode_samples(encode(act, cfg.encoding)[:, None], phase, torch.zeros(1, 2), torch.zeros(1), torch.zeros(1, 4), cfg)
+    dec = decode_samples(encode(act, cfg.encoding)[:, None], phase, torch.zeros(1, 2), torch.zeros(1),
+                         torch.zeros(1, 4), cfg)
     c = dec["contact"][0, 0]  # (N, 4): phase + k 1.5 * 0.02 = +0.03 per step
     assert c[0].tolist() == [True, True, True, True] and c[1].tolist() == [True, True, True, True]
     assert c[2].tolist() == [False, True, True, False]  # 0.55 + 0.06 = 0.61 >= 0.6: FL, RR lift off

@@ -19,7 +19,7 @@ import math
 import pytest
 import torch
 
-from dls_quadruped.control.latent_action import LatentActionConfig
+from dls_quadruped.control.action_config import LatentActionConfig
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.mpc import cpp_kernel, warm_start
 from dls_quadruped.mpc.baseline import BaselineConfig
@@ -49,7 +49,8 @@ def _state(b: int, com_z: float, yaw: float = 0.0, vel_w=(0.0, 0.0, 0.0), phase:
     feet = torch.tensor([[0.2, 0.15, 0.02], [0.2, -0.15, 0.02], [-0.2, 0.15, 0.02], [-0.2, -0.15, 0.02]])
     z = torch.zeros(b)
     return RobotState(
-        base_pos_w=base.expand(b, 3).clone(), base_quat_w=quat.clone(), base_lin_vel_w=torch.tensor([vel_w]).expand(b, 3),
+        base_pos_w=base.expand(b, 3).clone(), base_quat_w=quat.clone(),
+        base_lin_vel_w=torch.tensor([vel_w]).expand(b, 3),
         base_ang_vel_b=torch.zeros(b, 3), joint_pos=torch.zeros(b, 12), joint_vel=torch.zeros(b, 12),
         joint_torque=torch.zeros(b, 12), foot_pos_w=feet.expand(b, 4, 3).clone(), foot_vel_w=torch.zeros(b, 4, 3),
         foot_force_w=torch.zeros(b, 4, 3), phase=torch.full((b, 4), phase), contact_cmd=torch.ones(b, 4),

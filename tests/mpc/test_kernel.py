@@ -28,7 +28,8 @@ def _inputs(standing, cfg: SamplerConfig, seed: int = 7) -> KernelInputs:
     group, perturb, _ = group_layout(cfg.num_samples, (0.3, 0.7))
     return KernelInputs(
         seed=torch.tensor(1234), warm_starts=torch.stack([ws0, ws1], dim=1), group=group, perturb=perturb, x0=x0,
-        phase=torch.tensor([[0.1, 0.6, 0.6, 0.1], [0.45, 0.95, 0.95, 0.45]]), base_xy_w=torch.tensor([[0.0, 0.0], [0.3, -0.1]]),
+        phase=torch.tensor([[0.1, 0.6, 0.6, 0.1], [0.45, 0.95, 0.95, 0.45]]),
+        base_xy_w=torch.tensor([[0.0, 0.0], [0.3, -0.1]]),
         base_yaw=torch.tensor([0.0, 0.7]), terrain_z_w=torch.tensor([[0.0] * 4, [0.05, 0.05, -0.02, 0.0]]), refs=refs,
     )
 
@@ -129,7 +130,8 @@ def test_cpp_build_fallback_says_which_flags_and_cache_keys_host(cpp_lib, monkey
     """-march=native rejected -> the next flag set (here without OpenMP) builds, says so once per process, and
     computes the same costs; a library built on another CPU is not reused."""
     monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
-    monkeypatch.setattr(cpp_kernel, "FLAG_SETS", (["-O1", "-march=no-such-cpu", "-fopenmp"], ["-O1", "-fno-math-errno"]))
+    monkeypatch.setattr(cpp_kernel, "FLAG_SETS",
+                        (["-O1", "-march=no-such-cpu", "-fopenmp"], ["-O1", "-fno-math-errno"]))
     cpp_kernel.load.cache_clear()
     try:
         lib = cpp_kernel.load()

@@ -58,8 +58,8 @@ def _assert_identical(a: MPCResult, b: MPCResult) -> None:
         x, y = getattr(a, f.name), getattr(b, f.name)
         if isinstance(x, torch.Tensor):
             assert x.dtype == y.dtype and x.shape == y.shape, f.name
-            assert torch.equal(x, y) or torch.equal(x.isnan(), y.isnan()) and torch.equal(x[~x.isnan()], y[~y.isnan()]), \
-                f"{f.name}: {x} vs {y}"
+            same_nan = torch.equal(x.isnan(), y.isnan()) and torch.equal(x[~x.isnan()], y[~y.isnan()])
+            assert torch.equal(x, y) or same_nan, f"{f.name}: {x} vs {y}"
         else:
             assert x == y, f.name
 
@@ -95,9 +95,9 @@ def test_fused_solve_counts_the_kernel_and_reuses_its_buffers(libs, standing):
     cfg = SamplerConfig(num_samples=300)
     mpc = SamplingMPC(cfg)
     first = mpc.solve(state, refs, [warm_start.nominal_trot(2, cfg)], phase=torch.zeros(2, 4))
-    workspace = mpc._workspaces[(2, 1)]
+    workspace = mpc.fused_solve.workspaces[(2, 1)]
     second = mpc.solve(state, refs, [mpc.naive_warm_start()], phase=torch.zeros(2, 4))
-    assert mpc._workspaces[(2, 1)] is workspace and mpc.kernel_seconds > 0.0
+    assert mpc.fused_solve.workspaces[(2, 1)] is workspace and mpc.kernel_seconds > 0.0
     assert first.best_encoded.data_ptr() != second.best_encoded.data_ptr()  # results are never buffers
 
 

@@ -128,7 +128,8 @@ def test_static_support_moment_sign():
     model = robot_srbd_model()
     x0 = torch.zeros(1, 24)
     x0[0, 2] = 0.33
-    x0[0, 12:] = torch.tensor([[0.24, 0.13, 0.0], [0.24, -0.13, 0.0], [-0.24, 0.13, 0.0], [-0.24, -0.13, 0.0]]).flatten()
+    x0[0, 12:] = torch.tensor([[0.24, 0.13, 0.0], [0.24, -0.13, 0.0], [-0.24, 0.13, 0.0],
+                               [-0.24, -0.13, 0.0]]).flatten()
     contact = torch.tensor([True, True, False, False]).view(1, 1, 1, 4)
     force = torch.zeros(1, 1, 1, 4, 3)
     force[..., 2] = 50.0

@@ -88,7 +88,8 @@ def test_hold_on_a_box_costs_nothing_aware_and_n_wz_box2_blind(box) -> None:
     for z in heights.values():  # the hold plan holds in both models
         torch.testing.assert_close(z, torch.full_like(z, z0), atol=1e-5, rtol=0)
     expected = cfg.horizon * cfg.weights.z * BOX ** 2
-    torch.testing.assert_close((costs["blind"] - costs["aware"]).double(), torch.full((2,), expected, dtype=torch.float64),
+    torch.testing.assert_close((costs["blind"] - costs["aware"]).double(),
+                               torch.full((2,), expected, dtype=torch.float64),
                                rtol=1e-3, atol=0)
 
 

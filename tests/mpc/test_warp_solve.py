@@ -119,9 +119,9 @@ def test_captured_solve_is_the_launched_solve_bit_for_bit(perturbed_standing):
     cfg = SamplerConfig(num_samples=500, horizon=10, kernel="warp")
     mpc_c, captured = _solves(perturbed_standing, cfg, 4, 5, capture=True, nan_at=2)
     mpc_l, launched = _solves(perturbed_standing, cfg, 4, 5, capture=False, nan_at=2)
-    (graph,) = [w.graph for w in mpc_c._device_solves.values()]
+    (graph,) = [w.graph for w in mpc_c.device_solver.solves.values()]
     assert graph.captures == 1 and graph.graph is not None and graph.error is None
-    assert all(w.graph.graph is None for w in mpc_l._device_solves.values())
+    assert all(w.graph.graph is None for w in mpc_l.device_solver.solves.values())
     for a, b in zip(captured, launched, strict=True):
         for f in dataclasses.fields(MPCResult):
             x, y = getattr(a, f.name), getattr(b, f.name)
@@ -178,5 +178,5 @@ def test_inference_mode_then_not(perturbed_standing):
     with torch.inference_mode():
         first = mpc.solve(state, refs, [ws], phase=phase)
     second = mpc.solve(state, refs, [ws], phase=phase)
-    assert len(mpc._device_solves) == 1 and not first.fallback.any() and not second.fallback.any()
+    assert len(mpc.device_solver.solves) == 1 and not first.fallback.any() and not second.fallback.any()
     assert not torch.equal(first.best_encoded, second.best_encoded)  # the counter moved: another draw

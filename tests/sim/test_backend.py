@@ -37,7 +37,8 @@ def _rollout(model, num_envs, steps, cfg, seed=0, noise=0.05, init_lin_vel=None)
             p_td_w, F_w = to_world(action, state.base_pos_w.double(), _yaw(state), flat_ground, acfg)
             sim.set_references(action.f, action.d, p_td_w, F_w)
             state = sim.step(2)
-            out.append(torch.cat([state.base_pos_w, state.base_quat_w, state.joint_pos, state.foot_pos_w.flatten(1)], 1))
+            out.append(torch.cat([state.base_pos_w, state.base_quat_w, state.joint_pos, state.foot_pos_w.flatten(1)],
+                                 1))
         return torch.stack(out), state.diverged.clone()
 
 
@@ -85,7 +86,8 @@ def test_batched_equals_single_robot(model):
                 p_td_w, F_w = to_world(action, state.base_pos_w.double(), _yaw(state), flat_ground, acfg)
                 sim.set_references(action.f, action.d, p_td_w, F_w)
                 state = sim.step(2)
-                single = torch.cat([state.base_pos_w, state.base_quat_w, state.joint_pos, state.foot_pos_w.flatten(1)], 1)
+                single = torch.cat([state.base_pos_w, state.base_quat_w, state.joint_pos, state.foot_pos_w.flatten(1)],
+                                   1)
                 torch.testing.assert_close(single[0], batched[k, i], rtol=0, atol=1e-6)
 
 
@@ -114,7 +116,8 @@ def test_reset_only_touches_selected_robots(model):
 
 def test_bad_references_raise_clear_errors(model):
     with VecSim(model, 2, SimConfig(num_workers=0)) as sim:
-        ok = {"freq": torch.ones(2, 4), "duty": torch.full((2, 4), 0.6), "p_td_w": torch.zeros(2, 4, 3), "F_w": torch.zeros(2, 4, 3)}
+        ok = {"freq": torch.ones(2, 4), "duty": torch.full((2, 4), 0.6), "p_td_w": torch.zeros(2, 4, 3),
+              "F_w": torch.zeros(2, 4, 3)}
         with pytest.raises(ValueError, match=r"freq must have shape \(2, 4\)"):
             sim.set_references(**{**ok, "freq": torch.ones(2, 3)})
         bad = ok["F_w"].clone()

@@ -14,7 +14,7 @@ from dls_quadruped.sim.cpu_backend import SimConfig, VecSim, WorkerError
 
 def test_surviving_worker_ends_without_a_traceback_after_another_died(capfd):
     sim = VecSim(mujoco.MjModel.from_xml_path(str(C.SCENE_PATH)), 4, SimConfig(num_workers=2))
-    survivor, victim = sim._procs
+    survivor, victim = sim.workers.procs
     sim.step(1)
     os.kill(victim.pid, signal.SIGKILL)  # the last worker: the step reaches worker 0 first, its answer stays unread
     victim.join(timeout=10)

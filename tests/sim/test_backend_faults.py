@@ -28,7 +28,7 @@ def model() -> mujoco.MjModel:
 def test_killed_worker_is_named_with_its_exit_code(model):
     with VecSim(model, 4, SimConfig(num_workers=2)) as sim:
         sim.step(1)
-        victim = sim._procs[1]
+        victim = sim.workers.procs[1]
         os.kill(victim.pid, signal.SIGKILL)
         victim.join(timeout=10)
         start = time.monotonic()
@@ -42,7 +42,7 @@ def test_killed_worker_is_named_with_its_exit_code(model):
 
 def test_stopped_worker_times_out_and_close_kills_it(model):
     sim = VecSim(model, 4, SimConfig(num_workers=2, reply_timeout_s=1.5))
-    victim = sim._procs[0]
+    victim = sim.workers.procs[0]
     try:
         os.kill(victim.pid, signal.SIGSTOP)
         start = time.monotonic()
@@ -58,12 +58,12 @@ def test_stopped_worker_times_out_and_close_kills_it(model):
 
 def test_workers_ignore_ctrl_c_so_the_trainer_can_save(model):
     with VecSim(model, 2, SimConfig(num_workers=2)) as sim:
-        for proc in sim._procs:
+        for proc in sim.workers.procs:
             os.kill(proc.pid, signal.SIGINT)
             os.kill(proc.pid, signal.SIGTERM)
         time.sleep(0.5)
         sim.step(2)
-        assert all(p.is_alive() for p in sim._procs)
+        assert all(p.is_alive() for p in sim.workers.procs)
 
 
 def test_main_guard_detection_reads_the_script(tmp_path):
@@ -111,7 +111,7 @@ def test_script_without_main_guard_is_explained_not_hung(guarded, tmp_path):
 def test_workers_exit_when_their_parent_is_killed(tmp_path):
     script = tmp_path / "parent.py"
     script.write_text(SCRIPT.replace('        sim.step(1)\n', '        sim.step(1)\n'
-                                     '        print(*[p.pid for p in sim._procs], flush=True)\n'
+                                     '        print(*[p.pid for p in sim.workers.procs], flush=True)\n'
                                      '        import time; time.sleep(600)\n')
                       .replace("SimConfig(num_workers=1)", "SimConfig(num_workers=2)")
                       + 'if __name__ == "__main__":\n    go()\n')

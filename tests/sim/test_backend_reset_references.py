@@ -23,7 +23,8 @@ def test_reset_restores_standing_references_of_the_reset_robots_only():
                           torch.as_tensor(C.NOMINAL_JOINT_POS, dtype=torch.float64)[None])
         c = sim.buf.command
         assert c["duty"][0].tolist() == [1.0] * 4 and c["freq"][0].tolist() == [0.0] * 4
-        assert torch.allclose(c["F_w"][0, :, 2], torch.full((4,), weight / 4, dtype=torch.float64)) and (c["F_w"][0, :, :2] == 0).all()
+        assert torch.allclose(c["F_w"][0, :, 2], torch.full((4,), weight / 4, dtype=torch.float64))
+        assert (c["F_w"][0, :, :2] == 0).all()
         # trot phases (0, 0.5, 0.5, 0) < d = 1: all four legs in stance (with the old d = 0.3 only FL and RR were)
         assert state.contact_cmd[0].tolist() == [1.0] * 4
         assert c["duty"][1].tolist() == [0.3] * 4  # the robot that was not reset keeps its references

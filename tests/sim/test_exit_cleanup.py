@@ -29,12 +29,12 @@ SCRIPT = textwrap.dedent("""\
             from dls_quadruped.envs.env import LocomotionEnv
             task = load_task("base", overrides={"scene": {"num_workers": 2}})
             env = LocomotionEnv(task, num_envs=2, verbose=False)
-            return env, env.scene.sim._procs, lambda: env.step(env.action_manager.raw_action * 0.0)
+            return env, env.scene.sim.workers.procs, lambda: env.step(env.action_manager.raw_action * 0.0)
         import mujoco
         from dls_quadruped.robots.aliengo import constants as C
         from dls_quadruped.sim.cpu_backend import SimConfig, VecSim
         sim = VecSim(mujoco.MjModel.from_xml_path(str(C.SCENE_PATH)), 2, SimConfig(num_workers=2))
-        return sim, sim._procs, lambda: sim.step(1)
+        return sim, sim.workers.procs, lambda: sim.step(1)
 
     if __name__ == "__main__":
         # Ctrl-C as under a terminal: a test run started in the background (`make test &`, nohup) passes

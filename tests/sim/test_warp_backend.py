@@ -61,8 +61,9 @@ def _has_cuda() -> bool:
 
 def _walk(sim: SimBackend, steps: int, cmd=(0.4, 0.0, 0.3), seed: int = 0, events=None,
           noise: float = 0.05) -> torch.Tensor:
-    """Closed-loop trot of the balance controller (``eval/balance_run``) from the home pose with joint noise (uniform, ``noise`` rad):
-    (steps, N, 3 + 4 + 12) base position, quaternion, joints after each policy step of 2 physics steps (100 Hz).
+    """Closed-loop trot of the balance controller (``eval/balance_run``) from the home pose with joint noise
+    (uniform, ``noise`` rad): (steps, N, 3 + 4 + 12) base position, quaternion, joints after each policy step of 2
+    physics steps (100 Hz).
     ``events(k, sim)`` runs before policy step k."""
     n = sim.num_envs
     ctrl, acfg = BalanceController(), LatentActionConfig()
@@ -201,7 +202,7 @@ def test_wrench_push_friction_and_mass_act_as_on_the_cpu_backend(mjw, model):
 @pytest.mark.slow
 def test_a_diverging_robot_is_flagged_and_frozen_while_the_others_go_on(mjw, model):
     """Robot 1's velocity becomes NaN (a blown-up solve) and robot 2 is pushed at 5 km/s (beyond
-    ``shard.MAX_ABS_QVEL``) at policy step 5: both are flagged and held at the home keyframe, their clocks
+    ``buffers.MAX_ABS_QVEL``) at policy step 5: both are flagged and held at the home keyframe, their clocks
     stopped; no NaN in the state; robot 0 runs as in a run without them; a reset revives them."""
     def events(k, sim):
         if k == 5:

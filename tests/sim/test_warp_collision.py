@@ -68,7 +68,8 @@ def _contacts(sim) -> list[set[tuple[int, int]]]:
 def test_culling_tests_few_pairs_and_keeps_the_contacts_on_every_tile_type(rough):
     """One robot per tile type (row 6), standing off the spawn platform where it meets the tile's relief, 0.4 s
     on the standing references: the culled backend tests <= 2 000 pairs per world (all pairs: 39 079), finds the
-    same contacts (at the end: robots that started above a lower tread have landed), and the base positions follow the all-pairs backend within 1e-3 m
+    same contacts (at the end: robots that started above a lower tread have landed), and the base positions follow the
+    all-pairs backend within 1e-3 m
     (measured: bit for bit on warp-cpu, where the contacts come in the same order)."""
     model, terrain = rough
     n = len(TERRAIN_TYPES)
@@ -86,7 +87,8 @@ def test_culling_tests_few_pairs_and_keeps_the_contacts_on_every_tile_type(rough
                 traj = [sim.step(4).base_pos_w.clone() for _ in range(20)]
                 stats, contacts = sim.collision_stats(), _contacts(sim)
                 out[culled] = stats, contacts, torch.stack(traj), sim.state.diverged.clone()
-    (all_stats, all_contacts, all_traj, all_div), (cull_stats, cull_contacts, cull_traj, cull_div) = out[False], out[True]
+    (all_stats, all_contacts, all_traj, all_div), (cull_stats, cull_contacts, cull_traj,
+                                                   cull_div) = out[False], out[True]
     assert all_stats["broadphase"] == "nxn" and all_stats["pairs_tested_max"] == 39079
     assert cull_stats["broadphase"] == "culled" and cull_stats["pairs_tested_max"] <= 2000
     assert cull_stats["pairs_all"] == 39079

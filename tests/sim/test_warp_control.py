@@ -119,7 +119,8 @@ def test_compiled_step_launches_a_fraction_of_the_torch_operators():
     assert fused["steps_with_resets"] >= 1 and fused["warp_launches_reset_step"] <= 20
     assert fused["torch_ops_reset_step"] <= 300 < eager["torch_ops_reset_step"]
     assert 0 < fused["torch_ops_in_compiled_graphs_per_step"] <= 40  # ~15 graph calls per env step, ~1 kernel each
-    assert fused["torch_ops_per_step"] <= 300 < eager["torch_ops_per_step"]  # the Warp path's budget for a base env step (docs/gpu.md)
+    # the Warp path's budget for a base env step (docs/gpu.md)
+    assert fused["torch_ops_per_step"] <= 300 < eager["torch_ops_per_step"]
 
 
 def test_compiled_schedule_draws_equal_eager_ones():

@@ -21,8 +21,8 @@ def test_every_task_has_a_page_that_matches_its_task_file():
 def test_the_tables_carry_the_yaml_values():
     text = task_pages.task_tables("climb")
     # tasks/climb.yaml: track_lin_vel_xy through track_lin_vel_xy_soft, weight 1.5, alpha_max 0.5
-    assert "| `track_lin_vel_xy` | `track_lin_vel_xy_soft` | 1.5 | sigma = 0.5, alpha_max = 0.5 | `tasks/climb.yaml` |" \
-        in text
+    assert ("| `track_lin_vel_xy` | `track_lin_vel_xy_soft` | 1.5 | sigma = 0.5, alpha_max = 0.5 | "
+            "`tasks/climb.yaml` |") in text
     # tasks/_low_perturbation.yaml: pushes every 8-12 s; tasks/climb.yaml: stairs of 5-50 cm, 10 rows
     assert "| `push` | `push_robot` | interval, every [8, 12] s | velocity_range = [-0.1667, 0.1667] |" in text
     assert "**Terrain**: `stairs_up`, `stairs_down`; num_rows = 10, step_height = [0.05, 0.5]" in text
