@@ -15,7 +15,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")),
-         *(p for sub in ("experiments", "reports", "tasks", "tutorials") for p in sorted((REPO / "docs" / sub).glob("*.md")))]
+         *(p for sub in ("experiments", "reports", "tasks", "tutorials")
+           for p in sorted((REPO / "docs" / sub).glob("*.md")))]
 MODULE_COMMAND = re.compile(r"python[0-9.]*(?: +-[A-Za-z]+)* +-m +experiments\.([A-Za-z0-9_.]+)")
 """``python -m experiments.NAME`` (also ``.venv/bin/python -u -m ...``)."""
 PATH_COMMAND = re.compile(r"python[0-9.]*(?: +-[A-Za-z]+)* +(?:\./)?experiments/[^\s/`]+\.py")
@@ -33,7 +34,8 @@ def _docs_modules() -> dict[str, list[str]]:
 
 
 def test_the_pattern_tells_the_two_forms_apart():
-    text = "OMP_NUM_THREADS=1 .venv/bin/python -m experiments.verdicts --check; python -u -m experiments.fig17_simple_task"
+    text = ("OMP_NUM_THREADS=1 .venv/bin/python -m experiments.verdicts --check; "
+            "python -u -m experiments.fig17_simple_task")
     assert MODULE_COMMAND.findall(text) == ["verdicts", "fig17_simple_task"]
     assert not PATH_COMMAND.search(text)
     assert PATH_COMMAND.search("python experiments/verdicts.py --check") and not MODULE_COMMAND.search(
