@@ -112,7 +112,8 @@ def figure(results: dict, path: Path) -> None:
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(14, 4))
     terms = list(STATE_TERMS)
-    for ax, prefix, what in ((axes[0], "initial_term_", "initial cost"), (axes[1], "rollout_term_", "state rollout cost")):
+    for ax, prefix, what in ((axes[0], "initial_term_", "initial cost"),
+                             (axes[1], "rollout_term_", "state rollout cost")):
         for j, (p, F) in enumerate(ENCODINGS):
             rl, naive = results.get(f"rl_warm_start_{p}-{F}", {}), results.get(f"naive_warm_start_{p}-{F}", {})
             if "per_episode" not in rl or "per_episode" not in naive:

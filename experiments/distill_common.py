@@ -111,8 +111,8 @@ def scale_config(scale: str) -> dict:
 
 
 def run_config(r: Run, args: argparse.Namespace):
-    return load_distill_config(overrides=merge(merge(scale_config(args.scale), {"expert": args.expert, "task": str(TASK)}),
-                                               r.overrides))
+    base = merge(scale_config(args.scale), {"expert": args.expert, "task": str(TASK)})
+    return load_distill_config(overrides=merge(base, r.overrides))
 
 
 def _datasets(run_dir: Path, seeds: list[int]) -> list[DiskDataset] | None:

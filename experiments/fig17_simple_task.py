@@ -56,7 +56,8 @@ def figure(results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 17, scale {scale}: simple task, Table-4 reward", figure, "fig17.png", argv)
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 17, scale {scale}: simple task, Table-4 reward", figure, "fig17.png",
+        argv)
 
 
 if __name__ == "__main__":

@@ -56,7 +56,8 @@ def figure(results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 19, scale {scale}: reached the top of a 6-step flight per step height", figure, "fig19.png", argv)
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 19, scale {scale}: reached the top of a 6-step flight per step height",
+        figure, "fig19.png", argv)
 
 
 if __name__ == "__main__":

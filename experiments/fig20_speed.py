@@ -70,7 +70,8 @@ def figure(results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 20, scale {scale}: survival vs forward speed", figure, "fig20.png", argv)
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 20, scale {scale}: survival vs forward speed", figure, "fig20.png",
+        argv)
 
 
 if __name__ == "__main__":

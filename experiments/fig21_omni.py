@@ -34,7 +34,8 @@ def rows_of(results: dict) -> list[dict]:
             cells = []
             for s in (iso["success"], iso["survival"]):
                 mark = ">" if s["beyond_grid"] else ("<" if s["below_grid"] else "")
-                cells.append(f"{mark}{num(s['magnitude'], '.2f')} [{num(s['ci95'][0], '.2f')}, {num(s['ci95'][1], '.2f')}]")
+                lo, hi = (num(x, ".2f") for x in s["ci95"])
+                cells.append(f"{mark}{num(s['magnitude'], '.2f')} [{lo}, {hi}]")
             row[f"{iso['direction_deg']:g} deg success / survival"] = " / ".join(cells)
         row["thesis"] = THESIS[task]
         rows.append(row)
@@ -67,7 +68,8 @@ def figure(results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 21, scale {scale}: 90 %-success isoline per direction", figure, "fig21.png", argv)
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 21, scale {scale}: 90 %-success isoline per direction", figure,
+        "fig21.png", argv)
 
 
 if __name__ == "__main__":

@@ -63,7 +63,8 @@ def figure(results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 22, scale {scale}: cost of transport vs speed", figure, "fig22.png", argv)
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 22, scale {scale}: cost of transport vs speed", figure, "fig22.png",
+        argv)
 
 
 if __name__ == "__main__":

@@ -53,7 +53,8 @@ def figure(ev: dict, path: Path) -> None:
         a.fill_between(e, [100 * r["ci95"][0] for r in sp[name]], [100 * r["ci95"][1] for r in sp[name]],
                        color=line.get_color(), alpha=0.15)
         m = mse[name]
-        b.plot([r["epoch"] for r in m], [r["mse"] for r in m], "o-", color=line.get_color(), label=name.replace("_", " = "))
+        b.plot([r["epoch"] for r in m], [r["mse"] for r in m], "o-", color=line.get_color(),
+               label=name.replace("_", " = "))
         b.fill_between([r["epoch"] for r in m], [r["ci95"][0] for r in m], [r["ci95"][1] for r in m],
                        color=line.get_color(), alpha=0.15)
     a.set_xlabel("epoch")
@@ -81,7 +82,8 @@ def main() -> None:
     for r in rs:
         for snap, m, h in zip(ev["sp"][r.name], ev["mse"][r.name], trained[r.name]["history"]):
             rows.append({**r.row, "epoch": snap["epoch"], "beta": f"{h['beta']:.3g}", "MSE [95 % CI]": mse_cell(m),
-                         "SP [95 % CI]": sp_cell(snap), "SP per seed [%]": seeds_cell([p["sp"] for p in snap["per_seed"]]),
+                         "SP [95 % CI]": sp_cell(snap),
+                         "SP per seed [%]": seeds_cell([p["sp"] for p in snap["per_seed"]]),
                          "survival": f"{100 * snap['survival']['rate']:.1f} %", "seeds": snap["seeds"],
                          "SP episodes": snap["episodes"], "dataset": h["dataset_size"]})
     cols = ["selector", "epoch", "beta", "MSE [95 % CI]", "SP [95 % CI]", "SP per seed [%]", "survival", "seeds",

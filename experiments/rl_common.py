@@ -74,8 +74,10 @@ class Policies:
 
     def student(self, task: str) -> Path:
         return student_file(self.folder, task, self.variant)
-THESIS_EPISODES = {"simple": 4096, "survival": 4096, "survival_sweep": 4096, "stairs": 512, "speed": 512, "omni": 128, "cot": 512, "gait": 512}
-MEDIUM_EPISODES = {"simple": 512, "survival": 288, "survival_sweep": 288, "stairs": 36, "speed": 48, "omni": 9, "cot": 24, "gait": 24}
+THESIS_EPISODES = {"simple": 4096, "survival": 4096, "survival_sweep": 4096, "stairs": 512, "speed": 512, "omni": 128,
+                   "cot": 512, "gait": 512}
+MEDIUM_EPISODES = {"simple": 512, "survival": 288, "survival_sweep": 288, "stairs": 36, "speed": 48, "omni": 9,
+                   "cot": 24, "gait": 24}
 """Three times the small defaults (twice for simple): 1.5-3 min per policy and scenario at load ~3."""
 SCALES: dict[str, dict] = {
     "small": {"episodes": {}, "episode_length_s": None},   # {}: each scenario's default_episodes

@@ -43,7 +43,8 @@ def runs(scale: str) -> list[Run]:
     train = {"batch_size": 64, **({"epochs": 20} if scale == "thesis" else {})}
     out = []
     for algo, p, F in THESIS:
-        enc = {"encoding": {"p": p, "F": F, "horizon": 5, "dt": 0.02}, "selector": {"kind": "exponential", "alpha": 0.6}}
+        enc = {"encoding": {"p": p, "F": F, "horizon": 5, "dt": 0.02},
+               "selector": {"kind": "exponential", "alpha": 0.6}}
         schedules = SCHEDULES if algo == "naive" else {"Table 7": {}}
         for sched, over in schedules.items():
             suffix = {"Table 7": "", "DAgger's steps": "-dagger-steps", "no lr decay": "-no-decay"}[sched]
@@ -103,7 +104,8 @@ def main() -> None:
     cols = ["Algorithm", "schedule", "Encoding (p, F)", "MSE [95 % CI]", "SP [95 % CI]", "SP - DAgger's [95 % CI]",
             "SP per seed [%]", "MSE per seed", "survival", "thesis MSE", "thesis SP", "seeds", "SP episodes",
             "test windows", "train datapoints", "gradient steps", "epochs"]
-    write_table(rows, cols, args.out / "table", f"Table 11, scale {args.scale}: naive IL vs DAgger (H = 5, dt = 0.02 s)")
+    write_table(rows, cols, args.out / "table",
+                f"Table 11, scale {args.scale}: naive IL vs DAgger (H = 5, dt = 0.02 s)")
     write_json({"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows], "sp": ev["sp"],
                 "mse": ev["mse"], "sp_difference_vs_dagger": diffs, "returns": rets, "test_set": ev["test_set"],
                 **provenance()},

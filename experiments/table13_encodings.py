@@ -67,7 +67,8 @@ def figure(rows: list[dict], path: Path) -> None:
         sel = [r for r in rows if r["p"] == "discrete" and r["F"] == "discrete" and r["dt"] == dt]
         if sel:
             a.errorbar([r["H"] for r in sel], [100 * r["_sp"] for r in sel],
-                       yerr=[[100 * (r["_sp"] - r["_ci"][0]) for r in sel], [100 * (r["_ci"][1] - r["_sp"]) for r in sel]],
+                       yerr=[[100 * (r["_sp"] - r["_ci"][0]) for r in sel],
+                             [100 * (r["_ci"][1] - r["_sp"]) for r in sel]],
                        fmt=marker + "-", label=f"ours dt = {dt}")
             a.plot([r["H"] for r in sel], [r["thesis SP"] for r in sel], marker + "--", alpha=0.6,
                    label=f"thesis dt = {dt}")

@@ -89,8 +89,8 @@ def train_students(args: argparse.Namespace) -> dict[tuple[float, int], list[Pat
                         f"{root / 'exported'} yet: distil them first with --students-only (one process), then "
                         "start the --shard processes")
     if todo:
-        runs = [dc.Run(f"first-spline_dt{dt:g}_H{h}", {"algorithm": "dagger",
-                                                        "encoding": {"p": "first", "F": "spline", "horizon": h, "dt": dt}})
+        runs = [dc.Run(f"first-spline_dt{dt:g}_H{h}",
+                       {"algorithm": "dagger", "encoding": {"p": "first", "F": "spline", "horizon": h, "dt": dt}})
                 for dt, h in todo]
         trained = dc.train_runs(runs, ns)
         for (dt, h), r in zip(todo, runs):

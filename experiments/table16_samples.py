@@ -87,8 +87,8 @@ def main() -> None:
         th = THESIS.get((c.controller, c.row["M"]), (None, None, None))
         return {"thesis RL reward": th[0] or "-", "thesis initial": th[1] or "-", "thesis rollout": th[2] or "-"}
 
-    cols = ["Controller", "M", "RL reward", "Δ reward", "Initial cost", "Δ initial", "Rollout cost (state)", "Δ rollout",
-            "Rollout J (full)", "Survival", "thesis RL reward", "thesis initial", "thesis rollout"]
+    cols = ["Controller", "M", "RL reward", "Δ reward", "Initial cost", "Δ initial", "Rollout cost (state)",
+            "Δ rollout", "Rollout J (full)", "Survival", "thesis RL reward", "thesis initial", "thesis rollout"]
     students = "; RL rows: 3 students x the sampler seeds" if seeded else ""
     finish(args, todo, results, tabulate(rows_of, results, columns, thesis), cols,
            f"Table 16 (first-spline, H = 10, dt = 0.02 s, F only; Δ vs M = 10 000{students})", figure, "fig29.png")

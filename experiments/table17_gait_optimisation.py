@@ -48,8 +48,8 @@ def cells() -> list[Cell]:
             for v in SPEEDS:
                 out.append(Cell(cell_name(ctrl, gait, v), ctrl, optimise=opt, vx=v,
                                 row={"Controller": ctrl, "Gait opt.": gait}))
-    out += [Cell(cell_name("rl_baseline", "-", v), "rl_baseline", vx=v, row={"Controller": "rl_baseline", "Gait opt.": "-"})
-            for v in SPEEDS]
+    out += [Cell(cell_name("rl_baseline", "-", v), "rl_baseline", vx=v,
+                 row={"Controller": "rl_baseline", "Gait opt.": "-"}) for v in SPEEDS]
     return out
 
 
@@ -64,7 +64,8 @@ def figure(results: dict, path: Path) -> None:
         ic = [(results.get(n, {}).get("initial_cost") or {}).get("median") for n in names]
         style = "-" if ctrl == "rl_warm_start" else "--" if ctrl == "naive_warm_start" else ":"
         label = f"{ctrl} {gait}"
-        axes[0].plot(SPEEDS, [100 * s if s is not None else None for s in sv], "o" + style, color=f"C{i % 10}", label=label)
+        axes[0].plot(SPEEDS, [100 * s if s is not None else None for s in sv], "o" + style, color=f"C{i % 10}",
+                     label=label)
         axes[1].plot(SPEEDS, ic, "o" + style, color=f"C{i % 10}", label=label)
     axes[0].set_ylabel("survival [%]")
     axes[1].set_ylabel("initial cost (median)")

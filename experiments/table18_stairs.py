@@ -17,7 +17,8 @@ STAIRS_SECONDS = 15.0
 """[s] stairs episodes (the eval suite's): the top of the flight is 2.5 m from the start, 5-8 s at 0.3-0.5 m/s."""
 
 
-STAIRS_VARIANTS = (("base warm start, blind", "ws_base_stairs_blind"), ("base warm start, aware", "ws_base_stairs_aware"),
+STAIRS_VARIANTS = (("base warm start, blind", "ws_base_stairs_blind"),
+                   ("base warm start, aware", "ws_base_stairs_aware"),
                    ("naive, blind", "naive_stairs_blind"), ("naive, aware", "naive_stairs_aware"),
                    ("base alone", "alone_base_stairs"))
 STAIRS_PAIRS = {"ws_base_stairs_aware": "ws_base_stairs_blind", "naive_stairs_aware": "naive_stairs_blind"}

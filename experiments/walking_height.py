@@ -61,7 +61,8 @@ def walking_height(policy: torch.nn.Module, robots: int, seconds: float, settle:
 def main(argv: list[str] | None = None) -> dict:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--variant", choices=sorted(VARIANTS), default="recipe")
-    p.add_argument("--tasks", nargs="*", default=["base", "speed", "rough"], choices=["base", "speed", "rough", "climb"])
+    p.add_argument("--tasks", nargs="*", default=["base", "speed", "rough"],
+                   choices=["base", "speed", "rough", "climb"])
     p.add_argument("--policy-dir", type=Path, default=POLICY_DIR)
     p.add_argument("--robots", type=int, default=64)
     p.add_argument("--seconds", type=float, default=10.0)

@@ -102,7 +102,8 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     p.add_argument("--variant", choices=sorted(VARIANTS), default="thesis",
                    help="thesis: the experts trained with Table 6 and their committed students (base_actor.pt, "
                         "<expert>_student_first_spline_h10.pt); recipe: those retrained with the default recipe "
-                        "(base_recipe_actor.pt2, <expert>_recipe_student_first_spline_h10.pt2; docs/policies/README.md)")
+                        "(base_recipe_actor.pt2, <expert>_recipe_student_first_spline_h10.pt2; "
+                        "docs/policies/README.md)")
     p.add_argument("--com-height", type=float, default=None,
                    help="the CoM height reference [m] of every cell without its own: the MPC's, and every controller's "
                         "initial-cost metric (default ~0.324, mpc.srbd.com_height_reference; "
@@ -110,7 +111,8 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     p.add_argument("--episodes", type=int, default=None, help="override the scale's episodes per cell (even)")
     p.add_argument("--seconds", type=float, default=None, help="override the scale's episode length [s]")
     p.add_argument("--threads", type=int, default=1, help="torch / MPC kernel threads")
-    p.add_argument("--num-workers", type=int, default=0, help="simulator processes (0: in-process, the closed loop's fastest)")
+    p.add_argument("--num-workers", type=int, default=0,
+                   help="simulator processes (0: in-process, the closed loop's fastest)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--sampler-seeds", type=int, default=3,
                    help="sampler noise streams per episode for the MPC cells (robots in parallel)")
@@ -201,8 +203,8 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
                 student = Path(cell.student) if Path(cell.student).is_file() else None
                 why = f"no student {cell.student}"
             else:
-                student = student_path(args.students, sampler.encoding_p, sampler.encoding_F, sampler.horizon, sampler.dt,
-                                       getattr(args, "committed_student", COMMITTED_STUDENT))
+                student = student_path(args.students, sampler.encoding_p, sampler.encoding_F, sampler.horizon,
+                                       sampler.dt, getattr(args, "committed_student", COMMITTED_STUDENT))
                 why = (f"no student {sampler.encoding_p}-{sampler.encoding_F}_H{sampler.horizon}_dt{sampler.dt:g} "
                        f"under {args.students}")
             if student is None:
