@@ -4,6 +4,7 @@ classes), so that no test module imports from another."""
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -163,6 +164,7 @@ class _ScriptedEnv:
         self.t_ep = torch.zeros(self.num_envs, dtype=torch.long)
         self.episode = torch.zeros(self.num_envs, dtype=torch.long)
         self.applied: list[torch.Tensor] = []
+        self.command_manager = SimpleNamespace(command=torch.zeros(self.num_envs, 3))  # read by envs.recorder
 
     def _obs(self) -> TensorDict:
         env_id = torch.arange(self.num_envs, dtype=torch.float32)
@@ -204,6 +206,7 @@ class _LinearEnv:
         self.num_envs, self.A, self.B = num_envs, A, B
         self.gen = torch.Generator().manual_seed(seed)
         self.s = torch.randn(num_envs, A.shape[0], generator=self.gen)
+        self.command_manager = SimpleNamespace(command=torch.zeros(num_envs, 3))  # read by envs.recorder
 
     def get_observations(self) -> TensorDict:
         return TensorDict({"policy": self.s.clone()}, batch_size=[self.num_envs])

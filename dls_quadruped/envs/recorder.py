@@ -14,7 +14,15 @@ function -- a policy (``env.step(policy(obs))``), a controller that runs the phy
   thesis 7.3 when the env's reward is the evaluation reward), computed by the env before it resets;
 * named probes ``env -> (E, ...)`` read before or after every step, stored raw in their own dtype (zeros on
   steps not simulated): the masks above say which entries count (:meth:`EpisodeRecord.masked`);
-* ``fell[e]``: the episode ended by a termination other than a time-out; ``length[e]``: its steps.
+* ``fell[e]``: the episode ended by a termination other than a time-out; ``length[e]``: its steps;
+  ``episode_return[e]``: the env's raw reward summed in float64 over the episode's steps (the ending one too).
+
+Given a ``policy`` instead of a step function, the loop applies ``env.step(policy(obs[obs_group]))`` and can
+keep the policy's input and action of some envs every step (``capture``): what distillation records of the
+expert. ``until`` ends the loop once a step's action is chosen and before it is applied (the data collection
+of distillation stops there, its last observation taken but not stepped from). This one loop serves
+evaluation, the closed loop, the model-based baseline, balance, the distillation metrics and test set, and the
+distillation data collection (``docs/architecture.md``, "The episode loop").
 """
 
 from __future__ import annotations
@@ -34,7 +42,8 @@ Probe = Callable[[object], torch.Tensor]
 """env -> (E, ...) a quantity read before or after every step (the env axis first where it is masked)."""
 StepFn = Callable[[TensorDict], tuple[TensorDict, torch.Tensor, torch.Tensor, dict]]
 """obs -> (obs, reward (E,), dones (E,), extras with ``extras["time_outs"]`` (E,)): one env step."""
-
+PolicyFn = Callable[[torch.Tensor], torch.Tensor]
+"""(E, obs_dim) observations (or the whole observation TensorDict) -> (E, act_dim) actions for ``env.step``."""
 
 
 def _rpy(env) -> torch.Tensor:
@@ -50,6 +59,7 @@ BASE_PROBES: dict[str, Callable] = {
 """Probes of the base every controller run records: (B, 3) world velocity [m/s], (B,) height [m], roll and pitch
 [rad] (float64, from the quaternion)."""
 
+
 @dataclass
 class EpisodeRecord:
     """One episode per env: E envs, T steps asked for.
@@ -62,8 +72,12 @@ class EpisodeRecord:
         before, after: probe name -> (T, ...) values read before / after each step, raw.
         fell: (E,) bool, ended by a non-time-out termination; length: (E,) steps the episode lasted (T if it
             did not end).
-        step_dt: [s] one step; steps: steps simulated (< T when the loop stopped once every episode had ended);
-        wall_s: [s] wall-clock time of the loop.
+        episode_return: (E,) float64, the env's reward (not divided by step_dt) summed over the episode's steps
+            in step order, the step that ended it included.
+        obs, actions: (T, C, obs_dim) policy inputs and (T, C, act_dim) actions of the C captured envs at each
+            step, raw, in the policy's dtypes (mask them with ``active[:, capture]``); None without ``capture``.
+        step_dt: [s] one step; steps: steps simulated (< T when the loop stopped early: every episode had
+            ended, or ``until``); wall_s: [s] wall-clock time of the loop.
     """
 
     command: np.ndarray
@@ -72,10 +86,13 @@ class EpisodeRecord:
     reward: np.ndarray
     fell: np.ndarray
     length: np.ndarray
+    episode_return: np.ndarray
     step_dt: float
     steps: int
     before: dict[str, np.ndarray] = field(default_factory=dict)
     after: dict[str, np.ndarray] = field(default_factory=dict)
+    obs: np.ndarray | None = None
+    actions: np.ndarray | None = None
     wall_s: float = 0.0
 
     @staticmethod
@@ -93,20 +110,40 @@ def _store(out: dict[str, np.ndarray], name: str, k: int, steps: int, value: tor
     out[name][k] = value
 
 
-def record(env, step: StepFn, after: dict[str, Probe] | None = None, num_steps: int | None = None, *,
+def record(env, step: StepFn | None = None, after: dict[str, Probe] | None = None, num_steps: int | None = None, *,
            before: dict[str, Probe] | None = None, stop_when_all_ended: bool = False,
-           on_reset: Callable[[torch.Tensor], None] | None = None, desc: str | None = None) -> EpisodeRecord:
+           on_reset: Callable[[torch.Tensor], None] | None = None, desc: str | None = None,
+           policy: PolicyFn | None = None, obs_group: str | None = None, capture: bool | slice = False,
+           until: Callable[[], bool] | None = None, no_grad: bool = False) -> EpisodeRecord:
     """Run every env of ``env`` for ``num_steps`` steps (default: ``env.max_episode_length``) from its current
-    state under ``step``, reading the probes ``before`` and ``after`` every step, in ``torch.inference_mode``.
+    state under ``step`` (or ``policy``), reading the probes ``before`` and ``after`` every step, in
+    ``torch.inference_mode`` (``torch.no_grad`` with ``no_grad``).
 
     Args:
         env: exposes ``num_envs``, ``step_dt``, ``max_episode_length``, ``get_observations()`` and
-            ``command_manager.command`` (E, 3).
+            ``command_manager.command`` (E, 3); with ``policy``, ``step(actions)`` too.
+        step: obs -> the step's outcome (:data:`StepFn`); exactly one of ``step`` and ``policy``.
         stop_when_all_ended: stop once every env's first episode has ended: the rest would be masked anyway.
         on_reset: called with the (n,) ids of the envs that ended at a step (the env restarted them), e.g. for a
             controller to drop their memory; not after the step that ends the last episode when the loop stops.
         desc: the progress bar's label (default "E episodes").
+        policy: (E, obs_dim) ``obs[obs_group]`` (the TensorDict without ``obs_group``) -> (E, act_dim) actions,
+            applied with ``env.step``.
+        capture: with ``policy`` and ``obs_group``: keep the policy input and action of every env (True) or of the
+            envs ``capture`` (a slice of the env axis) each step, in ``EpisodeRecord.obs`` / ``actions``.
+        until: asked once a step's action is chosen (after ``policy`` or the ``before`` probes), before it is
+            applied: True ends the loop without that step (it is not ``active``).
+        no_grad: ``torch.no_grad`` instead of ``torch.inference_mode``: for an env that goes on being used with
+            autograd afterwards (an in-process simulator would keep inference tensors created at a reset,
+            which later in-place updates refuse).
+
+    Raises:
+        ValueError: neither or both of ``step`` and ``policy``; ``capture`` without a policy and an ``obs_group``.
     """
+    if (step is None) == (policy is None):
+        raise ValueError("record needs exactly one of step (obs -> env step outcome) and policy (obs -> actions)")
+    if capture is not False and (policy is None or obs_group is None):
+        raise ValueError("capture keeps a policy's observations and actions: give policy and obs_group with it")
     n = env.num_envs
     steps = int(num_steps or env.max_episode_length)
     command = env.command_manager.command.detach().cpu().numpy().copy()
@@ -115,21 +152,35 @@ def record(env, step: StepFn, after: dict[str, Probe] | None = None, num_steps: 
     reward = np.zeros((steps, n), dtype=np.float32)
     read_before: dict[str, np.ndarray] = {}
     read_after: dict[str, np.ndarray] = {}
+    captured: dict[str, np.ndarray] = {}
     alive = torch.ones(n, dtype=torch.bool)
     fell = torch.zeros(n, dtype=torch.bool)
     length = torch.full((n,), steps, dtype=torch.long)
+    episode_return = torch.zeros(n, dtype=torch.float64)
+    kept = slice(None) if capture is True else (capture or None)
     simulated = 0
     obs = env.get_observations()
     wall0 = time.perf_counter()
-    with torch.inference_mode(), progress(total=steps, desc=desc or f"{n} episodes", unit="step", leave=False) as bar:
+    grad_mode = torch.no_grad() if no_grad else torch.inference_mode()
+    with grad_mode, progress(total=steps, desc=desc or f"{n} episodes", unit="step", leave=False) as bar:
         for k in range(steps):
-            active[k] = alive.numpy()
             for name, probe in (before or {}).items():
                 _store(read_before, name, k, steps, probe(env))
-            obs, rew, dones, extras = step(obs)
+            if policy is not None:
+                obs_in = obs if obs_group is None else obs[obs_group]
+                action = policy(obs_in)
+                if kept is not None:
+                    _store(captured, "obs", k, steps, obs_in[kept])
+                    _store(captured, "actions", k, steps, action[kept])
+            if until is not None and until():
+                break
+            active[k] = alive.numpy()
+            obs, rew, dones, extras = env.step(action) if policy is not None else step(obs)
             done = dones.detach().cpu().bool()
             time_out = extras["time_outs"].detach().cpu().bool()
-            reward[k] = (rew.detach().cpu() / env.step_dt).numpy()
+            rew = rew.detach().cpu()
+            reward[k] = (rew / env.step_dt).numpy()
+            episode_return += torch.where(alive, rew.double(), 0.0)  # the ending step's reward counts
             valid[k] = (alive & ~done).numpy()
             for name, probe in (after or {}).items():
                 _store(read_after, name, k, steps, probe(env))
@@ -145,5 +196,6 @@ def record(env, step: StepFn, after: dict[str, Probe] | None = None, num_steps: 
             if on_reset is not None and bool(done.any()):
                 on_reset(torch.nonzero(done).flatten())
     return EpisodeRecord(command=command, active=active, valid=valid, reward=reward, fell=fell.numpy(),
-                         length=length.numpy(), step_dt=float(env.step_dt), steps=simulated, before=read_before,
-                         after=read_after, wall_s=time.perf_counter() - wall0)
+                         length=length.numpy(), episode_return=episode_return.numpy(), step_dt=float(env.step_dt),
+                         steps=simulated, before=read_before, after=read_after, obs=captured.get("obs"),
+                         actions=captured.get("actions"), wall_s=time.perf_counter() - wall0)

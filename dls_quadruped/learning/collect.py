@@ -6,7 +6,10 @@ encoded with P (:func:`student.encode_labels`). Every env step, the expert (and,
 student) is called once on the whole batch; :class:`SlidingWindows` keeps the last (H-1)k+1
 steps of every env in a ring and emits each window as soon as it is complete. A reset (time-out
 or fall) restarts the env's count, so a window never spans two episodes. :func:`collect_slots`
-does the same for several students at once, each driving its own slice of the robots.
+does the same for several students at once, each driving its own slice of the robots. The env is
+stepped by the one episode loop, ``envs.recorder.record`` (an episode length per call, its masks
+unused: collection goes on through resets), which stops once the last window needed is taken,
+before that step's action is applied.
 
 Applied action (Algorithm 4, line 8): ``beta * a_exp + (1 - beta) * first_action(student)``;
 beta = 1 is naive imitation (the expert drives) and skips the student.
@@ -20,6 +23,7 @@ from collections.abc import Callable
 
 import torch
 
+from dls_quadruped.envs.recorder import record
 from dls_quadruped.learning.distill_config import SelectorSection
 from dls_quadruped.mpc.config import EncodingConfig
 
@@ -77,9 +81,9 @@ class SlidingWindows:
         acts = self.act[slots][:, ready].transpose(0, 1)  # (n, H, act_dim)
         return ready, self.obs[first, ready], acts
 
-    def reset(self, done: torch.Tensor) -> None:
-        """Envs with ``done`` (B,) start a new episode at the next push: their held steps are dropped."""
-        self.count[done.bool()] = 0
+    def reset(self, env_ids: torch.Tensor) -> None:
+        """Envs ``env_ids`` (n,) long start a new episode at the next push: their held steps are dropped."""
+        self.count[env_ids.to(self.count.device)] = 0
 
 
 class Progress:
@@ -112,7 +116,9 @@ def collect(env, expert: ActionFn, encode: Callable[[torch.Tensor], torch.Tensor
     """Step ``env`` until ``count`` datapoints were produced; hand them to ``sink(obs, labels)``.
 
     Args:
-        env: ``LocomotionEnv`` (or a stand-in with ``get_observations``, ``step``, ``num_envs``).
+        env: ``LocomotionEnv``, or a stand-in with what ``envs.recorder.record`` steps (``num_envs``,
+            ``num_actions``, ``step_dt``, ``max_episode_length``, ``get_observations``, ``step``,
+            ``command_manager.command``).
         expert: raw expert action of a batch of observations.
         encode: (n, H, 28) actions -> (n, D) labels.
         count: datapoints to produce (the last batch is cut to it).
@@ -160,7 +166,7 @@ def collect_slots(env, expert: ActionFn, encoders: list[Callable[[torch.Tensor],
         windows = SlidingWindows(env.num_envs, obs.shape[1], env.num_actions, horizon, stride, obs.device)
     done = [0] * slots
     pending: list[list[tuple[torch.Tensor, torch.Tensor]]] = [[] for _ in range(slots)]
-    steps, resets = 0, 0
+    resets = 0
     t0 = time.monotonic()
 
     def flush(s: int) -> None:
@@ -168,7 +174,9 @@ def collect_slots(env, expert: ActionFn, encoders: list[Callable[[torch.Tensor],
             sink(s, torch.cat([p[0] for p in pending[s]]), torch.cat([p[1] for p in pending[s]]))
             pending[s] = []
 
-    while min(done) < count:
+    def act(obs: torch.Tensor) -> torch.Tensor:
+        """The applied action at ``obs``; first the windows that end here go to their slots' sinks."""
+        nonlocal continued
         a_exp = expert(obs)
         if beta_value >= 1.0:
             applied = a_exp
@@ -190,15 +198,20 @@ def collect_slots(env, expert: ActionFn, encoders: list[Callable[[torch.Tensor],
                 done[s] += len(mine)
             if done[s] >= count or sum(len(p[0]) for p in pending[s]) >= flush_every:
                 flush(s)
-        if min(done) >= count:
-            break
-        obs_td, _, dones, _ = env.step(applied)
-        obs = obs_td[obs_group]
-        windows.reset(dones)
-        resets += int(dones.sum())
-        steps += 1
         if progress is not None:
             progress.update(min(done))
+        return applied
+
+    def restart(env_ids: torch.Tensor) -> None:
+        nonlocal resets
+        windows.reset(env_ids)
+        resets += len(env_ids)
+
+    steps = 0
+    while min(done) < count:  # one episode length of steps per record call, until every slot has its count
+        rec = record(env, policy=act, obs_group=obs_group, until=lambda: min(done) >= count, on_reset=restart,
+                     no_grad=True, desc=f"collecting {count} datapoints per slot")
+        steps += rec.steps
     for s in range(slots):
         flush(s)
     return {"datapoints": done, "env_steps": steps, "seconds": time.monotonic() - t0, "resets": resets}

@@ -22,7 +22,9 @@ import numpy as np
 import torch
 
 from dls_quadruped.core.stats import wilson_interval
+from dls_quadruped.envs import recorder
 from dls_quadruped.learning.dataset import DiskDataset
+from dls_quadruped.learning.distill_test_set import ExpertEpisodes
 
 
 @torch.no_grad()
@@ -41,11 +43,11 @@ def held_out_mse(net: Callable[[torch.Tensor], torch.Tensor], data: DiskDataset,
 def episode_returns(env, policy: Callable[[torch.Tensor], torch.Tensor], seeds: list[int],
                     obs_group: str = "policy") -> dict[str, np.ndarray]:
     """One batch of episodes per seed (the env's schedule restarted with it: robot i plays episode 0
-    of key i, the same for every policy), first episode only.
+    of key i, the same for every policy), first episode only (``envs.recorder.record``).
 
-    Like ``eval.rollout.run_episodes`` but under ``no_grad`` instead of ``inference_mode``: the
-    env goes on collecting afterwards, and an in-process simulator would keep inference tensors
-    created at a reset, which later in-place updates refuse.
+    Under ``no_grad`` (the reset too) instead of ``inference_mode``: the env goes on collecting
+    afterwards, and an in-process simulator would keep inference tensors created at a reset, which
+    later in-place updates refuse.
 
     Returns:
         {"return": (E,) summed reward of the env (Σ_t Σ_k w_k r_k dt) until the first termination
@@ -53,21 +55,11 @@ def episode_returns(env, policy: Callable[[torch.Tensor], torch.Tensor], seeds: 
     """
     returns, survived = [], []
     for seed in seeds:
-        obs = env.reset(seed=seed)[0][obs_group]
-        total = torch.zeros(env.num_envs, dtype=torch.float64)
-        alive = torch.ones(env.num_envs, dtype=torch.bool)
-        fell = torch.zeros(env.num_envs, dtype=torch.bool)
-        for _ in range(int(env.max_episode_length)):
-            obs_td, reward, dones, extras = env.step(policy(obs))
-            obs = obs_td[obs_group]
-            total += torch.where(alive, reward.double().cpu(), 0.0)  # the ending step's reward counts
-            done = dones.bool().cpu()
-            fell |= alive & done & ~extras["time_outs"].bool().cpu()
-            alive &= ~done
-            if not alive.any():
-                break
-        returns.append(total.numpy())
-        survived.append((~fell).numpy())
+        env.reset(seed=seed)
+        rec = recorder.record(env, policy=policy, obs_group=obs_group, stop_when_all_ended=True, no_grad=True,
+                              desc=f"SP episodes, seed {seed}")
+        returns.append(rec.episode_return)
+        survived.append(~rec.fell)
     return {"return": np.concatenate(returns), "survived": np.concatenate(survived)}
 
 
@@ -106,7 +98,8 @@ def survival(survived: np.ndarray) -> dict:
 @torch.no_grad()
 def slot_returns(env, policies: list[Callable[[torch.Tensor], torch.Tensor]], seed: int, keys: torch.Tensor,
                  record: int | None = None, obs_group: str = "policy") -> dict:
-    """Every policy on its own slot of robots in one env, one scheduled episode per robot.
+    """Every policy on its own slot of robots in one env, one scheduled episode per robot
+    (``envs.recorder.record``, under ``no_grad`` like :func:`episode_returns`).
 
     Args:
         env: ``LocomotionEnv`` with S x E robots; slot s (robots ``[s E, (s+1) E)``) is driven by
@@ -114,45 +107,26 @@ def slot_returns(env, policies: list[Callable[[torch.Tensor], torch.Tensor]], se
         seed, keys: ``env.reset(seed=seed, episode_keys=keys)``; slots with the same keys play the
             same episodes (paired).
         record: a slot whose observations and actions are recorded (e.g. the expert on held-out
-            keys, for the MSE test set, ``distill_test_set.EpisodeRecord``).
+            keys, for the MSE test set, ``distill_test_set.ExpertEpisodes``).
 
     Returns:
         {"return": (S, E) float64 summed reward until the first end, "survived": (S, E) bool,
-        "record": EpisodeRecord of slot ``record`` (obs, actions, length) or None}.
+        "record": ExpertEpisodes of slot ``record`` (obs, actions, length) or None}.
     """
-    from dls_quadruped.learning.distill_test_set import EpisodeRecord
-
     slots = len(policies)
     per = env.num_envs // slots
     if per * slots != env.num_envs:
         raise ValueError(f"{env.num_envs} robots do not split into {slots} slots")
-    obs = env.reset(seed=seed, episode_keys=keys)[0][obs_group]
-    steps = int(env.max_episode_length)
-    total = torch.zeros(env.num_envs, dtype=torch.float64)
-    alive = torch.ones(env.num_envs, dtype=torch.bool)
-    fell = torch.zeros(env.num_envs, dtype=torch.bool)
-    rec = None
-    if record is not None:
-        rec_sl = slice(record * per, (record + 1) * per)
-        rec = EpisodeRecord(torch.zeros(per, steps, obs.shape[1]), torch.zeros(per, steps, env.num_actions),
-                            torch.full((per,), steps, dtype=torch.long), int(seed))
-    for t in range(steps):
-        act = torch.cat([p(obs[s * per:(s + 1) * per]) for s, p in enumerate(policies)])
-        if rec is not None:
-            live = alive[rec_sl]
-            rec.obs[live, t] = obs[rec_sl][live].cpu()
-            rec.actions[live, t] = act[rec_sl][live].cpu()
-        obs_td, reward, dones, extras = env.step(act)
-        obs = obs_td[obs_group]
-        total += torch.where(alive, reward.double().cpu(), 0.0)  # the ending step's reward counts
-        done = dones.bool().cpu()
-        fell |= alive & done & ~extras["time_outs"].bool().cpu()
-        if rec is not None:
-            rec.length[(alive & done)[rec_sl]] = t + 1
-        alive &= ~done
-        if not alive.any():
-            break
-    return {"return": total.view(slots, per).numpy(), "survived": (~fell).view(slots, per).numpy(), "record": rec}
+
+    def act(obs: torch.Tensor) -> torch.Tensor:
+        return torch.cat([p(obs[s * per:(s + 1) * per]) for s, p in enumerate(policies)])
+
+    env.reset(seed=seed, episode_keys=keys)
+    kept = False if record is None else slice(record * per, (record + 1) * per)
+    rec = recorder.record(env, policy=act, obs_group=obs_group, capture=kept, stop_when_all_ended=True, no_grad=True,
+                          desc=f"{slots} policies x {per} episodes")
+    return {"return": rec.episode_return.reshape(slots, per), "survived": (~rec.fell).reshape(slots, per),
+            "record": None if record is None else ExpertEpisodes.from_record(rec, kept, seed)}
 
 
 def _resample(k: int, e: int, n_boot: int, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -22,14 +22,16 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from dls_quadruped.envs.recorder import EpisodeRecord, record
+
 
 @dataclass
-class EpisodeRecord:
-    """The expert's recorded episodes.
+class ExpertEpisodes:
+    """The expert's recorded episodes, episode-major (cut into windows by :func:`cut_windows`).
 
     Attributes:
-        obs: (E, T, obs_dim) observation at each step (zeros after the episode's end).
-        actions: (E, T, act_dim) raw expert action at that observation.
+        obs: (E, T, obs_dim) float32 observation at each step (zeros after the episode's end).
+        actions: (E, T, act_dim) float32 raw expert action at that observation.
         length: (E,) long, steps of each episode (T for a time-out; fewer after a fall).
         seed: schedule seed the episodes were played with.
     """
@@ -39,17 +41,23 @@ class EpisodeRecord:
     length: torch.Tensor
     seed: int
 
-    def to_dict(self) -> dict:
-        return {"obs": self.obs, "actions": self.actions, "length": self.length, "seed": self.seed}
-
     @classmethod
-    def from_dict(cls, d: dict) -> EpisodeRecord:
-        return cls(d["obs"], d["actions"], d["length"], int(d["seed"]))
+    def from_record(cls, rec: EpisodeRecord, envs: slice, seed: int) -> ExpertEpisodes:
+        """The episodes of the envs ``envs`` in a :func:`envs.recorder.record` run that captured exactly them
+        (``capture=envs``): its (T, C, ...) inputs and actions, zero where not ``active``, made episode-major."""
+        active = rec.active[:, envs]
+
+        def episode_major(values: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy(rec.masked(values, active, fill=0.0)).float().transpose(0, 1).contiguous()
+
+        return cls(episode_major(rec.obs), episode_major(rec.actions), torch.from_numpy(rec.length[envs].copy()),
+                   int(seed))
 
 
 @torch.no_grad()
-def record_expert_episodes(env, expert, seed: int, episodes: int, obs_group: str = "policy") -> EpisodeRecord:
-    """Play scheduled episodes 0 .. ``episodes`` - 1 of ``seed`` with the expert and record them.
+def record_expert_episodes(env, expert, seed: int, episodes: int, obs_group: str = "policy") -> ExpertEpisodes:
+    """Play scheduled episodes 0 .. ``episodes`` - 1 of ``seed`` with the expert and record them
+    (``envs.recorder.record``, under ``no_grad``: the env goes on collecting afterwards).
 
     Rounds of ``env.num_envs`` robots: in round r robot i plays key ``r num_envs + i`` (the last
     round's extra robots play keys beyond the set, not recorded).
@@ -60,30 +68,16 @@ def record_expert_episodes(env, expert, seed: int, episodes: int, obs_group: str
         seed: schedule seed (distinct from training and SP seeds: the set is held out).
         episodes: E.
     """
-    steps = int(env.max_episode_length)
     n = env.num_envs
-    parts: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
+    rounds: list[ExpertEpisodes] = []
     for first in range(0, episodes, n):
-        keys = torch.arange(first, first + n, device=env.device)
-        obs = env.reset(seed=seed, episode_keys=keys)[0][obs_group]
-        rec_obs = torch.zeros(n, steps, obs.shape[1])
-        rec_act = torch.zeros(n, steps, env.num_actions)
-        length = torch.full((n,), steps, dtype=torch.long)
-        alive = torch.ones(n, dtype=torch.bool)
-        for t in range(steps):
-            act = expert(obs)
-            rec_obs[alive, t] = obs[alive].cpu()
-            rec_act[alive, t] = act[alive].cpu()
-            obs_td, _, dones, _ = env.step(act)
-            obs = obs_td[obs_group]
-            ended = alive & dones.bool().cpu()
-            length[ended] = t + 1  # its last observation was step t
-            alive &= ~ended
-            if not alive.any():
-                break
-        parts.append((rec_obs, rec_act, length))
-    obs, act, length = (torch.cat([p[i] for p in parts])[:episodes] for i in range(3))
-    return EpisodeRecord(obs, act, length, int(seed))
+        env.reset(seed=seed, episode_keys=torch.arange(first, first + n, device=env.device))
+        rec = record(env, policy=expert, obs_group=obs_group, capture=True, stop_when_all_ended=True, no_grad=True,
+                     desc=f"test-set episodes {first}-{first + n - 1}")
+        rounds.append(ExpertEpisodes.from_record(rec, slice(None), seed))
+    obs, act, length = (torch.cat([getattr(r, name) for r in rounds])[:episodes]
+                        for name in ("obs", "actions", "length"))
+    return ExpertEpisodes(obs, act, length, int(seed))
 
 
 def window_starts(length: torch.Tensor, span: int, count: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -116,7 +110,7 @@ def window_starts(length: torch.Tensor, span: int, count: int, seed: int) -> tup
     return episode, start
 
 
-def cut_windows(record: EpisodeRecord, episode: torch.Tensor, start: torch.Tensor, horizon: int,
+def cut_windows(record: ExpertEpisodes, episode: torch.Tensor, start: torch.Tensor, horizon: int,
                 stride: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Observations at the starts and the expert's H actions k steps apart from there.
 

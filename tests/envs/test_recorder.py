@@ -7,6 +7,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import torch
 from tensordict import TensorDict
 
@@ -106,3 +107,78 @@ def test_the_start_command_is_a_copy():
     rec, _ = _record(env)
     env.command_manager.command[:] = 9.0
     assert rec.command[0, 0] == 0.5
+
+
+class ActedEnv(ScriptedEnv):
+    """The scripted env stepped with actions (a policy's), which it keeps."""
+
+    def __init__(self):
+        super().__init__()
+        self.applied: list[torch.Tensor] = []
+
+    def step(self, actions: torch.Tensor):
+        self.applied.append(actions.clone())
+        return super().step(self.get_observations())
+
+
+def _double(obs: torch.Tensor) -> torch.Tensor:
+    """(3, 1) -> (3, 2): (2 k, 2 k + e) for robot e at observation k."""
+    return torch.cat([2.0 * obs, 2.0 * obs + torch.arange(3.0)[:, None]], dim=1)
+
+
+def test_a_policy_its_captured_inputs_actions_and_returns_by_hand():
+    env = ActedEnv()
+    rec = record(env, policy=_double, obs_group="policy", capture=slice(1, 3))
+    assert len(env.applied) == 6 and env.applied[4].tolist() == [[8.0, 8.0], [8.0, 9.0], [8.0, 10.0]]
+    assert rec.obs.shape == (6, 2, 1) and rec.actions.shape == (6, 2, 2)  # robots 1 and 2 only
+    assert rec.obs[:, 0, 0].tolist() == [0, 1, 2, 3, 4, 5]  # the observation each action was chosen at
+    assert rec.actions[:, 1].tolist() == [[2 * k, 2 * k + 2] for k in range(6)]
+    kept = rec.masked(rec.actions, rec.active[:, 1:3], fill=0.0)  # robot 1 fell at step 2: zeros after
+    assert kept[:, 0, 1].tolist() == [1.0, 3.0, 0, 0, 0, 0] and kept[:, 1, 1].tolist() == [2.0, 4.0, 6.0, 8.0, 0, 0]
+    # raw reward (k + 10 e) DT summed over each first episode, the ending step included: robot 0 steps 1-6,
+    # robot 1 steps 1-2, robot 2 steps 1-4 (not its second episode's)
+    np.testing.assert_allclose(rec.episode_return, np.array([21.0, 23.0, 90.0]) * DT, rtol=1e-6)
+    assert rec.episode_return.dtype == np.float64
+    assert rec.length.tolist() == [6, 2, 4] and rec.fell.tolist() == [False, True, True]
+    every = record(ActedEnv(), policy=_double, obs_group="policy", capture=True)
+    np.testing.assert_array_equal(every.actions[:, 1:3], rec.actions)
+    assert record(ActedEnv(), policy=_double, obs_group="policy").obs is None  # nothing captured unasked
+
+
+def test_until_ends_the_loop_before_the_chosen_action_is_applied():
+    env = ActedEnv()
+    asked = []
+
+    def until() -> bool:
+        asked.append(env.k)
+        return env.k == 3
+
+    rec = record(env, policy=_double, obs_group="policy", capture=True, until=until)
+    assert asked == [0, 1, 2, 3] and env.k == 3 and len(env.applied) == 3  # the 4th action was not applied
+    assert rec.steps == 3 and rec.active[:3, 0].all() and not rec.active[3:].any()
+    assert rec.obs[3, 0, 0] == 3.0  # ... but its observation was taken (what the data collection relies on)
+    assert rec.length.tolist() == [6, 2, 6]  # robot 0's and 2's episodes had not ended: the steps asked for
+
+
+def test_grad_mode_inference_or_no_grad():
+    seen = []
+
+    def policy(obs):
+        seen.append((torch.is_inference_mode_enabled(), torch.is_grad_enabled()))
+        return _double(obs)
+
+    record(ActedEnv(), policy=policy, obs_group="policy", num_steps=1)
+    record(ActedEnv(), policy=policy, obs_group="policy", num_steps=1, no_grad=True)
+    assert seen == [(True, False), (False, False)]
+
+
+def test_bad_arguments_name_what_is_allowed():
+    env = ActedEnv()
+    with pytest.raises(ValueError, match="exactly one of step"):
+        record(env)
+    with pytest.raises(ValueError, match="exactly one of step"):
+        record(env, env.step, policy=_double)
+    with pytest.raises(ValueError, match="give policy and obs_group"):
+        record(env, policy=_double, capture=True)
+    with pytest.raises(ValueError, match="give policy and obs_group"):
+        record(ScriptedEnv(), ScriptedEnv().step, capture=True)

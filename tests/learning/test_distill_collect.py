@@ -46,7 +46,7 @@ def test_windows_match_hand_built_trajectories(horizon, stride, scripted_env, ta
             seen.add((e, ep, t0))
         obs_td, _, dones, _ = env.step(act)
         obs = obs_td["policy"]
-        windows.reset(dones)
+        windows.reset(torch.nonzero(dones).flatten())
     assert seen == expected_windows(lengths, steps, horizon, stride)
 
 
@@ -60,7 +60,7 @@ def test_window_across_a_reset_is_dropped(scripted_env, tag_expert):
         emitted += len(ids)
         obs_td, _, dones, _ = env.step(torch.zeros(1, 28))
         obs = obs_td["policy"]
-        windows.reset(dones)
+        windows.reset(torch.nonzero(dones).flatten())
     assert emitted == 0
 
 

@@ -9,9 +9,11 @@ import torch
 from dls_quadruped.learning.dataset import DiskDataset
 from dls_quadruped.learning.distill_bench import table7_steps
 from dls_quadruped.learning.distill_metrics import (
+    episode_returns,
     held_out_mse,
     mse_over_seeds,
     simulation_performance,
+    slot_returns,
     sp_difference,
     sp_over_seeds,
     survival,
@@ -100,3 +102,39 @@ def test_mse_over_seeds_by_hand():
     out = mse_over_seeds(np.array([[2.0, 6.0], [4.0, 4.0]]), np.array([1.0, 3.0]))
     assert out["mse"] == pytest.approx(2.0) and out["per_seed"] == pytest.approx([2.0, 2.0])
     assert out["windows"] == 4 and out["ci95"][0] <= 2.0 <= out["ci95"][1]
+
+
+@pytest.fixture
+def falling_env(scripted_env):
+    """4 robots, episodes of 3, 10, 10, 5 steps with a 10-step time-out: robots 1 and 2 time out, 0 and 3 fall;
+    robot e earns e + 1 per step."""
+    class Falling(scripted_env):
+        max_episode_length = 10
+
+        def step(self, actions):
+            obs, _, dones, _ = super().step(actions)
+            time_outs = dones.bool() & (self.lengths >= self.max_episode_length)
+            return obs, torch.arange(1.0, 5.0), dones, {"time_outs": time_outs}
+
+    return Falling([3, 10, 10, 5])
+
+
+def test_slot_returns_and_the_recorded_slot_by_hand(falling_env, tag_expert):
+    zeros = lambda obs: torch.zeros(len(obs), 28)
+    res = slot_returns(falling_env, [zeros, tag_expert], seed=3, keys=torch.arange(4), record=1)
+    np.testing.assert_array_equal(res["return"], [[1.0 * 3, 2.0 * 10], [3.0 * 10, 4.0 * 5]])
+    assert res["return"].dtype == np.float64
+    assert res["survived"].tolist() == [[False, True], [True, False]]
+    rec = res["record"]  # slot 1 = robots 2 and 3, driven by the tag expert
+    assert rec.length.tolist() == [10, 5] and rec.seed == 3 and rec.obs.shape == (2, 10, 3)
+    assert rec.obs[1, :5, 1].tolist() == [0, 1, 2, 3, 4] and not rec.obs[1, 5:].any()  # zeros after the fall
+    torch.testing.assert_close(rec.actions[1, :5], tag_expert(rec.obs[1, :5]), rtol=0, atol=0)
+    assert falling_env.applied[0][:2].abs().sum() == 0  # slot 0's robots got its own policy's actions
+    with pytest.raises(ValueError, match="do not split into 3 slots"):
+        slot_returns(falling_env, [zeros] * 3, seed=3, keys=torch.arange(4))
+
+
+def test_episode_returns_one_batch_per_seed(falling_env, tag_expert):
+    res = episode_returns(falling_env, tag_expert, seeds=[1, 2])
+    np.testing.assert_array_equal(res["return"], [3.0, 20.0, 30.0, 20.0] * 2)
+    assert res["survived"].tolist() == [False, True, True, False] * 2
