@@ -92,7 +92,7 @@ def evaluate(path: Path, weight: float, opts: EvalOptions, params: dict, num_ste
                                                        params["clip"], split_every=10**9)}
     try:
         torch.manual_seed(opts.seed)
-        rec = record(env, lambda obs: env.step(policy(obs["policy"])), cost, num_steps, desc=path.name)
+        rec = record(env, policy=policy, obs_group="policy", after=cost, num_steps=num_steps, desc=path.name)
     finally:
         env.close()
     reward = np.nanmean(rec.masked(rec.reward, rec.active), axis=0)          # (E,) reward per step

@@ -23,14 +23,7 @@ REPO = Path(__file__).resolve().parents[1]
 PACKAGE = REPO / "dls_quadruped"
 ARCHITECTURE = REPO / "docs" / "architecture.md"
 
-KNOWN_UPWARD: dict[tuple[str, str], str] = {
-    ("envs/managers/action.py", "mpc/horizon.py"):
-        "the horizon action decodes with the MPC's encodings: register it with the action manager from the mpc "
-        "layer (as envs/__init__.py registers the task checks with the loader), or move encodings below envs",
-    ("envs/mdp/mpc_cost.py", "mpc/horizon.py"):
-        "the reward term rolls out the MPC's SRBD and cost: let a higher layer register reward terms with the "
-        "reward manager (a term registry beside envs/mdp/rewards.py) and register mpc_trajectory_cost there",
-}
+KNOWN_UPWARD: dict[tuple[str, str], str] = {}
 """Upward imports (importer, imported: paths under ``dls_quadruped/``) not removed yet, each with its fix.
 An entry whose import is gone fails :func:`test_known_upward_edges_still_exist`: delete it then."""
 

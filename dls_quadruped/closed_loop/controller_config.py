@@ -52,6 +52,8 @@ class ControllerConfig:
         naive_gait: ``naive_warm_start`` only: its trot's (frequency [Hz], duty), else ``BaselineConfig``'s.
         com_height: the CoM height reference [m] above the ground of an MPC controller's cost and of every
             controller's initial-cost metric, else ``BaselineConfig``'s.
+        anchor_share: ``naive_warm_start`` only: ``BaselineConfig.anchor_share``, the share of the samples drawn
+            around the nominal trot besides the naive warm start (0: the thesis's naive controller).
     """
 
     name: str
@@ -66,6 +68,7 @@ class ControllerConfig:
     ground: str = "flat"
     naive_gait: tuple[float, float] | None = None
     com_height: float | None = None
+    anchor_share: float = 0.0
 
     def __post_init__(self) -> None:
         CONTROLLER_REGISTRY.check(self.name)
@@ -89,13 +92,24 @@ class ControllerConfig:
             raise ValueError(f"ground must be one of {list(GROUNDS)}, got {self.ground!r}")
         if self.naive_gait is not None and self.name != "naive_warm_start":
             raise ValueError(f"naive_gait applies to naive_warm_start only, got it for {self.name!r}")
+        if self.anchor_share != 0.0 and self.name != "naive_warm_start":
+            raise ValueError(f"anchor_share applies to naive_warm_start only, got it for {self.name!r}")
         self.baseline_config()  # checks the gait and the height reference
 
     def baseline_config(self) -> BaselineConfig:
-        """The MPC's gait and references (``BaselineConfig``) with ``naive_gait`` and ``com_height`` applied."""
+        """The MPC's gait and references (``BaselineConfig``) with ``naive_gait``, ``com_height`` and
+        ``anchor_share`` applied."""
         kw = {} if self.naive_gait is None else {"freq": float(self.naive_gait[0]), "duty": float(self.naive_gait[1])}
         kw.update({} if self.com_height is None else {"com_height": float(self.com_height)})
-        return BaselineConfig(optimise=self.optimise, sampler=self.sampler, **kw)
+        return BaselineConfig(optimise=self.optimise, sampler=self.sampler, anchor_share=self.anchor_share, **kw)
+
+    @classmethod
+    def naive(cls, baseline: BaselineConfig, seed: int = 0) -> ControllerConfig:
+        """``naive_warm_start`` running ``baseline`` (its :meth:`baseline_config` is ``baseline``) with noise seed
+        ``seed``."""
+        return cls("naive_warm_start", sampler=baseline.sampler, optimise=baseline.optimise, seed=seed,
+                   naive_gait=(baseline.freq, baseline.duty), com_height=baseline.com_height,
+                   anchor_share=baseline.anchor_share)
 
     @property
     def students(self) -> tuple[Path, ...]:

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from dls_quadruped.closed_loop.controllers import Controller
+from dls_quadruped.closed_loop.controller_base import Controller
 from dls_quadruped.envs.mdp.kernels import motor_power
 from dls_quadruped.envs.recorder import EpisodeRecord, record
 from dls_quadruped.eval.rollout import base_velocity
@@ -215,7 +215,7 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     ground = controller.cfg.ground  # every controller's cost on the ground its MPC plans on
     probe = InitialCostProbe(sampler, controller.cfg.baseline_config(), ground=ground,  # its height reference too
                              height_fn=env.scene.terrain.height_at if ground == "terrain" else None)
-    solves = getattr(controller, "solves_per_step", 0)
+    solves = controller.commands_per_step if controller.cfg.uses_mpc else 0
     t_probe = [0.0]
 
     def initial_cost_terms(env) -> torch.Tensor:
@@ -227,10 +227,9 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     after = {**PROBES, "qpos": _qpos(min(record_robots, n))}
     if controller.cfg.uses_mpc:
         after.update({f"solve.{name}": _solves(controller, name) for name in SOLVE_FIELDS})
-    policy0 = controller.policy_seconds
-    rec = record(env, controller.step, after, num_steps, before={"initial_cost_terms": initial_cost_terms},
-                 stop_when_all_ended=stop_when_all_ended, on_reset=controller.reset,
-                 desc=f"{controller.name}, {n} robots")
+    policy0 = controller.prepare_seconds
+    rec = record(env, controller, after, num_steps, before={"initial_cost_terms": initial_cost_terms},
+                 stop_when_all_ended=stop_when_all_ended, desc=f"{controller.name}, {n} robots")
     terms = rec.before["initial_cost_terms"]
     qpos = rec.after["qpos"].astype(np.float32, copy=False)
     qpos[rec.steps:] = qpos[rec.steps - 1]  # the video holds its last frame
@@ -240,10 +239,10 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     for name in ("fallback", "student_fallback"):
         flags = rec.after.get(f"solve.{name}")
         fallbacks[name] = 0 if flags is None else int((flags & rec.active[..., None]).sum())
-    wall, policy = rec.wall_s, controller.policy_seconds - policy0
+    wall, policy, solve = rec.wall_s, controller.prepare_seconds - policy0, controller.solve_seconds
     kernel = controller.kernel_seconds()
-    timing = {"wall": wall, "kernel": kernel, "solve": controller.solve_seconds, "policy": policy,
-              "probe": t_probe[0], "env_and_sim": wall - controller.solve_seconds - policy - t_probe[0],
+    timing = {"wall": wall, "kernel": kernel, "solve": solve, "policy": policy,
+              "probe": t_probe[0], "env_and_sim": wall - solve - policy - t_probe[0],
               "kernel_share": kernel / wall if wall > 0 else float("nan"),
               "robot_seconds_per_second": n * rec.steps * env.step_dt / wall if wall > 0 else float("nan"),
               "steps_simulated": rec.steps,

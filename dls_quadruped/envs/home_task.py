@@ -1,5 +1,5 @@
 """The task the balance controller and the model-based baseline run in (``eval/balance_run.py``,
-``mpc/baseline_run.py``): every robot starts in the home pose and plays one episode as long as the run.
+``closed_loop/baseline_run.py``): every robot starts in the home pose and plays one episode as long as the run.
 
 It is the base task with every section that acts on the robots replaced: a plane (or a given terrain, every
 robot colliding with the whole of it), robots placed by ``reset_home`` (``envs/mdp/events.py``: the home pose of

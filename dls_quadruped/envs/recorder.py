@@ -1,9 +1,10 @@
 """The one recorder of batched episodes: every env plays one episode from its current state, and what follows
 an env's first end (its restart inside ``step``) is masked out.
 
-:func:`record` steps a ``VecEnv``-like env (``LocomotionEnv``, or a scripted stand-in in tests) with any step
-function -- a policy (``env.step(policy(obs))``), a controller that runs the physics itself
-(``env.step_controlled(physics)``) -- and keeps, per step k and env e:
+:func:`record` is the one loop that runs a controller of the controller protocol (``envs/controller.py``: a
+policy through ``env.step``, or a controller that runs the physics itself through ``env.step_controlled``) in a
+``VecEnv``-like env (``LocomotionEnv``, or a scripted stand-in in tests), one ``envs.controller.step`` per env
+step, and keeps, per step k and env e:
 
 * ``active[k, e]``: step k belongs to e's first episode (the episode was running before the step). What the
   step itself produced -- its reward, a controller's plans, a probe read *before* the step -- belongs to it;
@@ -17,7 +18,7 @@ function -- a policy (``env.step(policy(obs))``), a controller that runs the phy
 * ``fell[e]``: the episode ended by a termination other than a time-out; ``length[e]``: its steps;
   ``episode_return[e]``: the env's raw reward summed in float64 over the episode's steps (the ending one too).
 
-Given a ``policy`` instead of a step function, the loop applies ``env.step(policy(obs[obs_group]))`` and can
+Given a ``policy`` function instead of a controller, the loop applies ``env.step(policy(obs[obs_group]))`` and can
 keep the policy's input and action of some envs every step (``capture``): what distillation records of the
 expert. ``until`` ends the loop once a step's action is chosen and before it is applied (the data collection
 of distillation stops there, its last observation taken but not stepped from). This one loop serves
@@ -33,15 +34,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from tensordict import TensorDict
 
 from dls_quadruped.core.progress import progress
 from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
+from dls_quadruped.envs.controller import EnvController
+from dls_quadruped.envs.controller import step as controller_step
 
 Probe = Callable[[object], torch.Tensor]
 """env -> (E, ...) a quantity read before or after every step (the env axis first where it is masked)."""
-StepFn = Callable[[TensorDict], tuple[TensorDict, torch.Tensor, torch.Tensor, dict]]
-"""obs -> (obs, reward (E,), dones (E,), extras with ``extras["time_outs"]`` (E,)): one env step."""
 PolicyFn = Callable[[torch.Tensor], torch.Tensor]
 """(E, obs_dim) observations (or the whole observation TensorDict) -> (E, act_dim) actions for ``env.step``."""
 
@@ -110,22 +110,23 @@ def _store(out: dict[str, np.ndarray], name: str, k: int, steps: int, value: tor
     out[name][k] = value
 
 
-def record(env, step: StepFn | None = None, after: dict[str, Probe] | None = None, num_steps: int | None = None, *,
-           before: dict[str, Probe] | None = None, stop_when_all_ended: bool = False,
+def record(env, controller: EnvController | None = None, after: dict[str, Probe] | None = None,
+           num_steps: int | None = None, *, before: dict[str, Probe] | None = None, stop_when_all_ended: bool = False,
            on_reset: Callable[[torch.Tensor], None] | None = None, desc: str | None = None,
            policy: PolicyFn | None = None, obs_group: str | None = None, capture: bool | slice = False,
            until: Callable[[], bool] | None = None, no_grad: bool = False) -> EpisodeRecord:
     """Run every env of ``env`` for ``num_steps`` steps (default: ``env.max_episode_length``) from its current
-    state under ``step`` (or ``policy``), reading the probes ``before`` and ``after`` every step, in
-    ``torch.inference_mode`` (``torch.no_grad`` with ``no_grad``).
+    state under ``controller`` (acting in ``env``; or ``policy``), reading the probes ``before`` and ``after``
+    every step, in ``torch.inference_mode`` (``torch.no_grad`` with ``no_grad``).
 
     Args:
         env: exposes ``num_envs``, ``step_dt``, ``max_episode_length``, ``get_observations()`` and
             ``command_manager.command`` (E, 3); with ``policy``, ``step(actions)`` too.
-        step: obs -> the step's outcome (:data:`StepFn`); exactly one of ``step`` and ``policy``.
+        controller: a controller of ``env`` (``envs/controller.py``), one ``envs.controller.step`` per step and
+            its ``reset`` at every restart; exactly one of ``controller`` and ``policy``.
         stop_when_all_ended: stop once every env's first episode has ended: the rest would be masked anyway.
-        on_reset: called with the (n,) ids of the envs that ended at a step (the env restarted them), e.g. for a
-            controller to drop their memory; not after the step that ends the last episode when the loop stops.
+        on_reset: called, after ``controller.reset``, with the (n,) ids of the envs that ended at a step (the env
+            restarted them); neither is called after the step that ends the last episode when the loop stops.
         desc: the progress bar's label (default "E episodes").
         policy: (E, obs_dim) ``obs[obs_group]`` (the TensorDict without ``obs_group``) -> (E, act_dim) actions,
             applied with ``env.step``.
@@ -138,10 +139,13 @@ def record(env, step: StepFn | None = None, after: dict[str, Probe] | None = Non
             which later in-place updates refuse).
 
     Raises:
-        ValueError: neither or both of ``step`` and ``policy``; ``capture`` without a policy and an ``obs_group``.
+        ValueError: neither or both of ``controller`` and ``policy``; a controller of another env; ``capture``
+            without a policy and an ``obs_group``.
     """
-    if (step is None) == (policy is None):
-        raise ValueError("record needs exactly one of step (obs -> env step outcome) and policy (obs -> actions)")
+    if (controller is None) == (policy is None):
+        raise ValueError("record needs exactly one of controller (envs/controller.py) and policy (obs -> actions)")
+    if controller is not None and controller.env is not env:
+        raise ValueError("record: the controller acts in another env than the one recorded")
     if capture is not False and (policy is None or obs_group is None):
         raise ValueError("capture keeps a policy's observations and actions: give policy and obs_group with it")
     n = env.num_envs
@@ -175,7 +179,7 @@ def record(env, step: StepFn | None = None, after: dict[str, Probe] | None = Non
             if until is not None and until():
                 break
             active[k] = alive.numpy()
-            obs, rew, dones, extras = env.step(action) if policy is not None else step(obs)
+            obs, rew, dones, extras = env.step(action) if policy is not None else controller_step(controller, obs)
             done = dones.detach().cpu().bool()
             time_out = extras["time_outs"].detach().cpu().bool()
             rew = rew.detach().cpu()
@@ -193,8 +197,12 @@ def record(env, step: StepFn | None = None, after: dict[str, Probe] | None = Non
             bar.update(1)
             if stop_when_all_ended and not bool(alive.any()):
                 break
-            if on_reset is not None and bool(done.any()):
-                on_reset(torch.nonzero(done).flatten())
+            if bool(done.any()) and (controller is not None or on_reset is not None):
+                ids = torch.nonzero(done).flatten()
+                if controller is not None:
+                    controller.reset(ids)
+                if on_reset is not None:
+                    on_reset(ids)
     return EpisodeRecord(command=command, active=active, valid=valid, reward=reward, fell=fell.numpy(),
                          length=length.numpy(), episode_return=episode_return.numpy(), step_dt=float(env.step_dt),
                          steps=simulated, before=read_before, after=read_after, obs=captured.get("obs"),

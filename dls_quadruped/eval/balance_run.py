@@ -2,7 +2,7 @@
 
 Used by ``make demo`` and by the foundation's integration test. The balance controller
 (``control/balance.py``) runs inside a ``LocomotionEnv`` of the home task (``envs/home_task.py``: robots
-in the home pose, no termination) as a controller of ``env.step_controlled``: at ``high_level_hz`` its
+in the home pose, no termination) as a controller of the env (``envs/controller.py``): at ``high_level_hz`` its
 latent action, clipped (Table 1) and turned into world references, goes to the backend, which runs
 physics and the low-level controller at 200 Hz; ``envs/recorder.py`` records every step.
 """
@@ -23,6 +23,7 @@ from dls_quadruped.control.latent_action import (
     to_world,
 )
 from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
+from dls_quadruped.envs.controller import EnvController, References
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.envs.home_task import home_task, physics_dt
 from dls_quadruped.envs.recorder import BASE_PROBES, record
@@ -60,19 +61,22 @@ class BalanceRun:
     summary: dict = field(default_factory=dict)
 
 
-class BalanceEnvController:
-    """The balance controller acting in a ``LocomotionEnv`` (``physics`` for ``env.step_controlled``): at every
-    env step it stands (``stand_steps`` steps: f = 0, d = 1, the phases keep their trot offsets) or trots,
-    clips its latent action (Table 1), turns it into world references with touch-downs at ``height_fn``, and
-    hands them to ``env.apply_references`` for the step's ``env.decimation`` physics steps.
+class BalanceEnvController(EnvController):
+    """The balance controller as a controller of the env (``envs/controller.py``), one command per env step: it
+    stands (``stand_steps`` steps: f = 0, d = 1, the phases keep their trot offsets) or trots, clips its latent
+    action (Table 1) and turns it into world references with touch-downs at ``height_fn``, held for the step's
+    ``env.decimation`` physics steps (``env.apply_references``).
 
     Args:
         cmd_vel_h: (B, 3) float64 command (v_x, v_y [m/s] in frame H, yaw rate [rad/s]).
     """
 
+    name = "balance"
+
     def __init__(self, env, cfg: BalanceConfig, cmd_vel_h: torch.Tensor, stand_steps: int,
                  height_fn: TerrainHeightFn = flat_ground):
-        self.env, self.cmd, self.stand_steps, self.height_fn = env, cmd_vel_h, stand_steps, height_fn
+        super().__init__(env, physics_steps=env.decimation)
+        self.cmd, self.stand_steps, self.height_fn = cmd_vel_h, stand_steps, height_fn
         self.controller = BalanceController(cfg)
         self.action_cfg = LatentActionConfig()
         self.steps = 0
@@ -82,16 +86,12 @@ class BalanceEnvController:
         """The next step trots."""
         return self.steps >= self.stand_steps
 
-    def physics(self) -> None:
+    def act(self, obs, substep: int) -> References:
         state = self.env.state
         action, _ = clip(self.controller(state, self.cmd, stand=not self.trotting), self.action_cfg)
         p_td_w, F_w = to_world(action, state.base_pos_w.double(), _yaw(state), self.height_fn, self.action_cfg)
-        self.env.apply_references(action.f, action.d, p_td_w, F_w, self.env.decimation)
         self.steps += 1
-
-    def step(self, obs):
-        """One env step (a ``recorder.StepFn``)."""
-        return self.env.step_controlled(self.physics)
+        return References(action.f, action.d, p_td_w, F_w)
 
 
 PROBES = {
@@ -141,7 +141,7 @@ def run_balance(
             height_fn = flat_ground if env.scene.terrain.is_plane else _terrain_height(env.scene.terrain)
         cmd = torch.tensor(cmd_vel_h, dtype=torch.float64).expand(num_envs, 3)
         ctrl = BalanceEnvController(env, balance_cfg, cmd, n_stand, height_fn)
-        rec = record(env, ctrl.step, PROBES, n_total, desc=f"balance, {num_envs} robots")
+        rec = record(env, ctrl, PROBES, n_total, desc=f"balance, {num_envs} robots")
     finally:
         env.close()
     time = np.array([(k + 1) * decimation * physics_dt() for k in range(n_total)])

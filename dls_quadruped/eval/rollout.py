@@ -1,7 +1,8 @@
 """Batched evaluation episodes: one episode per env, every env started together, no restarts counted.
 
 ``run_episodes`` steps a ``VecEnv``-like env (``LocomotionEnv``, or a scripted stand-in in tests)
-with a deterministic policy for one episode length and records, per step and env, the base
+with a deterministic policy (an ``envs.controller.PolicyController``, run by ``envs/recorder.record``) for one
+episode length and records, per step and env, the base
 velocity that the tracking rewards see, the reward divided by the policy step (the per-step
 "RL Reward" scale of thesis 7.3, when the env's reward is the evaluation reward), and whether the
 env was still in its first episode.
@@ -16,6 +17,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
+from dls_quadruped.envs.controller import PolicyController
 from dls_quadruped.envs.recorder import Probe, record
 
 Policy = Callable[[TensorDict], torch.Tensor]
@@ -65,7 +67,7 @@ def run_episodes(env, policy: Policy, num_steps: int | None = None, velocity: Ve
     env resets, so it is kept on the step that ends the episode; the velocity read after that step
     already belongs to the next episode, so it is not (``envs/recorder.py``).
     """
-    rec = record(env, lambda obs: env.step(policy(obs)), {"velocity": velocity}, num_steps)
+    rec = record(env, PolicyController(env, policy), {"velocity": velocity}, num_steps)
     return Traces(command=rec.command, velocity=rec.after["velocity"].astype(np.float32, copy=False), valid=rec.valid,
                   reward=rec.masked(rec.reward, rec.active), fell=rec.fell, length=rec.length, step_dt=rec.step_dt)
 
@@ -96,6 +98,6 @@ def record_episodes(env, policy: Policy, probes: dict[str, Probe], num_steps: in
     velocity alone. A probe read after the step that ends an env's episode already sees its next
     episode (the env resets inside ``step``), so that step is not ``valid``."""
     as_float = {name: (lambda env, p=probe: p(env).float()) for name, probe in probes.items()}
-    rec = record(env, lambda obs: env.step(policy(obs)), as_float, num_steps)
+    rec = record(env, PolicyController(env, policy), as_float, num_steps)
     return Recording(command=rec.command, probes=rec.after, valid=rec.valid, fell=rec.fell, length=rec.length,
                      step_dt=rec.step_dt)

@@ -16,8 +16,9 @@ At every MPC step (100 Hz) for B robots:
    this is a meaningful controller on its own. Optionally (``anchor_share > 0``, off in the thesis
    experiments) a share of the samples is drawn around the nominal trot (zero offsets) as well;
 4. the first action ``(f, d, p_0, F_0)`` goes to the low-level controller, which runs at 200 Hz
-   inside the simulator backend for ``mpc_period / physics_dt`` physics steps (``mpc/baseline_run.py``: in a
-   ``LocomotionEnv``; ``closed_loop``: the ``naive_warm_start`` controller).
+   inside the simulator backend for ``mpc_period / physics_dt`` physics steps (in a ``LocomotionEnv``: the closed
+   loop's ``naive_warm_start`` controller, ``closed_loop/mpc_controllers.py``, also the baseline run of
+   ``closed_loop/baseline_run.py``).
 
 The solve's inputs (SRBD state, references, frame H, ground) come from ``mpc/inputs.py``.
 """

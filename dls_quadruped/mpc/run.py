@@ -1,7 +1,7 @@
 """``python -m dls_quadruped.mpc.run``: the model-based baseline walking with a velocity command.
 
 Runs periodic trot + heuristic footholds (eq. 2.2.4) + the force-only sampling MPC at 100 Hz in
-an env of the home task (``mpc/baseline_run.py``; low-level control at 200 Hz) and writes to ``--out``:
+an env of the home task (``closed_loop/baseline_run.py``; low-level control at 200 Hz) and writes to ``--out``:
 
 * ``summary.json``: mean velocity after the first 2 s, tracking error, falls, solve settings;
 * ``baseline.png``: base velocity vs command, Hildebrand gait diagram, initial/rollout cost per step;
@@ -28,9 +28,9 @@ from dls_quadruped.cli import (
     run_cli,
     torch_device,
 )
+from dls_quadruped.closed_loop.baseline_run import BaselineRun, run_baseline
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.mpc.baseline import BaselineConfig
-from dls_quadruped.mpc.baseline_run import BaselineRun, run_baseline
 from dls_quadruped.mpc.config import KERNELS, SamplerConfig
 from dls_quadruped.viz.video import render_gif
 

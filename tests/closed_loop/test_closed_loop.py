@@ -67,8 +67,7 @@ def test_last_action_is_the_applied_mpc_action_and_nan_student_falls_back() -> N
         obs = env.get_observations()
         with torch.inference_mode():
             for _ in range(3):
-                ctrl.prepare(obs)
-                obs, *_ = env.step_controlled(ctrl.physics)
+                obs, *_ = ctrl.step(obs)
         res = ctrl.mpc.last_result
         # the last solve's action, normalised with the stance count it was applied with
         applied = env.action_manager.applied_action
@@ -81,9 +80,9 @@ def test_last_action_is_the_applied_mpc_action_and_nan_student_falls_back() -> N
         student = ctrl.students[0]
         ctrl.students[0] = lambda x: torch.cat([student(x)[:1], torch.full_like(student(x)[1:], float("nan"))])
         with torch.inference_mode():
-            ctrl.prepare(obs)
-            _, _, dones, _ = env.step_controlled(ctrl.physics)
-        rec = ctrl.records[-1]
+            _, _, dones, _ = ctrl.step(obs)
+        assert len(ctrl.step_records) == 2  # the env step's two solves
+        rec = ctrl.step_records[-1]
         assert rec.student_fallback.tolist() == [False, True] and not rec.fallback.any()
         assert not dones.any() and torch.isfinite(env.action_manager.applied_action).all()
     finally:

@@ -1,5 +1,6 @@
 """The closed-loop controllers by name (``closed_loop/registry.py``): the four built in, in ``--controllers``
-order, and a controller registered later is validated and built by name like them."""
+order, each its own class of the controller protocol (``envs/controller.py``), and a controller registered later
+is validated and built by name like them."""
 
 from __future__ import annotations
 
@@ -8,19 +9,41 @@ import pytest
 from dls_quadruped.closed_loop.controllers import (
     CONTROLLERS,
     ControllerConfig,
+    ExpertPolicy,
     MPCController,
+    NaiveWarmStartMPC,
     PolicyController,
+    RLWarmStartMPC,
+    StudentPolicy,
     make_controller,
 )
 from dls_quadruped.closed_loop.registry import CONTROLLER_REGISTRY
+from dls_quadruped.envs.controller import EnvController
 
 
 def test_the_four_controllers_in_order():
     assert CONTROLLERS == ("rl_warm_start", "naive_warm_start", "rl_baseline", "student")
     assert CONTROLLERS == CONTROLLER_REGISTRY.names()
-    assert [CONTROLLER_REGISTRY.get(n) for n in CONTROLLERS] == [MPCController, MPCController, PolicyController,
-                                                                 PolicyController]
+    classes = [CONTROLLER_REGISTRY.get(n) for n in CONTROLLERS]
+    assert classes == [RLWarmStartMPC, NaiveWarmStartMPC, ExpertPolicy, StudentPolicy]
+    assert len(set(classes)) == 4  # one class per name: none branches on the name
+    assert all(issubclass(c, MPCController) for c in classes[:2])
+    assert all(issubclass(c, PolicyController) and not issubclass(c, MPCController) for c in classes[2:])
+    assert all(issubclass(c, EnvController) for c in classes)
     assert all(CONTROLLER_REGISTRY.description(n) for n in CONTROLLERS)
+
+
+def test_no_controller_reads_its_name_to_decide_what_to_do():
+    """The controllers' modules never compare ``cfg.name`` (or ``self.name``) with a controller name."""
+    import inspect
+
+    from dls_quadruped.closed_loop import controller_base, controllers, mpc_controllers
+
+    for module in (controller_base, controllers, mpc_controllers):
+        source = inspect.getsource(module)
+        for name in CONTROLLERS:
+            for pattern in (f'name == "{name}"', f'name != "{name}"', f"name == '{name}'", f"name != '{name}'"):
+                assert pattern not in source, (module.__name__, pattern)
 
 
 def test_a_registered_controller_is_checked_and_built_by_name():

@@ -62,8 +62,7 @@ def _one_physics_step(students, shares=None):
 
         ctrl.mpc.solve = spy
         with torch.inference_mode():
-            ctrl.prepare(env.get_observations())
-            env.step_controlled(ctrl.physics)
+            ctrl.step(env.get_observations())
         return seen, ctrl
     finally:
         env.close()
@@ -78,7 +77,7 @@ def test_two_students_seed_their_own_groups_with_their_shares() -> None:
     _, _, counts = group_layout(SMALL.num_samples, props)
     assert counts == (120, 280)
     assert set(result.warm_start_index.tolist()) <= {0, 1}
-    assert len(ctrl.records) == 2 and ctrl.records[0].warm_start_index.shape == (2,)
+    assert len(ctrl.step_records) == 2 and ctrl.step_records[0].warm_start_index.shape == (2,)
 
 
 def test_two_identical_students_equal_one_with_the_summed_share() -> None:

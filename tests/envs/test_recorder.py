@@ -1,6 +1,6 @@
 """The episode recorder (``envs/recorder.py``) on a scripted env whose episodes end at known steps: what belongs
 to each robot's first episode (``active``, ``valid``), lengths, falls, probes read before and after a step,
-the restart hook, the early stop, and the dtypes the probes came in."""
+the controller's reset at every restart, the early stop, and the dtypes the probes came in."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
+from dls_quadruped.envs.controller import EnvController
 from dls_quadruped.envs.recorder import EpisodeRecord, record
 
 DT = 0.02
@@ -32,8 +33,8 @@ class ScriptedEnv:
     def get_observations(self) -> TensorDict:
         return TensorDict({"policy": torch.full((3, 1), float(self.k))}, batch_size=[3])
 
-    def step(self, obs: TensorDict):
-        assert obs["policy"][0, 0] == self.k  # the step function is handed the last observation
+    def step(self, actions: torch.Tensor):
+        assert actions[0, 0] == self.k  # the controller acted on the last observation
         self.k += 1
         fall = torch.tensor([False, self.k == 2, self.k in (4, 5)])
         time_out = torch.tensor([self.k == 6, False, False])
@@ -43,14 +44,27 @@ class ScriptedEnv:
         return self.get_observations(), reward, dones.long(), {"time_outs": time_out}
 
 
+class Echo(EnvController):
+    """At the policy rate: its action is the observation; keeps the ids of every reset."""
+
+    def __init__(self, env):
+        super().__init__(env)
+        self.resets: list[list[int]] = []
+
+    def act(self, obs: TensorDict, substep: int) -> torch.Tensor:
+        return obs["policy"]
+
+    def reset(self, env_ids: torch.Tensor) -> None:
+        self.resets.append(env_ids.tolist())
+
+
 def _record(env, steps=None, **kw) -> tuple[EpisodeRecord, list[list[int]]]:
-    resets: list[list[int]] = []
-    rec = record(env, env.step, {"episode_k": lambda e: e.episode_k.clone(),
-                                 "bool": lambda e: torch.tensor([True, False, True]),
-                                 "f64": lambda e: torch.full((3, 2), e.k, dtype=torch.float64)},
-                 steps, before={"k_before": lambda e: torch.full((3,), float(e.k))},
-                 on_reset=lambda ids: resets.append(ids.tolist()), **kw)
-    return rec, resets
+    ctrl = Echo(env)
+    rec = record(env, ctrl, {"episode_k": lambda e: e.episode_k.clone(),
+                             "bool": lambda e: torch.tensor([True, False, True]),
+                             "f64": lambda e: torch.full((3, 2), e.k, dtype=torch.float64)},
+                 steps, before={"k_before": lambda e: torch.full((3,), float(e.k))}, **kw)
+    return rec, ctrl.resets
 
 
 def test_masks_lengths_and_falls_by_hand():
@@ -118,7 +132,7 @@ class ActedEnv(ScriptedEnv):
 
     def step(self, actions: torch.Tensor):
         self.applied.append(actions.clone())
-        return super().step(self.get_observations())
+        return super().step(self.get_observations()["policy"])
 
 
 def _double(obs: torch.Tensor) -> torch.Tensor:
@@ -174,11 +188,16 @@ def test_grad_mode_inference_or_no_grad():
 
 def test_bad_arguments_name_what_is_allowed():
     env = ActedEnv()
-    with pytest.raises(ValueError, match="exactly one of step"):
+    with pytest.raises(ValueError, match="exactly one of controller"):
         record(env)
-    with pytest.raises(ValueError, match="exactly one of step"):
-        record(env, env.step, policy=_double)
+    with pytest.raises(ValueError, match="exactly one of controller"):
+        record(env, Echo(env), policy=_double)
     with pytest.raises(ValueError, match="give policy and obs_group"):
         record(env, policy=_double, capture=True)
     with pytest.raises(ValueError, match="give policy and obs_group"):
-        record(ScriptedEnv(), ScriptedEnv().step, capture=True)
+        record(env, Echo(env), capture=True)
+
+
+def test_the_controller_must_act_in_the_recorded_env():
+    with pytest.raises(ValueError, match="another env"):
+        record(ScriptedEnv(), Echo(ScriptedEnv()))

@@ -19,7 +19,7 @@ The runs (CPU, in-process, seed 0):
   0.3 s, 256 MPC samples, 2 sampler seeds.
 * ``balance``: the balance controller in the env (``eval.balance_run.run_balance``), 2 robots, 0.2 s
   stand + 0.7 s trot (one gait cycle, which its summary needs).
-* ``baseline``: the model-based baseline in the env (``mpc.baseline_run.run_baseline``), 2 robots, 0.3 s.
+* ``baseline``: the model-based baseline in the env (``closed_loop.baseline_run.run_baseline``), 2 robots, 0.3 s.
 """
 
 from __future__ import annotations
@@ -135,8 +135,8 @@ def _balance() -> dict:
 
 
 def _baseline() -> dict:
+    from dls_quadruped.closed_loop.baseline_run import run_baseline
     from dls_quadruped.mpc.baseline import BaselineConfig
-    from dls_quadruped.mpc.baseline_run import run_baseline
     from dls_quadruped.mpc.config import SamplerConfig
 
     run = run_baseline(seconds=0.3, num_robots=2, cfg=BaselineConfig(sampler=SamplerConfig(num_samples=256)), seed=0)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
+from dls_quadruped.closed_loop.baseline_run import run_baseline
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.mpc.baseline import BaselineConfig
-from dls_quadruped.mpc.baseline_run import run_baseline
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.inputs import heuristic_footholds_h
 from dls_quadruped.robots.aliengo import constants as C

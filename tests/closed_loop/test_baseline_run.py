@@ -1,5 +1,6 @@
-"""The model-based baseline run as a controller of the env (``mpc/baseline_run.py``) is the loop it replaces: the
-backend stepped by hand from ``home_state``, one solve's world references per MPC period, bit for bit."""
+"""The model-based baseline run in the env (``closed_loop/baseline_run.py``: the ``naive_warm_start`` controller
+sending world references) is the loop it replaces: the backend stepped by hand from ``home_state``, one solve's
+world references per MPC period, bit for bit."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ import mujoco
 import numpy as np
 import torch
 
+from dls_quadruped.closed_loop.baseline_run import run_baseline
 from dls_quadruped.mpc.baseline import BaselineConfig, ModelBasedBaseline
-from dls_quadruped.mpc.baseline_run import run_baseline
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.interface import SimConfig, home_state

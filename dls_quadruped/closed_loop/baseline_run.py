@@ -1,10 +1,11 @@
 """The model-based baseline walking in an env (``python -m dls_quadruped.mpc.run``, its acceptance tests).
 
-``ModelBasedBaseline`` (``mpc/baseline.py``) runs inside a ``LocomotionEnv`` of the home task
-(``envs/home_task.py``: robots in the home pose, no termination) as a controller of ``env.step_controlled``:
-one env step is one MPC period, whose solve's first action, in world references (``MPCResult.foot_target_w``,
-``force_w``), goes to the backend through ``env.apply_references`` for ``mpc_period / physics_dt`` physics
-steps; ``envs/recorder.py`` records every step.
+The closed loop's ``naive_warm_start`` controller (``closed_loop/mpc_controllers.NaiveWarmStartMPC``: the
+model-based baseline of ``mpc/baseline.py``) runs inside a ``LocomotionEnv`` of the home task
+(``envs/home_task.py``: robots in the home pose, no termination, the command fixed): one env step is one MPC
+period, whose solve's first action, in world references (``MPCResult.foot_target_w``, ``force_w``), goes to the
+backend through ``env.apply_references`` for ``mpc_period / physics_dt`` physics steps; ``envs/recorder.py``
+records every step.
 """
 
 from __future__ import annotations
@@ -14,37 +15,13 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from dls_quadruped.closed_loop.controller_config import ControllerConfig
+from dls_quadruped.closed_loop.mpc_controllers import NaiveWarmStartMPC
 from dls_quadruped.envs.env import LocomotionEnv
 from dls_quadruped.envs.home_task import home_task, physics_dt
 from dls_quadruped.envs.recorder import BASE_PROBES, record
-from dls_quadruped.mpc.baseline import BaselineConfig, ModelBasedBaseline
-from dls_quadruped.mpc.sampler import MPCResult
+from dls_quadruped.mpc.baseline import BaselineConfig
 from dls_quadruped.sim.terrain import TerrainConfig
-
-
-class BaselineEnvController:
-    """The model-based baseline acting in a ``LocomotionEnv`` whose step is one MPC period (``physics`` for
-    ``env.step_controlled``): one solve from ``env.state``, its references to ``env.apply_references``.
-
-    Args:
-        cmd_vel_h: (B, 3) command (v_x, v_y [m/s] in frame H, yaw rate [rad/s]).
-        device: where the MPC computes; seed: its noise's.
-    """
-
-    def __init__(self, env, cfg: BaselineConfig, cmd_vel_h: torch.Tensor, device: str = "cpu", seed: int = 0):
-        self.env, self.cmd = env, cmd_vel_h
-        self.baseline = ModelBasedBaseline(env.num_envs, cfg, device, seed)
-        self.result: MPCResult | None = None
-        """The last solve's result."""
-
-    def physics(self) -> None:
-        self.result, _ = self.baseline.step(self.env.state, self.cmd)
-        r = self.result
-        self.env.apply_references(r.f, r.d, r.foot_target_w, r.force_w, self.env.decimation)
-
-    def step(self, obs):
-        """One env step (a ``recorder.StepFn``)."""
-        return self.env.step_controlled(self.physics)
 
 
 @dataclass
@@ -69,7 +46,7 @@ class BaselineRun:
     qpos: np.ndarray
 
 
-def _probes(ctrl: BaselineEnvController) -> dict:
+def _probes(ctrl: NaiveWarmStartMPC) -> dict:
     """What ``run_baseline`` records after every step, by ``BaselineRun`` field (and the fall flags)."""
     return {
         **BASE_PROBES,
@@ -96,7 +73,7 @@ def run_baseline(
 
     ``terrain``: the ground (None: MuJoCo's plane), the robots spawned at ``origin_w`` (x, y) [m] on a flat patch
     at z = 0 (the MPC plans on flat ground at z = 0). ``device``: where the MPC computes; ``backend``: the
-    simulator (``sim/registry.py``); the controller reads its state on the CPU.
+    simulator (``sim/registry.py``); the env's tensors are on the CPU.
     """
     period = cfg.sampler.mpc_period
     decimation = round(period / physics_dt())
@@ -105,9 +82,8 @@ def run_baseline(
                      backend=backend)
     env = LocomotionEnv(task, num_envs=num_robots, seed=seed, verbose=False)
     try:
-        cmd = torch.tensor(cmd_vel_h, dtype=torch.float32).expand(num_robots, 3)
-        ctrl = BaselineEnvController(env, cfg, cmd, device, seed)
-        rec = record(env, ctrl.step, _probes(ctrl), steps, desc=f"model-based baseline, {num_robots} robots")
+        ctrl = NaiveWarmStartMPC(ControllerConfig.naive(cfg, seed), env, references=True, device=device)
+        rec = record(env, ctrl, _probes(ctrl), steps, desc=f"model-based baseline, {num_robots} robots")
     finally:
         env.close()
     fields = {k: v for k, v in rec.after.items() if k != "down"}
