@@ -7,6 +7,8 @@ setup(
     version="0.1.0",
     description="AlienGo in MuJoCo with a latent-action low-level controller, PPO policies and a torch sampling MPC",
     python_requires=">=3.11",
+    # experiments/ is a package of the clone, not installed: its scripts run from the repository root as
+    # `python -m experiments.<script>` and their default paths (docs/policies, results/) are the clone's
     packages=find_packages(include=["dls_quadruped", "dls_quadruped.*"]),
     package_data={"dls_quadruped": ["robots/aliengo/*.xml", "mpc/*.cpp", "mpc/*.h", "bench/*.npz"]},
     install_requires=[

@@ -6,7 +6,7 @@ the simple task with Gaussian noise of std ``sigma`` (raw action units, as the t
 one component's raw actions at every policy step -- f (4 step frequencies), d (4 duties), p (8 foothold offsets), F
 (12 forces) or all 28 -- and its reward per step is paired with the noiseless policy's on the same episodes.
 
-    python experiments/action_noise_cost.py --policy docs/policies/base_recipe_actor.pt2 --sigmas 0.5 1.0
+    python -m experiments.action_noise_cost --policy docs/policies/base_recipe_actor.pt2 --sigmas 0.5 1.0
 
 Every condition draws the same (steps, robots, 28) noise sequence from one seeded generator and keeps only its
 component's columns, so two conditions differ only in where the noise goes (common random numbers). Episodes: the
@@ -17,19 +17,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-
 from dls_quadruped.cli import ArgumentParser, positive_int, run_cli
 from dls_quadruped.control.latent_action import ACTION_GROUPS
+
+ROOT = Path(__file__).resolve().parents[1]
 
 GROUPS = {**{name: rows for name, rows in ACTION_GROUPS}, "all": slice(0, 28)}
 """Component name -> columns of the 28-vector that get the noise."""

@@ -19,37 +19,27 @@ naive warm start of its encoding. Per encoding:
 at the default and once at the height the expert walks (0.357 m for the first base expert) to see how much of
 the gap is the reference.
 
-    python experiments/cost_gap.py --scale medium --seed-students runs/students_seeds
-    python experiments/cost_gap.py --scale medium --seed-students runs/students_seeds --com-height 0.357 \\
+    python -m experiments.cost_gap --scale medium --seed-students runs/students_seeds
+    python -m experiments.cost_gap --scale medium --seed-students runs/students_seeds --com-height 0.357 \\
         --out results/experiments/cost_gap_h0.357
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import run_cli
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.mpc.cost import STATE_TERMS
-from experiments.distill_common import write_table
-from experiments.warm_start_common import (
+from experiments.output import pyplot, save, write_table
+from experiments.warm_start_common import Cell, parse_args, run_cells
+from experiments.warm_start_seeds import (
     SEED_STUDENTS,
-    Cell,
-    finish,
-    med,
     merge_seed_rows,
-    paired,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
     seed_student_cells,
-    survival,
 )
+from experiments.warm_start_tables import finish, med, paired, survival
 
 ENCODINGS = (("first", "spline"), ("discrete", "discrete"))
 SEEDS = SEED_STUDENTS
@@ -122,7 +112,8 @@ def figure(results: dict, path: Path) -> None:
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(14, 4))
     terms = list(STATE_TERMS)
-    for ax, prefix, what in ((axes[0], "initial_term_", "initial cost"), (axes[1], "rollout_term_", "state rollout cost")):
+    for ax, prefix, what in ((axes[0], "initial_term_", "initial cost"),
+                             (axes[1], "rollout_term_", "state rollout cost")):
         for j, (p, F) in enumerate(ENCODINGS):
             rl, naive = results.get(f"rl_warm_start_{p}-{F}", {}), results.get(f"naive_warm_start_{p}-{F}", {})
             if "per_episode" not in rl or "per_episode" not in naive:

@@ -1,7 +1,7 @@
 """Fig. 17 (thesis 7.1.2): the four RL experts on the simple task, base-task (Table-4) reward.
 
-    python experiments/fig17_simple_task.py --scale small     # about 1 min per policy on 2 cores
-    python experiments/fig17_simple_task.py --scale thesis
+    python -m experiments.fig17_simple_task --scale small     # about 1 min per policy on 2 cores
+    python -m experiments.fig17_simple_task --scale thesis
 
 Scenario ``simple`` (docs/eval.md): one command per 15 s episode, v_x in [0.3, 0.6] m/s, v_y in
 [-0.2, 0.2] m/s, omega_z in [-0.5, 0.5] rad/s, flat, no disturbance. Per policy: the per-step
@@ -11,19 +11,10 @@ base's reward relative to it. Thesis: base is best, "at least 20 % better" than 
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from experiments.rl_common import (
-    mean_cell,
-    num,
-    pyplot,
-    rate_cell,
-    run,
-    save,
-)
+from experiments.output import pyplot, save
+from experiments.rl_common import mean_cell, num, rate_cell, run
 
 NAME, SCENARIO = "fig17_simple_task", "simple"
 THESIS = {"base": "best", "rough": "general-purpose, 2nd", "speed": "specialised, lower", "climb": "specialised, lower"}
@@ -65,7 +56,8 @@ def figure(results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 17, scale {scale}: simple task, Table-4 reward", figure, "fig17.png", argv)
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 17, scale {scale}: simple task, Table-4 reward", figure, "fig17.png",
+        argv)
 
 
 if __name__ == "__main__":

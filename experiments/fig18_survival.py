@@ -1,7 +1,7 @@
 """Fig. 18 (thesis 7.1.3): survival of the four RL experts on the survival task.
 
-    python experiments/fig18_survival.py --scale small     # about 2 min per policy on 2 cores
-    python experiments/fig18_survival.py --scale thesis
+    python -m experiments.fig18_survival --scale small     # about 2 min per policy on 2 cores
+    python -m experiments.fig18_survival --scale thesis
 
 Scenario ``survival`` (docs/eval.md): simple-task commands on the rough task's hardest terrain rows
 (rugged, slopes, boxes, stairs), pushes of +-1 m/s every 4-6 s, friction 0.2-1.0, +-20 N wrench,
@@ -12,20 +12,12 @@ the rough task".
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from experiments.rl_common import (
-    percent_band,
-    pyplot,
-    rate_cell,
-    run,
-    save,
-)
+from experiments.output import pyplot, save
+from experiments.rl_common import percent_band, rate_cell, run
 
 NAME, SCENARIO = "fig18_survival", "survival"
 THESIS = {"base": "does not withstand", "rough": "below climb", "speed": "does not withstand", "climb": "best"}

@@ -1,6 +1,6 @@
 """Fig. 18b (ours, beside thesis 7.1.3): survival of the four RL experts vs terrain difficulty.
 
-    python experiments/fig18b_survival_sweep.py --scale small     # about 1-2 min per policy on 2 cores
+    python -m experiments.fig18b_survival_sweep --scale small     # about 1-2 min per policy on 2 cores
 
 Scenario ``survival_sweep`` (docs/eval.md): the survival task's commands and terrain types over the
 rough task's *whole* difficulty range, 8 rows from 0 (nearly flat) to 1 (``survival``'s hardest
@@ -14,20 +14,12 @@ policy: survival per difficulty row (Wilson 95 %) and the difficulty where it fi
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from experiments.rl_common import (
-    percent_band,
-    pyplot,
-    rate_cell,
-    run,
-    save,
-)
+from experiments.output import pyplot, save
+from experiments.rl_common import percent_band, rate_cell, run
 
 NAME, SCENARIO = "fig18b_survival_sweep", "survival_sweep"
 THESIS = {"base": "does not withstand", "rough": "below climb", "speed": "does not withstand", "climb": "best"}

@@ -1,7 +1,7 @@
 """Fig. 19: staircase performance of the four RL experts vs step height (5-50 cm).
 
-    python experiments/fig19_stairs.py --scale small     # about 2 min per policy on 2 cores
-    python experiments/fig19_stairs.py --scale thesis
+    python -m experiments.fig19_stairs --scale small     # about 2 min per policy on 2 cores
+    python -m experiments.fig19_stairs --scale thesis
 
 Scenario ``stairs`` (docs/eval.md): a 6-step ``stairs_up`` flight per height, 0.3-0.5 m/s
 forward, no noise or perturbation. Per policy and height: reached the top (Wilson 95 %) and the
@@ -11,14 +11,12 @@ Thesis: "not particularly good"; performance drops after 25 cm, even for climb; 
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from experiments.rl_common import num, pyplot, run, save
+from experiments.output import pyplot, save
+from experiments.rl_common import num, run
 
 NAME, SCENARIO = "fig19_stairs", "stairs"
 
@@ -58,7 +56,8 @@ def figure(results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 19, scale {scale}: reached the top of a 6-step flight per step height", figure, "fig19.png", argv)
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 19, scale {scale}: reached the top of a 6-step flight per step height",
+        figure, "fig19.png", argv)
 
 
 if __name__ == "__main__":

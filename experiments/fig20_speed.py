@@ -1,7 +1,7 @@
 """Fig. 20: survival probability of the four RL experts vs commanded forward speed, flat ground.
 
-    python experiments/fig20_speed.py --scale small     # about 1 min per policy on 2 cores
-    python experiments/fig20_speed.py --scale thesis
+    python -m experiments.fig20_speed --scale small     # about 1 min per policy on 2 cores
+    python -m experiments.fig20_speed --scale thesis
 
 Scenario ``speed`` (docs/eval.md): (v, 0, 0) for 15 s, v = 0.25 ... 2.5 m/s, flat, no disturbance.
 Per policy and speed: survival (Wilson 95 %) and achieved speed (mean, 95 % CI); per policy the
@@ -12,20 +12,12 @@ which it was trained" (1 m/s); rough falls above 0.8 m/s; climb does not fall bu
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from experiments.rl_common import (
-    mean_cell,
-    num,
-    pyplot,
-    run,
-    save,
-)
+from experiments.output import pyplot, save
+from experiments.rl_common import mean_cell, num, run
 
 NAME, SCENARIO = "fig20_speed", "speed"
 TRAINED_MAX = {"base": 1.0, "rough": 0.8, "speed": 2.1, "climb": 0.5}
@@ -78,7 +70,8 @@ def figure(results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 20, scale {scale}: survival vs forward speed", figure, "fig20.png", argv)
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 20, scale {scale}: survival vs forward speed", figure, "fig20.png",
+        argv)
 
 
 if __name__ == "__main__":

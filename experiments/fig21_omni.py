@@ -1,7 +1,7 @@
 """Fig. 21: omnidirectional capability, the 90 %-success isoline of the four RL experts.
 
-    python experiments/fig21_omni.py --scale small     # about 2 min per policy on 2 cores
-    python experiments/fig21_omni.py --scale thesis
+    python -m experiments.fig21_omni --scale small     # about 2 min per policy on 2 cores
+    python -m experiments.fig21_omni --scale thesis
 
 Scenario ``omni`` (docs/eval.md): 8 directions x magnitudes 0.25-2 m/s, flat, no disturbance;
 success = survived and |mean v_xy - cmd| <= max(25 % |cmd|, 0.1 m/s). Per policy and direction:
@@ -13,20 +13,12 @@ its 1 m/s training range.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from experiments.rl_common import (
-    mean_cell,
-    num,
-    pyplot,
-    run,
-    save,
-)
+from experiments.output import pyplot, save
+from experiments.rl_common import mean_cell, num, run
 
 NAME, SCENARIO = "fig21_omni", "omni"
 THESIS = {"base": "~1.5 m/s in every direction", "rough": "its +-0.8 m/s disc", "speed": "forward to ~2 m/s",
@@ -42,7 +34,8 @@ def rows_of(results: dict) -> list[dict]:
             cells = []
             for s in (iso["success"], iso["survival"]):
                 mark = ">" if s["beyond_grid"] else ("<" if s["below_grid"] else "")
-                cells.append(f"{mark}{num(s['magnitude'], '.2f')} [{num(s['ci95'][0], '.2f')}, {num(s['ci95'][1], '.2f')}]")
+                lo, hi = (num(x, ".2f") for x in s["ci95"])
+                cells.append(f"{mark}{num(s['magnitude'], '.2f')} [{lo}, {hi}]")
             row[f"{iso['direction_deg']:g} deg success / survival"] = " / ".join(cells)
         row["thesis"] = THESIS[task]
         rows.append(row)
@@ -75,7 +68,8 @@ def figure(results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 21, scale {scale}: 90 %-success isoline per direction", figure, "fig21.png", argv)
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 21, scale {scale}: 90 %-success isoline per direction", figure,
+        "fig21.png", argv)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Fig. 22: cost of transport (eq. 4.3.7) of the four RL experts vs forward speed, flat ground.
 
-    python experiments/fig22_cot.py --scale small     # about 40 s per policy on 2 cores
-    python experiments/fig22_cot.py --scale thesis
+    python -m experiments.fig22_cot --scale small     # about 40 s per policy on 2 cores
+    python -m experiments.fig22_cot --scale thesis
 
 Scenario ``cot`` (docs/eval.md): (v, 0, 0) for 15 s, v = 0.25 ... 2.5 m/s; per episode the energy
 sum_t sum_j max(tau qdot + 0.3 tau^2, 0) dt over m g times the distance walked, after a 2 s
@@ -12,14 +12,12 @@ has the highest CoT up to 1.1 m/s, then drops at its trot -> trot-gallop transit
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from experiments.rl_common import pyplot, run, save
+from experiments.output import pyplot, save
+from experiments.rl_common import run
 
 NAME, SCENARIO = "fig22_cot", "cot"
 
@@ -65,7 +63,8 @@ def figure(results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 22, scale {scale}: cost of transport vs speed", figure, "fig22.png", argv)
+    run(__doc__, NAME, SCENARIO, rows_of, "Fig. 22, scale {scale}: cost of transport vs speed", figure, "fig22.png",
+        argv)
 
 
 if __name__ == "__main__":

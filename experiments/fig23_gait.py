@@ -1,7 +1,7 @@
 """Fig. 23 (a: base, b: speed): gait (contact pattern) and step frequency vs forward speed.
 
-    python experiments/fig23_gait.py --scale small     # about 40 s per policy on 2 cores
-    python experiments/fig23_gait.py --scale thesis
+    python -m experiments.fig23_gait --scale small     # about 40 s per policy on 2 cores
+    python -m experiments.fig23_gait --scale thesis
 
 Scenario ``gait`` (docs/eval.md): (v, 0, 0) for 15 s, v = 0.25 ... 2.5 m/s, flat; per policy and
 speed the step frequency (the action's f and the feet's touch-downs per second), duty factor and
@@ -14,14 +14,12 @@ rising sharply at its maximum; no flying gait.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from experiments.rl_common import pyplot, run, save
+from experiments.output import pyplot, save
+from experiments.rl_common import run
 
 NAME, SCENARIO = "fig23_gait", "gait"
 PAIRS = ("diagonal", "lateral", "front", "rear")

@@ -3,23 +3,18 @@ alpha in {0.3, 0.6, 0.9}; SP (a) and test MSE (b) over the epochs. The thesis do
 encoding of this figure; we use discrete-discrete, H = 5, dt = 0.02 s as in Table 12. 3 training
 seeds per selector; every epoch's students are evaluated on the same SP episodes and test states.
 
-    python experiments/fig24_selector.py --scale small
+    python -m experiments.fig24_selector --scale small
 """
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 import time
+from pathlib import Path
 
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.provenance import provenance
 from experiments.distill_common import (
     Run,
-    evaluate,
     mse_cell,
     parse_args,
     seeds_cell,
@@ -27,8 +22,9 @@ from experiments.distill_common import (
     sp_cell,
     train_runs,
     write_config,
-    write_table,
 )
+from experiments.distill_eval import evaluate
+from experiments.output import write_table
 
 SELECTORS = [("indicator", {"kind": "indicator"}), ("alpha_0.3", {"kind": "exponential", "alpha": 0.3}),
              ("alpha_0.6", {"kind": "exponential", "alpha": 0.6}), ("alpha_0.9", {"kind": "exponential", "alpha": 0.9})]
@@ -57,7 +53,8 @@ def figure(ev: dict, path: Path) -> None:
         a.fill_between(e, [100 * r["ci95"][0] for r in sp[name]], [100 * r["ci95"][1] for r in sp[name]],
                        color=line.get_color(), alpha=0.15)
         m = mse[name]
-        b.plot([r["epoch"] for r in m], [r["mse"] for r in m], "o-", color=line.get_color(), label=name.replace("_", " = "))
+        b.plot([r["epoch"] for r in m], [r["mse"] for r in m], "o-", color=line.get_color(),
+               label=name.replace("_", " = "))
         b.fill_between([r["epoch"] for r in m], [r["ci95"][0] for r in m], [r["ci95"][1] for r in m],
                        color=line.get_color(), alpha=0.15)
     a.set_xlabel("epoch")
@@ -85,7 +82,8 @@ def main() -> None:
     for r in rs:
         for snap, m, h in zip(ev["sp"][r.name], ev["mse"][r.name], trained[r.name]["history"]):
             rows.append({**r.row, "epoch": snap["epoch"], "beta": f"{h['beta']:.3g}", "MSE [95 % CI]": mse_cell(m),
-                         "SP [95 % CI]": sp_cell(snap), "SP per seed [%]": seeds_cell([p["sp"] for p in snap["per_seed"]]),
+                         "SP [95 % CI]": sp_cell(snap),
+                         "SP per seed [%]": seeds_cell([p["sp"] for p in snap["per_seed"]]),
                          "survival": f"{100 * snap['survival']['rate']:.1f} %", "seeds": snap["seeds"],
                          "SP episodes": snap["episodes"], "dataset": h["dataset_size"]})
     cols = ["selector", "epoch", "beta", "MSE [95 % CI]", "SP [95 % CI]", "SP per seed [%]", "survival", "seeds",

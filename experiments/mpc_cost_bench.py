@@ -7,20 +7,17 @@ steps after 5 warm-up steps; the term's share is (with - without) / without, med
 call (``rewards.mpc_trajectory_cost`` with the task's parameters: the kernel's cost every step, the split by term
 every ``split_every``-th) and the split alone (``mpc.horizon.score_horizon(..., terms=True)``) are timed beside it.
 
-    python experiments/mpc_cost_bench.py --num-envs 256 --rounds 3 --steps 40
+    python -m experiments.mpc_cost_bench --num-envs 256 --rounds 3 --steps 40
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 from pathlib import Path
 
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json

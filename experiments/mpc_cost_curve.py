@@ -5,8 +5,8 @@
 length in s, mean over the robots that reset in the iteration; ``mpc_trajectory_cost/<term>`` its split), so the
 curve shows what the cost term did. CSV + PNG (return; the trajectory cost by term; velocity tracking).
 
-    python experiments/mpc_cost_curve.py runs/base_mpc_cost/w0.1_s0 --csv docs/experiments/mpc_cost/learning_curve_w0.1_s0.csv
-    python experiments/mpc_cost_curve.py runs/base_mpc_cost/w0.05_s0_cont --append \
+    python -m experiments.mpc_cost_curve runs/base_mpc_cost/w0.1_s0 --csv docs/experiments/mpc_cost/learning_curve_w0.1_s0.csv
+    python -m experiments.mpc_cost_curve runs/base_mpc_cost/w0.05_s0_cont --append \
         --csv docs/experiments/mpc_cost/learning_curve_w0.05_s0.csv   # a resumed run's later iterations
 """
 
@@ -15,10 +15,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import ArgumentParser, UserError, run_cli
 from dls_quadruped.viz.learning_curve import COLUMNS, read_run

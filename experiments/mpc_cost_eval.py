@@ -17,18 +17,15 @@ two-level bootstrap, 2 000 resamples): the primary (initial cost, W = -0.1 merge
 4 (by term). The manipulation check -- the policy's own trajectory cost c alone on the test episodes, 5.3 policy -
 DAgger student -- is measured by ``mpc_cost_select.evaluate`` on the same commands (``manipulation.json``).
 
-    python experiments/mpc_cost_eval.py --scale medium --runs w0.1_s0 w0.1_s1 \\
+    python -m experiments.mpc_cost_eval --scale medium --runs w0.1_s0 w0.1_s1 \\
         --out docs/experiments/mpc_cost/eval_medium
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import run_cli
 from dls_quadruped.core.json_io import write_json
@@ -36,19 +33,11 @@ from dls_quadruped.eval.metrics import paired_difference
 from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.eval.scenario import EvalOptions
 from dls_quadruped.mpc.cost import STATE_TERMS
-from experiments.distill_common import write_table
 from experiments.mpc_cost_select import STUDENT, evaluate
-from experiments.warm_start_common import (
-    Cell,
-    finish,
-    med,
-    merge_training_seeds,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
-    survival,
-)
+from experiments.output import pyplot, save, write_table
+from experiments.warm_start_common import Cell, parse_args, run_cells
+from experiments.warm_start_seeds import merge_training_seeds
+from experiments.warm_start_tables import finish, med, survival
 
 FIRST_SPLINE = {"encoding_p": "first", "encoding_F": "spline"}
 POLICIES = Path("docs/policies")  # relative to the repository root, where the scripts run

@@ -6,18 +6,15 @@ the identity (mean 0, sigma + eps = 1) and whose last layer's rows are divided b
 multiplies them back), so the program's output is the actor's mean exactly; the encoding metadata (p, F, H, dt, from
 the task's ``actions.horizon``) goes with it, so ``rl_warm_start`` checks it against the MPC like any student.
 
-    python experiments/mpc_cost_export.py runs/base_mpc_cost/w0.1_s0/model_499.pt --out runs/mpc_cost/w0.1_s0.pt2
+    python -m experiments.mpc_cost_export runs/base_mpc_cost/w0.1_s0/model_499.pt --out runs/mpc_cost/w0.1_s0.pt2
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import ArgumentParser, UserError, run_cli
 from dls_quadruped.envs.config import load_task

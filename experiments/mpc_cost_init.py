@@ -14,7 +14,7 @@ the plans past a clip of 50), at 0.3 of it the median is 10. The student has no 
 the expert's critic (``--critic-from``, the same 259 observations) is the closest value function of the base
 reward, which the task keeps. The file has the layout of ``docs/policies/*_networks.pt``.
 
-    python experiments/mpc_cost_init.py                                  # -> runs/mpc_cost/student_networks.pt
+    python -m experiments.mpc_cost_init                                  # -> runs/mpc_cost/student_networks.pt
     python -m dls_quadruped.learning.train --task base_mpc_cost --init-from runs/mpc_cost/student_networks.pt
 
 Raises a named error when the student's encoding or observation size is not the task's ``actions.horizon``.
@@ -24,12 +24,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 from pathlib import Path
 
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import ArgumentParser, UserError, run_cli
 from dls_quadruped.envs.config import load_task

@@ -5,19 +5,16 @@ the same env (same seed, so the same commands) for ``--steps`` policy steps; aft
 (``mpc_trajectory_cost``, no clip) and its planar velocity error are collected. Episodes of the training
 distribution, not the evaluation's validation or test split: exploratory, no interval.
 
-    python experiments/mpc_cost_preview.py docs/policies/base_recipe_student_first_spline_h10.pt2 \
+    python -m experiments.mpc_cost_preview docs/policies/base_recipe_student_first_spline_h10.pt2 \
         runs/base_mpc_cost/w0.1_s0/exported/policy.pt2
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.envs.config import load_task

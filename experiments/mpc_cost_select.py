@@ -10,7 +10,7 @@ reward plus ``W`` times the trajectory cost c (``mpc_trajectory_cost``, the task
 policy; a tie goes to the later one. Also recorded per candidate: survival and the mean c per episode (the term's
 value whatever ``W``).
 
-    python experiments/mpc_cost_select.py --weight -0.1 --run runs/base_mpc_cost/w0.1_s1 \\
+    python -m experiments.mpc_cost_select --weight -0.1 --run runs/base_mpc_cost/w0.1_s1 \\
         --out docs/experiments/mpc_cost/selection/w0.1_s1 --export runs/mpc_cost/w0.1_s1.pt2
 
 Writes ``<out>/selection.json`` (every candidate's scores, the choice, provenance); each candidate's evaluation is
@@ -24,13 +24,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dls_quadruped.cli import ArgumentParser, UserError, positive_int, run_cli
 from dls_quadruped.core.json_io import write_json

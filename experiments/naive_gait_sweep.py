@@ -11,29 +11,18 @@ that reaches 84 % and is above the default gait's (paired survival difference ex
 cell's interval lies below 84 % at the medium scale. The grid is the whole sweep (no cell is picked after seeing
 the data); the best cell is reported as exploratory.
 
-    python experiments/naive_gait_sweep.py --scale small
-    for k in 0 1; do python experiments/naive_gait_sweep.py --scale medium --shard $k/2 & done; wait
-    python experiments/naive_gait_sweep.py --scale medium
+    python -m experiments.naive_gait_sweep --scale small
+    for k in 0 1; do python -m experiments.naive_gait_sweep --scale medium --shard $k/2 & done; wait
+    python -m experiments.naive_gait_sweep --scale medium
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from experiments.warm_start_common import (
-    Cell,
-    finish,
-    med,
-    paired,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
-    survival,
-)
+from experiments.output import pyplot, save
+from experiments.warm_start_common import Cell, parse_args, run_cells
+from experiments.warm_start_tables import finish, med, paired, survival
 
 SPEED = 1.5
 FREQUENCIES = (1.5, 2.0, 2.5, 3.0)

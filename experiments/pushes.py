@@ -3,9 +3,9 @@
 
 Three stages, each resumable (every cell cached under ``<out>/``):
 
-    python experiments/pushes.py calibrate --episodes 96 --seconds 15   # base alone, validation episodes
-    python experiments/pushes.py run --episodes 96 --seconds 15         # the five arms, test episodes
-    python experiments/pushes.py report --episodes 96 --seconds 15      # contrasts -> report.md / report.json
+    python -m experiments.pushes calibrate --episodes 96 --seconds 15   # base alone, validation episodes
+    python -m experiments.pushes run --episodes 96 --seconds 15         # the five arms, test episodes
+    python -m experiments.pushes report --episodes 96 --seconds 15      # contrasts -> report.md / report.json
 
 (the preregistered size; without ``--episodes``/``--seconds`` the ``--scale`` sizes apply, ``small`` = 4 x 5 s,
 a pipeline check).
@@ -23,11 +23,7 @@ episode. ``report`` computes the paired differences (two-level bootstrap over ep
 from __future__ import annotations
 
 import json
-import sys
 from itertools import pairwise
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
@@ -35,14 +31,8 @@ from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.metrics import paired_difference
 from dls_quadruped.eval.provenance import provenance
 from experiments.rl_common import student_file
-from experiments.warm_start_common import (
-    REPO,
-    Cell,
-    parse_args,
-    run_cells,
-    survival,
-    write_config,
-)
+from experiments.warm_start_common import REPO, Cell, parse_args, run_cells
+from experiments.warm_start_tables import survival, write_config
 
 GRID = (0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0)
 """[m/s] push speeds of the calibration."""
@@ -124,7 +114,7 @@ def push_speed_of(args) -> float:
         return args.push_speed
     path = args.out / "calibration.json"
     if not path.is_file():
-        raise SystemExit(f"pushes: no {path}; run `python experiments/pushes.py calibrate` first or give --push-speed")
+        raise SystemExit(f"pushes: no {path}; run `python -m experiments.pushes calibrate` first or give --push-speed")
     chosen = json.loads(path.read_text())["chosen_push_speed"]
     if chosen is None:
         raise SystemExit(f"pushes: the calibration found no push speed inside the band ({path}); see its rates")
@@ -151,7 +141,7 @@ def report(args) -> dict:
     results = run_cells(arm_cells(p, args.variant), args)
     missing = [a for a in ARMS if a not in results or "skipped" in results[a]]
     if missing:
-        raise SystemExit(f"pushes: arms not run yet: {missing}; run `python experiments/pushes.py run` first")
+        raise SystemExit(f"pushes: arms not run yet: {missing}; run `python -m experiments.pushes run` first")
     rows = {a: {"survival": survival(results[a]), "rate": results[a]["survival"]["rate"],
                 "return_per_episode_median": results[a]["rl_return"]["median"]} for a in ARMS}
     pairs = [PRIMARY, *SECONDARY]

@@ -1,8 +1,8 @@
 """PPO recipe ablation at one fixed budget: which change makes the exploration std fall (docs/train.md "Recipe").
 
-    python experiments/recipe_ablation.py run  --variants thesis ent0 --seeds 0 1 --iterations 200 --num-envs 256
-    python experiments/recipe_ablation.py eval --every 50 --episodes 64       # validation reward of the checkpoints
-    python experiments/recipe_ablation.py report --iterations 200   # every run over its first 200 iterations
+    python -m experiments.recipe_ablation run  --variants thesis ent0 --seeds 0 1 --iterations 200 --num-envs 256
+    python -m experiments.recipe_ablation eval --every 50 --episodes 64       # validation reward of the checkpoints
+    python -m experiments.recipe_ablation report --iterations 200   # every run over its first 200 iterations
 
 Variants are the task files in ``experiments/recipe_ablation/`` (each inherits ``tasks/base_thesis.yaml``, Table 6, and
 changes one thing; ``ent0_std05`` and ``ent0_log05`` start from the default, no entropy bonus, and lower the

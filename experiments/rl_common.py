@@ -39,7 +39,7 @@ from dls_quadruped.eval.compare import paired_vs
 from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.eval.scenario import EvalOptions
 from dls_quadruped.eval.scenarios import SCENARIOS
-from experiments.distill_common import write_table
+from experiments.output import write_table
 
 REPO = Path(__file__).resolve().parents[1]
 TASKS = ("base", "rough", "speed", "climb")
@@ -74,8 +74,10 @@ class Policies:
 
     def student(self, task: str) -> Path:
         return student_file(self.folder, task, self.variant)
-THESIS_EPISODES = {"simple": 4096, "survival": 4096, "survival_sweep": 4096, "stairs": 512, "speed": 512, "omni": 128, "cot": 512, "gait": 512}
-MEDIUM_EPISODES = {"simple": 512, "survival": 288, "survival_sweep": 288, "stairs": 36, "speed": 48, "omni": 9, "cot": 24, "gait": 24}
+THESIS_EPISODES = {"simple": 4096, "survival": 4096, "survival_sweep": 4096, "stairs": 512, "speed": 512, "omni": 128,
+                   "cot": 512, "gait": 512}
+MEDIUM_EPISODES = {"simple": 512, "survival": 288, "survival_sweep": 288, "stairs": 36, "speed": 48, "omni": 9,
+                   "cot": 24, "gait": 24}
 """Three times the small defaults (twice for simple): 1.5-3 min per policy and scenario at load ~3."""
 SCALES: dict[str, dict] = {
     "small": {"episodes": {}, "episode_length_s": None},   # {}: each scenario's default_episodes
@@ -229,20 +231,3 @@ def run(doc: str, name: str, scenario: str, rows_of: Callable[[dict], list[dict]
     rows = rows_of(results)
     finish(name, scenario, args, results, info, rows, list(rows[0]) if rows else ["policy"],
            title.format(scale=args.scale), figure, figure_name)
-
-
-def save(fig, path: Path) -> None:
-    """Lay out, write at 110 dpi and close a figure."""
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    pyplot().close(fig)
-
-
-def pyplot():
-    """matplotlib.pyplot on the file-only backend."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt

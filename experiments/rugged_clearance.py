@@ -1,6 +1,6 @@
 """Diagnostic: a policy on one row of rugged tiles without any disturbance -- falls, when and why.
 
-    python experiments/rugged_clearance.py --policy docs/policies/rough_actor.pt --difficulty 0.5 0.7 1.0
+    python -m experiments.rugged_clearance --policy docs/policies/rough_actor.pt --difficulty 0.5 0.7 1.0
 
 The survival task's terrain and observation noise (``eval/survival.py``) with its rugged type only, one row
 at each ``--difficulty`` (a fraction of the rough task's range: rugged amplitude a = 1 + 7 d cm), events
@@ -13,13 +13,9 @@ differ by up to 2a.
 
 from __future__ import annotations
 
-import sys
+import argparse
 from collections import Counter
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import argparse
 
 import numpy as np
 import torch

@@ -6,34 +6,29 @@ with another schedule, so that the difference from DAgger is the data and not th
 ``naive, DAgger's steps`` (epoch i trains on a random (i + 1) x datapoints_per_epoch of the data:
 DAgger's gradient steps and learning rate per step) and ``naive, no lr decay`` (lr 1.0 throughout).
 
-    python experiments/table11_naive_vs_dagger.py --scale small     # minutes on 2 cores
-    python experiments/table11_naive_vs_dagger.py --scale thesis
+    python -m experiments.table11_naive_vs_dagger --scale small     # minutes on 2 cores
+    python -m experiments.table11_naive_vs_dagger --scale thesis
 """
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 import time
+from pathlib import Path
 
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.learning.distill_metrics import sp_difference
 from experiments.distill_common import (
     Run,
-    evaluate,
     parse_args,
     select,
     sp_cell,
     summary_row,
     train_runs,
-    untrained_returns,
     write_config,
-    write_table,
 )
+from experiments.distill_eval import evaluate, untrained_returns
+from experiments.output import write_table
 
 THESIS = {  # Table 11: (MSE, SP)
     ("naive", "discrete", "discrete"): (0.1546, "68.49 %"), ("dagger", "discrete", "discrete"): (0.2185, "98.91 %"),
@@ -48,7 +43,8 @@ def runs(scale: str) -> list[Run]:
     train = {"batch_size": 64, **({"epochs": 20} if scale == "thesis" else {})}
     out = []
     for algo, p, F in THESIS:
-        enc = {"encoding": {"p": p, "F": F, "horizon": 5, "dt": 0.02}, "selector": {"kind": "exponential", "alpha": 0.6}}
+        enc = {"encoding": {"p": p, "F": F, "horizon": 5, "dt": 0.02},
+               "selector": {"kind": "exponential", "alpha": 0.6}}
         schedules = SCHEDULES if algo == "naive" else {"Table 7": {}}
         for sched, over in schedules.items():
             suffix = {"Table 7": "", "DAgger's steps": "-dagger-steps", "no lr decay": "-no-decay"}[sched]
@@ -108,7 +104,8 @@ def main() -> None:
     cols = ["Algorithm", "schedule", "Encoding (p, F)", "MSE [95 % CI]", "SP [95 % CI]", "SP - DAgger's [95 % CI]",
             "SP per seed [%]", "MSE per seed", "survival", "thesis MSE", "thesis SP", "seeds", "SP episodes",
             "test windows", "train datapoints", "gradient steps", "epochs"]
-    write_table(rows, cols, args.out / "table", f"Table 11, scale {args.scale}: naive IL vs DAgger (H = 5, dt = 0.02 s)")
+    write_table(rows, cols, args.out / "table",
+                f"Table 11, scale {args.scale}: naive IL vs DAgger (H = 5, dt = 0.02 s)")
     write_json({"rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows], "sp": ev["sp"],
                 "mse": ev["mse"], "sp_difference_vs_dagger": diffs, "returns": rets, "test_set": ev["test_set"],
                 **provenance()},

@@ -17,16 +17,11 @@ expert (``--expert``). Per (collection, data, evaluation): SP of naive and of DA
 seeds resampled independently, ``distill_metrics.sp_difference``). The thesis's gap *appears* in a cell where
 that interval lies wholly below 0.
 
-    python experiments/table11_sweep.py --scale medium --sizes 15000 50000 100000
-    python experiments/table11_sweep.py --scale medium          # all four sizes (the finished runs are kept)
+    python -m experiments.table11_sweep --scale medium --sizes 15000 50000 100000
+    python -m experiments.table11_sweep --scale medium          # all four sizes (the finished runs are kept)
 """
 
 from __future__ import annotations
-
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import time
 
@@ -35,16 +30,15 @@ from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.learning.distill_metrics import sp_difference
 from experiments.distill_common import (
     Run,
-    evaluate,
     parse_args,
     pct,
     select,
     sp_cell,
     train_runs,
-    untrained_returns,
     write_config,
-    write_table,
 )
+from experiments.distill_eval import evaluate, untrained_returns
+from experiments.output import write_table
 
 SIZES = (15_000, 50_000, 100_000, 400_000)
 EPOCHS = 10

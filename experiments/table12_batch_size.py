@@ -1,30 +1,26 @@
 """Table 12 (thesis 7.2.3): DAgger mini-batch size 64 ... 1024, discrete-discrete, H = 5, dt = 0.02 s;
 dataset size and epochs fixed, so a larger batch makes fewer gradient steps; 3 training seeds per row.
 
-    python experiments/table12_batch_size.py --scale small
+    python -m experiments.table12_batch_size --scale small
 """
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 import time
+from pathlib import Path
 
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.provenance import provenance
 from experiments.distill_common import (
     Run,
-    evaluate,
     parse_args,
     select,
     summary_row,
     train_runs,
     write_config,
-    write_table,
 )
+from experiments.distill_eval import evaluate
+from experiments.output import write_table
 
 THESIS = {64: (0.2048, "98.53 %"), 128: (0.2534, "98.54 %"), 256: (0.2764, "97.79 %"), 512: (0.3444, "94.89 %"),
           1024: (0.4876, "89.60 %")}

@@ -2,17 +2,13 @@
 Fig. 25 (a) SP vs H and dt for discrete-discrete, (b) SP per encoding at H = 10, dt = 0.02 s;
 3 training seeds per row, every row on the same data budget, test states and SP episodes.
 
-    python experiments/table13_encodings.py --scale small
+    python -m experiments.table13_encodings --scale small
 """
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 import time
+from pathlib import Path
 
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.provenance import provenance
@@ -20,14 +16,14 @@ from dls_quadruped.mpc.config import EncodingConfig
 from dls_quadruped.mpc.encodings import encoded_dim
 from experiments.distill_common import (
     Run,
-    evaluate,
     parse_args,
     select,
     summary_row,
     train_runs,
     write_config,
-    write_table,
 )
+from experiments.distill_eval import evaluate
+from experiments.output import write_table
 
 ENCODINGS = [("discrete", "discrete"), ("discrete", "spline"), ("spline", "discrete"), ("spline", "spline"),
              ("first", "discrete"), ("first", "spline")]
@@ -71,7 +67,8 @@ def figure(rows: list[dict], path: Path) -> None:
         sel = [r for r in rows if r["p"] == "discrete" and r["F"] == "discrete" and r["dt"] == dt]
         if sel:
             a.errorbar([r["H"] for r in sel], [100 * r["_sp"] for r in sel],
-                       yerr=[[100 * (r["_sp"] - r["_ci"][0]) for r in sel], [100 * (r["_ci"][1] - r["_sp"]) for r in sel]],
+                       yerr=[[100 * (r["_sp"] - r["_ci"][0]) for r in sel],
+                             [100 * (r["_ci"][1] - r["_sp"]) for r in sel]],
                        fmt=marker + "-", label=f"ours dt = {dt}")
             a.plot([r["H"] for r in sel], [r["thesis SP"] for r in sel], marker + "--", alpha=0.6,
                    label=f"thesis dt = {dt}")

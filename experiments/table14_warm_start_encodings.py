@@ -3,28 +3,16 @@
 Δ columns: the RL warm start minus the naive warm start of the same encoding on the same episodes
 (mean over episodes of the per-episode difference, 95 % interval over episodes and sampler seeds).
 
-    python experiments/table14_warm_start_encodings.py --scale small
+    python -m experiments.table14_warm_start_encodings --scale small
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from experiments.warm_start_common import (
-    Cell,
-    finish,
-    med,
-    paired,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
-    survival,
-    tabulate,
-)
+from experiments.output import pyplot, save
+from experiments.warm_start_common import Cell, parse_args, run_cells
+from experiments.warm_start_tables import finish, med, paired, survival, tabulate
 
 ENCODINGS = [("discrete", "discrete"), ("discrete", "spline"), ("spline", "discrete"), ("spline", "spline"),
              ("first", "discrete"), ("first", "spline")]

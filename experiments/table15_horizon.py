@@ -12,33 +12,19 @@ student (each with the sampler seeds), and merges a row's students with ``merge_
 dt = 0.02 s) gets a reference row of its own. ``--single-student`` runs the older protocol: one
 student per (dt, H) from ``--students`` (``make_students.sh table15``).
 
-    python experiments/table15_horizon.py --scale small
+    python -m experiments.table15_horizon --scale small
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import argparse
-
 from dls_quadruped.cli import UserError, run_cli
-from experiments.warm_start_common import (
-    COMMITTED_STUDENT,
-    Cell,
-    finish,
-    med,
-    merge_training_seeds,
-    paired,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
-    survival,
-    tabulate,
-)
+from experiments.output import pyplot, save
+from experiments.warm_start_common import COMMITTED_STUDENT, Cell, parse_args, run_cells
+from experiments.warm_start_seeds import merge_training_seeds
+from experiments.warm_start_tables import finish, med, paired, survival, tabulate
 
 GRID = [(0.02, 5), (0.04, 5), (0.02, 10), (0.02, 15), (0.04, 10), (0.04, 15)]
 THESIS = {  # (controller, dt, H): (RL reward, initial cost)
@@ -89,6 +75,7 @@ def train_students(args: argparse.Namespace) -> dict[tuple[float, int], list[Pat
     from dls_quadruped.learning.runner import sha256_file
     from dls_quadruped.learning.student import export_student, metadata
     from experiments import distill_common as dc
+    from experiments import distill_eval
 
     root = args.students / "table15_seeds"
     ns = argparse.Namespace(scale=args.student_scale, out=root, expert=str(args.policy), keep_datasets=False)
@@ -102,20 +89,20 @@ def train_students(args: argparse.Namespace) -> dict[tuple[float, int], list[Pat
                         f"{root / 'exported'} yet: distil them first with --students-only (one process), then "
                         "start the --shard processes")
     if todo:
-        runs = [dc.Run(f"first-spline_dt{dt:g}_H{h}", {"algorithm": "dagger",
-                                                        "encoding": {"p": "first", "F": "spline", "horizon": h, "dt": dt}})
+        runs = [dc.Run(f"first-spline_dt{dt:g}_H{h}",
+                       {"algorithm": "dagger", "encoding": {"p": "first", "F": "spline", "horizon": h, "dt": dt}})
                 for dt, h in todo]
         trained = dc.train_runs(runs, ns)
         for (dt, h), r in zip(todo, runs):
             res = trained[r.name]
-            enc = dc.net_encoding(res["config"])
+            enc = distill_eval.net_encoding(res["config"])
             for k, out in enumerate(path[(dt, h)]):
-                meta = metadata(enc, dt, 259, {"stride": round(dt / dc.STEP_DT), "algorithm": "dagger",
+                meta = metadata(enc, dt, 259, {"stride": round(dt / distill_eval.STEP_DT), "algorithm": "dagger",
                                                "training_seed": res["seeds"][k],
                                                "expert": {"path": str(args.policy), "sha256": sha256_file(args.policy)},
                                                "epochs_trained": res["config"]["train"]["epochs"],
                                                "datapoints_per_epoch": res["config"]["train"]["datapoints_per_epoch"]})
-                export_student(dc._student(res["students"][k][0], res["config"]), meta, out)
+                export_student(distill_eval.trained_student(res["students"][k][0], res["config"]), meta, out)
     return path
 
 

@@ -2,38 +2,25 @@
 H = 10, dt = 0.02 s, forces only, simple task; Δ: the change against M = 10 000 on the same episodes,
 sum_e (x_e - x_e^10000) / sum_e x_e^10000 over per-episode medians (seed-averaged), with its 95 % interval.
 
-    python experiments/table16_samples.py --scale small
+    python -m experiments.table16_samples --scale small
 
 ``--seed-students DIR``: the RL rows from three students (training seeds, as ``cost_gap.py``), each with the
 sampler seeds, merged per row; e.g. only the headline cells, M = 4 000 and 10 000:
 
-    python experiments/table16_samples.py --scale medium --seed-students runs/students_seeds \
+    python -m experiments.table16_samples --scale medium --seed-students runs/students_seeds \
         --out results/experiments/table16_seeds --only rl_warm_start_M4000_seed{0,1,2} \
         rl_warm_start_M10000_seed{0,1,2} naive_warm_start_M4000 naive_warm_start_M10000
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 from dls_quadruped.cli import run_cli
-from experiments.warm_start_common import (
-    Cell,
-    finish,
-    med,
-    merge_seed_rows,
-    paired,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
-    seed_student_cells,
-    survival,
-    tabulate,
-)
+from experiments.output import pyplot, save
+from experiments.warm_start_common import Cell, parse_args, run_cells
+from experiments.warm_start_seeds import merge_seed_rows, seed_student_cells
+from experiments.warm_start_tables import finish, med, paired, survival, tabulate
 
 SAMPLES = (4000, 10000, 25000)
 THESIS = {  # (controller, M): (RL reward, initial cost, rollout cost)
@@ -100,8 +87,8 @@ def main() -> None:
         th = THESIS.get((c.controller, c.row["M"]), (None, None, None))
         return {"thesis RL reward": th[0] or "-", "thesis initial": th[1] or "-", "thesis rollout": th[2] or "-"}
 
-    cols = ["Controller", "M", "RL reward", "Δ reward", "Initial cost", "Δ initial", "Rollout cost (state)", "Δ rollout",
-            "Rollout J (full)", "Survival", "thesis RL reward", "thesis initial", "thesis rollout"]
+    cols = ["Controller", "M", "RL reward", "Δ reward", "Initial cost", "Δ initial", "Rollout cost (state)",
+            "Δ rollout", "Rollout J (full)", "Survival", "thesis RL reward", "thesis initial", "thesis rollout"]
     students = "; RL rows: 3 students x the sampler seeds" if seeded else ""
     finish(args, todo, results, tabulate(rows_of, results, columns, thesis), cols,
            f"Table 16 (first-spline, H = 10, dt = 0.02 s, F only; Δ vs M = 10 000{students})", figure, "fig29.png")

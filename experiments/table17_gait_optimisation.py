@@ -2,36 +2,25 @@
 and naive warm starts at forward speeds 0.1, 0.5 and 1.5 m/s (v_y = omega_z = 0, flat), first-spline,
 H = 10, dt = 0.02 s, M = 10 000; RL reward, initial cost and survival; the RL baseline beside them.
 
-    python experiments/table17_gait_optimisation.py --scale small
+    python -m experiments.table17_gait_optimisation --scale small
 
 ``--seed-students DIR``: the RL warm-start rows from three students (training seeds, as ``cost_gap.py``), each with
 the sampler seeds, merged per row; e.g. only the 1.5 m/s headline cells:
 
-    python experiments/table17_gait_optimisation.py --scale medium --seed-students runs/students_seeds \
+    python -m experiments.table17_gait_optimisation --scale medium --seed-students runs/students_seeds \
         --out results/experiments/table17_seeds --only rl_warm_start_no_v1.5_seed{0,1,2} \
         rl_warm_start_full_v1.5_seed{0,1,2} rl_baseline_v1.5
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 from dls_quadruped.cli import run_cli
-from experiments.warm_start_common import (
-    Cell,
-    finish,
-    med,
-    merge_seed_rows,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
-    seed_student_cells,
-    survival,
-)
+from experiments.output import pyplot, save
+from experiments.warm_start_common import Cell, parse_args, run_cells
+from experiments.warm_start_seeds import merge_seed_rows, seed_student_cells
+from experiments.warm_start_tables import finish, med, survival
 
 SPEEDS = (0.1, 0.5, 1.5)
 GAIT = {"no": ("F",), "frequency": ("F", "f"), "duty": ("F", "d"), "full": ("F", "f", "d")}
@@ -59,8 +48,8 @@ def cells() -> list[Cell]:
             for v in SPEEDS:
                 out.append(Cell(cell_name(ctrl, gait, v), ctrl, optimise=opt, vx=v,
                                 row={"Controller": ctrl, "Gait opt.": gait}))
-    out += [Cell(cell_name("rl_baseline", "-", v), "rl_baseline", vx=v, row={"Controller": "rl_baseline", "Gait opt.": "-"})
-            for v in SPEEDS]
+    out += [Cell(cell_name("rl_baseline", "-", v), "rl_baseline", vx=v,
+                 row={"Controller": "rl_baseline", "Gait opt.": "-"}) for v in SPEEDS]
     return out
 
 
@@ -75,7 +64,8 @@ def figure(results: dict, path: Path) -> None:
         ic = [(results.get(n, {}).get("initial_cost") or {}).get("median") for n in names]
         style = "-" if ctrl == "rl_warm_start" else "--" if ctrl == "naive_warm_start" else ":"
         label = f"{ctrl} {gait}"
-        axes[0].plot(SPEEDS, [100 * s if s is not None else None for s in sv], "o" + style, color=f"C{i % 10}", label=label)
+        axes[0].plot(SPEEDS, [100 * s if s is not None else None for s in sv], "o" + style, color=f"C{i % 10}",
+                     label=label)
         axes[1].plot(SPEEDS, ic, "o" + style, color=f"C{i % 10}", label=label)
     axes[0].set_ylabel("survival [%]")
     axes[1].set_ylabel("initial cost (median)")

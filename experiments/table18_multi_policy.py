@@ -30,36 +30,23 @@ episodes (paired):
 Students: ``docs/policies/<expert>_student_first_spline_h10.pt`` (``--policy-dir``); a missing one
 skips its cells with a note.
 
-    python experiments/table18_multi_policy.py --scale small
-    python experiments/table18_multi_policy.py --scale small --stairs   # item 6: stairs, blind vs aware
+    python -m experiments.table18_multi_policy --scale small
+    python -m experiments.table18_multi_policy --scale small --stairs   # item 6: stairs, blind vs aware
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
 from dls_quadruped.closed_loop.episodes import STAIRS_HEIGHTS
 from dls_quadruped.core.json_io import write_json
+from experiments.output import pyplot, save
 from experiments.rl_common import Policies
 from experiments.table18_stairs import STAIRS_SECONDS, write_stairs
-from experiments.warm_start_common import (
-    REPO,
-    Cell,
-    finish,
-    med,
-    paired,
-    parse_args,
-    pyplot,
-    run_cells,
-    save,
-    survival,
-    write_config,
-)
+from experiments.warm_start_common import REPO, Cell, parse_args, run_cells
+from experiments.warm_start_tables import finish, med, paired, survival, write_config
 
 WARM_STARTS = (("base",), ("speed",), ("rough",), ("base", "speed"), ("rough", "speed"))
 EXPERTS = ("base", "speed", "rough")
@@ -157,9 +144,8 @@ def table18_rows(results: dict) -> list[dict]:
                 "group wins": " / ".join(f"{100 * v:.0f} %" for v in (s.get("warm_start_won") or {}).values()),
                 "switches / s": med(s.get("winner_switches_per_s"), 2),
             })
-        row.update({"thesis RL reward": th[0] if th[0] is not None else "", "thesis Δ %": th[1] if th[1] is not None else "",
-                    "thesis IC": th[2] if th[2] is not None else "", "thesis Δ IC %": th[3] if th[3] is not None else "",
-                    "thesis survival %": th[4] if th[4] is not None else ""})
+        names = ("thesis RL reward", "thesis Δ %", "thesis IC", "thesis Δ IC %", "thesis survival %")
+        row.update({name: value if value is not None else "" for name, value in zip(names, th)})
         rows.append(row)
     for n in EXPERTS:
         s = results.get(f"alone_{n}")
@@ -186,7 +172,8 @@ def figure(results: dict, path: Path) -> None:
     labels = [_label(ws) for ws in WARM_STARTS]
     x = np.arange(len(WARM_STARTS))
     # Fig. 31: reward and initial cost on the simple task, warm start vs the (first) policy alone
-    for ax, key, title in ((axes[0, 0], "rl_reward", "RL reward per step"), (axes[0, 1], "initial_cost", "initial cost")):
+    for ax, key, title in ((axes[0, 0], "rl_reward", "RL reward per step"),
+                           (axes[0, 1], "initial_cost", "initial cost")):
         ours = [_value(results, f"ws_{'+'.join(ws)}", key) for ws in WARM_STARTS]
         alone = [_value(results, f"alone_{ws[0]}", key) for ws in WARM_STARTS]
         ax.bar(x - 0.2, [v or 0 for v in ours], 0.4, label="warm start")
@@ -296,7 +283,7 @@ def main() -> None:
     todo = cells(Policies(args.policy_dir, args.variant))
     results = run_cells(todo, args)
     write_stairs(args, results)
-    from experiments.distill_common import write_table
+    from experiments.output import write_table
 
     write_table(survival_rows(results), ["Warm start", "survival", "Δ survival (paired, fraction)", "switches / s"],
                 args.out / "fig32_survival", f"Fig. 32: survival task ({args.scale}: {args.episodes} episodes x "
@@ -304,9 +291,9 @@ def main() -> None:
     cols = ["Warm start"] + [f"{k} {v:g}" for k in ("survival", "IC", "switches/s") for v in SPEEDS]
     write_table(speed_rows(results), cols, args.out / "fig33_speeds", f"Figs. 33-34: forward speeds ({args.scale})")
     cols = ["Warm start", "RL reward / step", "Δ reward (paired, %)", "RL return / episode", "Initial cost",
-            "Δ initial (paired, %)", "Rollout cost (state)", "Rollout J (full)", "Survival", "Δ survival (paired, fraction)",
-            "group wins", "switches / s", "thesis RL reward", "thesis Δ %", "thesis IC", "thesis Δ IC %",
-            "thesis survival %"]
+            "Δ initial (paired, %)", "Rollout cost (state)", "Rollout J (full)", "Survival",
+            "Δ survival (paired, fraction)", "group wins", "switches / s", "thesis RL reward", "thesis Δ %",
+            "thesis IC", "thesis Δ IC %", "thesis survival %"]
     finish(args, todo, results, table18_rows(results), cols, "Table 18: multiple warm starts, simple task", figure,
            "fig31_34.png")
 

@@ -11,13 +11,14 @@ import numpy as np
 
 from dls_quadruped.closed_loop.episodes import STAIRS_HEIGHTS
 from dls_quadruped.eval import metrics as EM
-from experiments.warm_start_common import pyplot, save
+from experiments.output import pyplot, save
 
 STAIRS_SECONDS = 15.0
 """[s] stairs episodes (the eval suite's): the top of the flight is 2.5 m from the start, 5-8 s at 0.3-0.5 m/s."""
 
 
-STAIRS_VARIANTS = (("base warm start, blind", "ws_base_stairs_blind"), ("base warm start, aware", "ws_base_stairs_aware"),
+STAIRS_VARIANTS = (("base warm start, blind", "ws_base_stairs_blind"),
+                   ("base warm start, aware", "ws_base_stairs_aware"),
                    ("naive, blind", "naive_stairs_blind"), ("naive, aware", "naive_stairs_aware"),
                    ("base alone", "alone_base_stairs"))
 STAIRS_PAIRS = {"ws_base_stairs_aware": "ws_base_stairs_blind", "naive_stairs_aware": "naive_stairs_blind"}
@@ -113,7 +114,7 @@ def stairs_figure(results: dict, path: Path) -> None:
 
 
 def write_stairs(args, results: dict) -> None:
-    from experiments.distill_common import write_table
+    from experiments.output import write_table
 
     seconds = args.seconds if args.seconds_given else STAIRS_SECONDS
     write_table(stairs_rows(results), STAIRS_COLUMNS, args.out / "stairs",

@@ -1,7 +1,7 @@
 """The sentences of the section pages that state a verdict, checked against the verdict table
 (``experiments/verdicts.py``): a page may not say *reproduced* where the table says *inconclusive*.
 
-Two checks, both run by ``experiments/verdicts.py --check``:
+Two checks, both run by ``python -m experiments.verdicts --check``:
 
 - :func:`row_mismatches`: for every row of the table, its page section (the row's ``page#anchor``, up to the
   next heading) must state the row's claim (the phrases of :data:`PROSE`, found in that order in one bullet or

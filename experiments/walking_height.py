@@ -1,7 +1,7 @@
 """How high each expert carries its CoM while walking: the MPC's height reference to match it (``--com-height``).
 
-    python experiments/walking_height.py --variant recipe            # base, speed and rough, retrained
-    python experiments/walking_height.py --variant thesis --tasks base
+    python -m experiments.walking_height --variant recipe            # base, speed and rough, retrained
+    python -m experiments.walking_height --variant thesis --tasks base
 
 The sampling MPC's cost pulls the CoM towards one height (``mpc.srbd.com_height_reference``, ~0.324 m: the RL
 task's base height target). The RL reward weighs height little (thesis 7.3.7), so an expert may walk elsewhere,
@@ -17,10 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import torch
 
@@ -64,7 +61,8 @@ def walking_height(policy: torch.nn.Module, robots: int, seconds: float, settle:
 def main(argv: list[str] | None = None) -> dict:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--variant", choices=sorted(VARIANTS), default="recipe")
-    p.add_argument("--tasks", nargs="*", default=["base", "speed", "rough"], choices=["base", "speed", "rough", "climb"])
+    p.add_argument("--tasks", nargs="*", default=["base", "speed", "rough"],
+                   choices=["base", "speed", "rough", "climb"])
     p.add_argument("--policy-dir", type=Path, default=POLICY_DIR)
     p.add_argument("--robots", type=int, default=64)
     p.add_argument("--seconds", type=float, default=10.0)

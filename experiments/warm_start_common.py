@@ -27,17 +27,11 @@ replaced by another).
 from __future__ import annotations
 
 import argparse
-import sys
+import json
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-import json
-
-import numpy as np
 import torch
 
 from dls_quadruped.cli import ArgumentParser
@@ -49,8 +43,9 @@ from dls_quadruped.core.progress import progress
 from dls_quadruped.eval.provenance import provenance
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.inputs import GROUNDS
-from experiments.distill_common import write_table
-from experiments.rl_common import VARIANTS, expert_file, pyplot, save, student_file  # noqa: F401 (plot helpers shared)
+from experiments.rl_common import VARIANTS, expert_file, student_file
+
+REPO = Path(__file__).resolve().parents[1]
 
 SCALES = {"small": {"episodes": 4, "seconds": 5.0}, "medium": {"episodes": 16, "seconds": 15.0},
           "thesis": {"episodes": 100, "seconds": 15.0}}
@@ -107,7 +102,8 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     p.add_argument("--variant", choices=sorted(VARIANTS), default="thesis",
                    help="thesis: the experts trained with Table 6 and their committed students (base_actor.pt, "
                         "<expert>_student_first_spline_h10.pt); recipe: those retrained with the default recipe "
-                        "(base_recipe_actor.pt2, <expert>_recipe_student_first_spline_h10.pt2; docs/policies/README.md)")
+                        "(base_recipe_actor.pt2, <expert>_recipe_student_first_spline_h10.pt2; "
+                        "docs/policies/README.md)")
     p.add_argument("--com-height", type=float, default=None,
                    help="the CoM height reference [m] of every cell without its own: the MPC's, and every controller's "
                         "initial-cost metric (default ~0.324, mpc.srbd.com_height_reference; "
@@ -115,7 +111,8 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     p.add_argument("--episodes", type=int, default=None, help="override the scale's episodes per cell (even)")
     p.add_argument("--seconds", type=float, default=None, help="override the scale's episode length [s]")
     p.add_argument("--threads", type=int, default=1, help="torch / MPC kernel threads")
-    p.add_argument("--num-workers", type=int, default=0, help="simulator processes (0: in-process, the closed loop's fastest)")
+    p.add_argument("--num-workers", type=int, default=0,
+                   help="simulator processes (0: in-process, the closed loop's fastest)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--sampler-seeds", type=int, default=3,
                    help="sampler noise streams per episode for the MPC cells (robots in parallel)")
@@ -206,8 +203,8 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
                 student = Path(cell.student) if Path(cell.student).is_file() else None
                 why = f"no student {cell.student}"
             else:
-                student = student_path(args.students, sampler.encoding_p, sampler.encoding_F, sampler.horizon, sampler.dt,
-                                       getattr(args, "committed_student", COMMITTED_STUDENT))
+                student = student_path(args.students, sampler.encoding_p, sampler.encoding_F, sampler.horizon,
+                                       sampler.dt, getattr(args, "committed_student", COMMITTED_STUDENT))
                 why = (f"no student {sampler.encoding_p}-{sampler.encoding_F}_H{sampler.horizon}_dt{sampler.dt:g} "
                        f"under {args.students}")
             if student is None:
@@ -252,164 +249,3 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
         raise SystemExit(0)
     return out
 
-
-SEED_STUDENTS = 3
-"""Training seeds per setting under ``--seed-students`` (students as seeds)."""
-
-
-def seed_student_path(students: Path, sampler: dict, k: int) -> Path:
-    """``<students>/<p>-<F>_H<H>_dt<dt>_seed<k>/exported/student.pt2``: training seed k's student of the setting
-    of ``sampler`` (SamplerConfig overrides), as ``make distill ... --seed k`` writes it (cost_gap.py's docstring)."""
-    cfg = SamplerConfig(**sampler)
-    return students / f"{cfg.encoding_p}-{cfg.encoding_F}_H{cfg.horizon}_dt{cfg.dt:g}_seed{k}" / "exported" / "student.pt2"
-
-
-def seed_student_cells(cells: list[Cell], students: Path, only: list[str] | None = None,
-                       seeds: int = SEED_STUDENTS) -> tuple[list[Cell], dict[str, list[str]]]:
-    """Students as seeds: every ``rl_warm_start`` cell of one student becomes one cell per training seed,
-    ``<name>_seed<k>`` (:func:`seed_student_path`), the others stay. Returns (cells to run, {row cell: its seeds'
-    cells}), to merge with :func:`merge_seed_rows` after :func:`run_cells`. The students of the cells selected
-    (``only``: those named; None: all) must exist."""
-    from dls_quadruped.cli import UserError
-
-    out, rows, missing = [], {}, []
-    for c in cells:
-        if c.controller != "rl_warm_start" or c.students or c.student:
-            out.append(c)
-            continue
-        rows[c.name] = []
-        for k in range(seeds):
-            path = seed_student_path(students, c.sampler, k)
-            name = f"{c.name}_seed{k}"
-            row = {**c.row, "Controller": f"{c.row['Controller']}, student {k}"} if "Controller" in c.row else c.row
-            out.append(replace(c, name=name, student=str(path), row=row))
-            rows[c.name].append(name)
-            if not path.is_file() and (not only or name in only):
-                missing.append(str(path))
-    if missing:
-        raise UserError(f"--seed-students {students}: no student {missing[0]} (and {len(missing) - 1} more); "
-                        "distil them first (experiments/cost_gap.py's docstring)")
-    return out, rows
-
-
-def merge_seed_rows(results: dict[str, dict], rows: dict[str, list[str]]) -> None:
-    """Add each row of :func:`seed_student_cells` whose seeds all ran to ``results``, merged
-    (:func:`merge_training_seeds`)."""
-    for row, names in rows.items():
-        if all(n in results for n in names):
-            results[row] = merge_training_seeds([results[n] for n in names])
-
-
-def merge_training_seeds(summaries: list[dict]) -> dict:
-    """One table row from the cells of T training seeds (T students of one setting, each run with S sampler
-    seeds on the same E episodes): per episode, each student's mean over its sampler seeds, giving (T, E)
-    per-episode values whose medians and intervals resample students and episodes (two levels, as the
-    distillation tables do); survival pooled over every robot, its interval Wilson's with the episodes as
-    the trials; the horizon cost per step the median of the students' medians. A skipped seed skips the row."""
-    from dls_quadruped.eval.metrics import episode_summary, wilson_interval
-
-    skipped = [s["skipped"] for s in summaries if "skipped" in s]
-    if skipped:
-        return {"skipped": skipped[0]}
-    episodes = {s["episodes"] for s in summaries}
-    if len(episodes) != 1:
-        raise ValueError(f"training-seed cells played different episode counts {sorted(episodes)}")
-    per_episode = {}
-    for key in summaries[0]["per_episode"]:
-        per_episode[key] = np.stack([np.nanmean(np.atleast_2d(np.asarray(s["per_episode"][key], dtype=float)), axis=0)
-                                     for s in summaries])
-    (e,) = episodes
-    rate = float(np.mean([s["survival"]["rate"] for s in summaries]))
-    out = {"controller": summaries[0]["controller"], "episodes": e, "training_seeds": len(summaries),
-           "replicas": sum(s.get("replicas", 1) for s in summaries),
-           "survival": {"rate": rate, "ci95": list(wilson_interval(rate * e, e))},
-           "per_episode": {k: v.tolist() for k, v in per_episode.items()},
-           "seeds": [s.get("cell") for s in summaries],
-           "students": [s.get("student") for s in summaries]}  # the same students in two rows: paired by student
-    for key, v in per_episode.items():
-        if key != "survived":
-            out[key] = episode_summary(v)
-            out[key]["per_seed_median"] = [s[key]["median"] for s in summaries if key in s]
-    if all("horizon_cost" in s for s in summaries):
-        out["horizon_cost"] = [{"median": float(np.median([s["horizon_cost"][k]["median"] for s in summaries]))}
-                               for k in range(len(summaries[0]["horizon_cost"]))]
-    return out
-
-
-def med(m: dict | None, digits: int = 1) -> str:
-    """'median [95 % CI]' of an ``episode_summary`` dict (median over episodes and seeds of each
-    episode's median; the interval of that median over episodes and seeds)."""
-    if not m or m.get("n", 0) == 0 or m.get("median") is None or not np.isfinite(m["median"]):
-        return "-"
-    lo, hi = m.get("ci95", [m.get("q1"), m.get("q3")])
-    return f"{m['median']:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
-
-
-def paired(results: dict, a: str, b: str, key: str, digits: int = 1, relative: bool = False,
-           median: bool = False) -> str:
-    """Paired difference of cells ``a`` - ``b`` on the same episodes: 'mean [95 % CI]' (or the relative
-    difference sum d / sum b in %), '-' if either cell is missing or was skipped. Two rows merged from the same
-    students (:func:`merge_training_seeds`' ``students``) are paired by student too. ``median``: the median over
-    episodes of the paired differences instead of their mean."""
-    from dls_quadruped.eval.metrics import paired_difference
-
-    sa, sb = results.get(a) or {}, results.get(b) or {}
-    if "per_episode" not in sa or "per_episode" not in sb or key not in sa["per_episode"] or key not in sb["per_episode"]:
-        return "-"
-    same = sa.get("students") is not None and sa.get("students") == sb.get("students")
-    d = paired_difference(np.array(sa["per_episode"][key]), np.array(sb["per_episode"][key]), paired_seeds=same)
-    if relative:
-        return f"{100 * d['relative']:+.1f} % [{100 * d['relative_ci95'][0]:+.1f}, {100 * d['relative_ci95'][1]:+.1f}]"
-    v, (lo, hi) = (d["median"], d["median_ci95"]) if median else (d["mean"], d["ci95"])
-    return f"{v:+.{digits}f} [{lo:+.{digits}f}, {hi:+.{digits}f}]"
-
-
-def survival(s: dict) -> str:
-    """'rate [95 % CI] (n=episodes x seeds)': with seeds, Wilson's interval with the episodes as the trials
-    (the copies of one episode are not independent), else Wilson's over the episodes."""
-    from dls_quadruped.eval.metrics import wilson_interval
-
-    v = s["survival"]
-    lo, hi = wilson_interval(v["rate"] * s["episodes"], s["episodes"]) if s.get("replicas", 1) > 1 else v["ci95"]
-    n = f"{s['episodes']}x{s['replicas']}" if s.get("replicas", 1) > 1 else f"{v['n']}"
-    return f"{100 * v['rate']:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] (n={n})"
-
-
-def write_config(args: argparse.Namespace, cells: list[Cell], extra: dict | None = None) -> None:
-    from dls_quadruped.bench.machine import cpu_model
-
-    wall = sum(r.get("seconds_wall", 0.0) for r in (extra or {}).pop("results", {}).values())
-    write_json({"scale": args.scale, "episodes_per_cell": args.episodes, "seconds": args.seconds, "seed": args.seed,
-                "sampler_seeds": args.sampler_seeds, "cells_wall_s": round(wall, 1),
-                "threads": args.threads, **provenance(), "cpu": cpu_model(), "policy": str(args.policy),
-                "variant": getattr(args, "variant", "thesis"), "com_height": getattr(args, "com_height", None),
-                "committed_student": str(getattr(args, "committed_student", COMMITTED_STUDENT)),
-                "students": str(args.students), "cells": [c.name for c in cells], **(extra or {})},
-               args.out / "config.json")
-
-
-def tabulate(cells: list[Cell], results: dict[str, dict], columns, thesis) -> list[dict]:
-    """One row per cell that ran or was skipped: the cell's labels, ``columns(cell, summary)`` (or the
-    reason it was skipped) and ``thesis(cell)``, the thesis's numbers to print beside ours."""
-    rows = []
-    for c in cells:
-        s = results.get(c.name)
-        if s is None:
-            continue
-        row = dict(c.row)
-        row.update({"RL reward": f"skipped: {s['skipped']}"} if "skipped" in s else columns(c, s))
-        row.update(thesis(c))
-        rows.append(row)
-    return rows
-
-
-def finish(args: argparse.Namespace, cells: list[Cell], results: dict, rows: list[dict], columns: list[str],
-           title: str, figure, figure_name: str) -> None:
-    """Write table.md/.csv (titled with the scale), results.json, the figure and config.json; print the table."""
-    write_table(rows, columns, args.out / "table", f"{title} ({args.scale}: {args.episodes} episodes x "
-                f"{args.seconds:g} s per cell, {args.sampler_seeds} sampler seeds per MPC episode; median over "
-                f"episodes and seeds of each episode's median [95 % CI]; rollout cost: state-only, full J beside it)")
-    write_json(results, args.out / "results.json", indent=1)
-    figure(results, args.out / figure_name)
-    write_config(args, cells, {"results": results})
-    print((args.out / "table.md").read_text())

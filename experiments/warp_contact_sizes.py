@@ -2,10 +2,11 @@
 constraint sizes"): the sizes of ``scene.nconmax`` / ``scene.njmax`` in the task files are these with headroom.
 
 Each task's env runs on ``warp-cpu`` with generous sizes (no overflow can cut the count), robots spread over every
-terrain row, and random actions large enough that robots stumble, fall and are reset; after every physics step the backend's ``collision_stats`` gives the
-most contacts, contact candidates and constraint rows in one world. Writes ``results/warp_contact_sizes.csv``.
+terrain row, and random actions large enough that robots stumble, fall and are reset; after every physics step the
+backend's ``collision_stats`` gives the most contacts, contact candidates and constraint rows in one world. Writes
+``results/warp_contact_sizes.csv``.
 
-    python experiments/warp_contact_sizes.py --tasks base rough speed climb --num-envs 16 --steps 100
+    python -m experiments.warp_contact_sizes --tasks base rough speed climb --num-envs 16 --steps 100
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ def measure(task: str, num_envs: int, steps: int, action_scale: float, seed: int
     )
 
     # every row of the terrain from the start (the curriculum's hardest rows too), generous sizes
-    overrides = {"scene": {"backend": "warp-cpu", "num_workers": 0, "nconmax": 256, "njmax": 1024, "max_init_level": 99}}
+    overrides = {"scene": {"backend": "warp-cpu", "num_workers": 0, "nconmax": 256, "njmax": 1024,
+                           "max_init_level": 99}}
     env = LocomotionEnv(load_task(task, overrides=overrides), num_envs=num_envs, seed=seed, verbose=False)
     sim, worst = env.scene.sim, dict.fromkeys(FIELDS, 0)
     worst["resets"] = 0
@@ -56,7 +58,7 @@ def measure(task: str, num_envs: int, steps: int, action_scale: float, seed: int
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = ArgumentParser(prog="warp_contact_sizes.py", description=__doc__.splitlines()[0])
+    p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--tasks", nargs="+", default=["base", "rough", "speed", "climb"])
     p.add_argument("--num-envs", type=int, default=16)
     p.add_argument("--steps", type=int, default=100, help="policy steps (50 Hz)")

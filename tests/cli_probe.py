@@ -1,6 +1,6 @@
 """Run the argument parsing of many entry points in one interpreter (tests/test_entry_points.py).
 
-    python tests/cli_probe.py '{"targets": ["dls_quadruped.eval", "experiments/x.py"], "argvs": [["--help"]]}'
+    python tests/cli_probe.py '{"targets": ["dls_quadruped.eval", "experiments.x", "path/x.py"], "argvs": [["--help"]]}'
 
 runs ``python -m TARGET ARGV...`` (or ``python TARGET ARGV...`` for a ``.py`` path) for each target
 and each argv through ``runpy``, as the interpreter does (``__name__ == "__main__"``, ``sys.argv``),

@@ -5,13 +5,14 @@ The pages are ``README.md``, ``docs/*.md``, ``docs/{experiments,reports,tasks,tu
 ``docs/policies/README.md``, the result reports included
 (the command lines they quote as records of past runs must still name what exists). Commands are read from
 shell code blocks, indented code lines and inline code spans; a command is ``make ...``, ``python -m MODULE ...``
-(also ``.venv/bin/python``, ``torchrun ... -m MODULE``), ``python experiments/SCRIPT.py ...``,
-``bash SCRIPT.sh`` or ``tensorboard ...``. What is checked:
+(also ``.venv/bin/python``, ``torchrun ... -m MODULE``; the experiments are ``python -m experiments.SCRIPT``),
+``python SCRIPT.py ...``, ``bash SCRIPT.sh`` or ``tensorboard ...``. What is checked:
 
 * ``make TARGET VAR=VALUE``: the target is a rule of the Makefile and the variable is one the Makefile
   sets or reads; flags inside a variable that the Makefile passes to a module (``DEMO_ARGS="--samples 1"``)
   are checked against that module's parser;
-* ``python -m MODULE --flag``: the module exists (``pkg/__main__.py`` for a package) and every ``--flag``
+* ``python -m MODULE --flag`` (a module of ``dls_quadruped`` or ``experiments``): the module exists
+  (``pkg/__main__.py`` for a package) and every ``--flag``
   is an option of the parser its ``--help`` builds; the parsers come from one subprocess that runs every
   module's ``--help`` with ``argparse.ArgumentParser.print_help`` patched to record the options
   (``runpy``, as ``tests/cli_probe.py``: torch, MuJoCo and Pinocchio load once);
@@ -53,7 +54,7 @@ OUTPUTS = ("runs/", "results/", "exported/", "dataset/", "selection/", "play/", 
 PLACEHOLDER = re.compile(r"[<>*{}$~…]|\.\.\.|\bRUN\b|\bDIR\b|\bPATH\b|\bCKPT\b")
 RANGE = re.compile(r"[a-z][0-9]+-[0-9]+$")
 """``experiments/fig17-23``: a range of files."""
-OUTPUT_FLAGS = {"--checkpoint-copy", "--out", "--out-dir", "--run-dir", "--csv", "--png"}
+OUTPUT_FLAGS = {"--checkpoint-copy", "--out", "--out-dir", "--run-dir", "--csv", "--png", "--export"}
 PATH_ROOTS = ("dls_quadruped/", "docs/", "tasks/", "tests/", "experiments/")
 """A token inside a command is taken for a repository path when it starts with one of these."""
 PATH_LIKE = re.compile(r"^[\w.\-]+(?:/[\w.\-]+)*/?(?:::[\w\[\]\-]+)?$")
@@ -352,7 +353,8 @@ def parsers(targets: tuple[str, ...]) -> dict[str, dict]:
 
 
 def project_targets(commands: list[tuple[str, Command]]) -> tuple[str, ...]:
-    """Modules of this repository and experiment scripts the docs run (the ones whose flags are checked)."""
+    """Modules of this repository (the package's and the experiments') and scripts the docs run (the ones whose
+    flags are checked)."""
     _, _, passes = makefile()
     targets = {c.name for _, c in commands if c.kind == "module" and _module_file(c.name)}
     targets |= {c.name for _, c in commands if c.kind == "script" and "/" in c.name and (REPO / c.name).is_file()}
@@ -482,7 +484,9 @@ def test_modules_scripts_and_flags_exist():
 
     for page, cmd in commands:
         if cmd.kind == "module":
-            if cmd.name.startswith("dls_quadruped"):
+            if PLACEHOLDER.search(cmd.name):
+                continue  # python -m experiments.<script>: any of them
+            if cmd.name.split(".")[0] in ("dls_quadruped", "experiments"):
                 if _module_file(cmd.name) is None:
                     wrong.append(f"{page}: python -m {cmd.name}: no such module")
                 else:

@@ -32,13 +32,13 @@ def _has_main_block(path: Path) -> bool:
 
 
 def entry_points() -> list[str]:
-    """``python -m`` targets of the package (``pkg/__main__.py`` -> ``pkg``) and the experiment scripts."""
+    """``python -m`` targets of the package (``pkg/__main__.py`` -> ``pkg``) and of the experiment scripts
+    (``experiments/x.py`` -> ``experiments.x``)."""
     targets = []
-    for path in sorted((REPO / "dls_quadruped").rglob("*.py")):
+    for path in [*sorted((REPO / "dls_quadruped").rglob("*.py")), *sorted((REPO / "experiments").glob("*.py"))]:
         if _has_main_block(path):
             module = ".".join(path.relative_to(REPO).with_suffix("").parts)
             targets.append(module.removesuffix(".__main__"))
-    targets += [str(p.relative_to(REPO)) for p in sorted((REPO / "experiments").glob("*.py")) if _has_main_block(p)]
     return targets
 
 
@@ -66,7 +66,7 @@ def test_every_known_entry_point_is_found():
                 "dls_quadruped.learning.distill", "dls_quadruped.learning.play", "dls_quadruped.learning.export",
                 "dls_quadruped.mpc.run", "dls_quadruped.demo", "dls_quadruped.bench.env", "dls_quadruped.bench.mpc",
                 "dls_quadruped.bench.rl_env", "dls_quadruped.bench.dynamics",
-                "experiments/table14_warm_start_encodings.py"}
+                "experiments.table14_warm_start_encodings"}
     assert expected <= set(TARGETS), sorted(expected - set(TARGETS))
     assert "dls_quadruped.cli" not in TARGETS  # its `__main__` is in the docstring only
 

@@ -16,6 +16,7 @@ import yaml
 from dls_quadruped.envs.config import TASKS_DIR
 from experiments import (
     distill_common,
+    distill_eval,
     fig24_selector,
     table11_naive_vs_dagger,
     table11_sweep,
@@ -32,7 +33,8 @@ def tiny(tmp_path, monkeypatch):
     task = tmp_path / "tiny.yaml"
     task.write_text(yaml.safe_dump({"inherit": str(TASKS_DIR / "base.yaml"), "env": {"episode_length_s": 1.0},
                                     "scene": {"num_workers": 0}}))
-    monkeypatch.setattr(distill_common, "TASK", str(task))
+    for module in (distill_common, distill_eval):  # training and evaluation envs
+        monkeypatch.setattr(module, "TASK", str(task))
     monkeypatch.setitem(distill_common.SCALES, "small", TINY_SCALE)
     return tmp_path
 
@@ -143,7 +145,8 @@ def test_table11_sweep_pairs_naive_with_dagger_under_each_collection_and_evaluat
         seen.append(overrides)
         return real(task, num_workers, overrides)
 
-    monkeypatch.setattr(distill_common, "distill_task", spy)
+    monkeypatch.setattr(distill_common, "distill_task", spy)  # the collection env
+    monkeypatch.setattr(distill_eval, "distill_task", spy)  # the evaluation envs
     monkeypatch.setattr(table11_sweep, "SIZES", (60,))
     monkeypatch.setattr(table11_sweep, "EPOCHS", 2)
     out = tiny / "t11s"

@@ -149,11 +149,11 @@ def test_walking_height_help_and_a_bad_variant():
     import subprocess
     import sys
 
-    script = str(rl_common.REPO / "experiments" / "walking_height.py")
-    ok = subprocess.run([sys.executable, script, "--help"], capture_output=True, text=True, timeout=120, check=False)
+    cmd = [sys.executable, "-m", "experiments.walking_height"]
+    ok = subprocess.run([*cmd, "--help"], cwd=rl_common.REPO, capture_output=True, text=True, timeout=120, check=False)
     assert ok.returncode == 0 and "--com-height" in ok.stdout and "validation" in ok.stdout
-    bad = subprocess.run([sys.executable, script, "--variant", "bogus"], capture_output=True, text=True, timeout=120,
-                         check=False)
+    bad = subprocess.run([*cmd, "--variant", "bogus"], cwd=rl_common.REPO, capture_output=True, text=True,
+                         timeout=120, check=False)
     assert bad.returncode == 2 and "invalid choice: 'bogus'" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
 
 
@@ -161,21 +161,21 @@ def test_fig17_keeps_per_episode_files_that_give_its_paired_row_and_the_commit(t
     """The verdict row of Fig. 17 (speed - base, reward per step) can be recomputed from the per-expert files the
     script writes, and every file says which commit it ran on."""
     from dls_quadruped.eval.provenance import provenance
-    from experiments import verdicts
+    from experiments import verdict_intervals
 
     torch.manual_seed(0)
     save_policy(torch.nn.Sequential(torch.nn.Linear(259, 28), torch.nn.Tanh()), 259,
                 tiny / "policies" / "speed_actor.pt")
     out = run(fig17_simple_task, tiny, "fig17")
-    monkeypatch.setattr(verdicts, "RESULTS", tiny)
-    verdicts._json.cache_clear()
-    verdicts._csv.cache_clear()
+    monkeypatch.setattr(verdict_intervals, "RESULTS", tiny)
+    verdict_intervals._json.cache_clear()
+    verdict_intervals._csv.cache_clear()
     try:
-        from_files = verdicts.expert_gap("fig17", "simple", "speed", "base", "reward")
-        printed = verdicts.paired_csv("fig17", "speed - base", "mean reward per step")
+        from_files = verdict_intervals.expert_gap("fig17", "simple", "speed", "base", "reward")
+        printed = verdict_intervals.paired_csv("fig17", "speed - base", "mean reward per step")
     finally:
-        verdicts._json.cache_clear()
-        verdicts._csv.cache_clear()
+        verdict_intervals._json.cache_clear()
+        verdict_intervals._csv.cache_clear()
     assert from_files.value != 0.0  # two different policies
     assert (from_files.value, from_files.lo, from_files.hi) == pytest.approx(
         (printed.value, printed.lo, printed.hi), abs=5e-5)

@@ -5,14 +5,10 @@ student program the closed loop accepts."""
 from __future__ import annotations
 
 import csv
-import sys
 from pathlib import Path
 
 import pytest
 import torch
-
-REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO))
 
 from dls_quadruped.cli import UserError
 from dls_quadruped.envs.config import load_task
@@ -27,6 +23,8 @@ from dls_quadruped.learning.student import load_student
 from dls_quadruped.mpc.config import EncodingConfig
 from dls_quadruped.mpc.horizon import TERM_NAMES
 from experiments import mpc_cost_init
+
+REPO = Path(__file__).resolve().parents[2]
 
 SHORT = ["--set", "env.episode_length_s=0.5", "--set", "scene.num_workers=0"]
 

@@ -4,21 +4,19 @@ later candidate, the chosen checkpoint exports to a student program whose output
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO))
-
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.eval.scenario import EvalOptions
 from dls_quadruped.eval.velocity_tracking import simple_commands
 from dls_quadruped.learning.policy_file import load_module
 from experiments import mpc_cost_select as S
+
+REPO = Path(__file__).resolve().parents[2]
 
 PARAMS = load_task(S.TASK).data["rewards"][S.TERM]["params"]
 STUDENT = REPO / S.STUDENT

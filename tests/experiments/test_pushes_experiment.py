@@ -30,8 +30,8 @@ def test_pushes_script_help_and_a_bad_stage():
     import sys
     from pathlib import Path
 
-    script = str(Path(__file__).resolve().parents[2] / "experiments" / "pushes.py")
-    ok = subprocess.run([sys.executable, script, "--help"], capture_output=True, text=True, timeout=120, check=False)
+    repo, cmd = Path(__file__).resolve().parents[2], [sys.executable, "-m", "experiments.pushes"]
+    ok = subprocess.run([*cmd, "--help"], cwd=repo, capture_output=True, text=True, timeout=120, check=False)
     assert ok.returncode == 0 and "--push-speed" in ok.stdout and "calibrate" in ok.stdout
-    bad = subprocess.run([sys.executable, script, "sweep"], capture_output=True, text=True, timeout=120, check=False)
+    bad = subprocess.run([*cmd, "sweep"], cwd=repo, capture_output=True, text=True, timeout=120, check=False)
     assert bad.returncode == 2 and "invalid choice: 'sweep'" in bad.stderr and "Traceback" not in bad.stderr

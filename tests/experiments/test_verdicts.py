@@ -4,24 +4,14 @@ committed result files (``experiments/verdicts.py``)."""
 from __future__ import annotations
 
 import re
-import sys
 from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO))
+from experiments.verdict_intervals import Interval, apart, parse, verdict
+from experiments.verdicts import ROWS, Row, documented, render
 
-from experiments.verdicts import (
-    ROWS,
-    Interval,
-    Row,
-    apart,
-    documented,
-    parse,
-    render,
-    verdict,
-)
+REPO = Path(__file__).resolve().parents[2]
 
 
 def iv(lo: float, hi: float) -> Interval:
@@ -86,7 +76,7 @@ def test_cells_are_parsed_as_the_files_print_them():
 
 def test_the_documented_table_is_the_one_the_result_files_give():
     """docs/experiments.md's table is ``render()``: a result file that changes changes the verdicts, and the page
-    must follow (``python experiments/verdicts.py`` prints the new table)."""
+    must follow (``python -m experiments.verdicts`` prints the new table)."""
     assert documented() == render()
 
 
@@ -101,7 +91,7 @@ def test_every_row_links_a_section_that_exists():
 
 def test_the_joint_bootstrap_of_two_relative_changes_centres_on_their_difference():
     """Table 16: naive's Δ minus the RL warm start's Δ at 4 000 samples, against the two Δ computed one by one."""
-    from experiments.verdicts import gap, relative_gap_difference
+    from experiments.verdict_intervals import gap, relative_gap_difference
 
     folder = "table16_samples_medium"
     naive = gap(folder, "naive_warm_start_M4000", "naive_warm_start_M10000", relative=True)
@@ -116,7 +106,7 @@ def test_the_joint_bootstrap_of_two_relative_changes_centres_on_their_difference
 def test_students_paired_in_both_rl_rows_keep_the_value_and_narrow_the_interval():
     """Table 16 with three students: the RL rows at 4 000 and 10 000 samples hold the same students, so resampling
     them together (paired_seeds) leaves the point value as it is and narrows the interval."""
-    from experiments.verdicts import relative_gap_difference
+    from experiments.verdict_intervals import relative_gap_difference
 
     folder, naive = "table16_seeds_medium", ("naive_warm_start_M4000", "naive_warm_start_M10000")
     rl = ("rl_warm_start_M4000", "rl_warm_start_M10000")
@@ -134,7 +124,7 @@ def test_an_exploratory_row_carries_no_verdict_and_a_note_may_be_computed():
 
 
 def test_equivalence_needs_the_interval_inside_the_margin():
-    from experiments.verdicts import equivalence
+    from experiments.verdict_intervals import equivalence
 
     assert equivalence(iv(-1.5, 4.9), 5.0) == "equivalent"     # the sweep's plain / today / 400 000 cell
     assert equivalence(iv(-8.7, 4.8), 5.0) == "inconclusive"   # disturbed / today / 100 000: crosses -5
@@ -144,7 +134,7 @@ def test_equivalence_needs_the_interval_inside_the_margin():
 def test_the_relative_reading_of_38_percent_scales_base_alones_survival():
     """The retrained pushes run: base alone 69 % (66 of 96), +38 % of it is +0.26; [+0.076, +0.271] holds it within
     the 0.10 survival margin, while 0.38 +- 0.10 (the absolute reading) is missed."""
-    from experiments.verdicts import pushes_reading
+    from experiments.verdict_intervals import pushes_reading
 
     assert "69 % is +0.26 ± 0.10, reproduced on that reading" in pushes_reading("retrained/pushes_recipe")
     assert verdict(iv(0.076, 0.271), +1, 0.38, 0.10) == "contradicted"

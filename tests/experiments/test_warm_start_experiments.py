@@ -14,8 +14,9 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _run(script: str, out: Path, *extra: str) -> str:
-    cmd = [sys.executable, str(REPO / "experiments" / script), "--episodes", "2", "--seconds", "0.2",
+def _run(module: str, out: Path, *extra: str) -> str:
+    """``python -m experiments.<module> ...`` from the repository root, as the docs run it."""
+    cmd = [sys.executable, "-m", f"experiments.{module}", "--episodes", "2", "--seconds", "0.2",
            "--num-workers", "0", "--out", str(out), *extra]
     res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600, check=False)
     assert res.returncode == 0, res.stderr[-2000:]
@@ -25,7 +26,7 @@ def _run(script: str, out: Path, *extra: str) -> str:
 @pytest.mark.slow  # default suite under 10 min on 2 cores (make test-all runs it)
 def test_table16_cell_is_cached_and_tabulated(tmp_path: Path) -> None:
     out = tmp_path / "t16"
-    _run("table16_samples.py", out, "--only", "naive_warm_start_M4000")
+    _run("table16_samples", out, "--only", "naive_warm_start_M4000")
     cell = out / "cells" / "naive_warm_start_M4000.json"
     summary = json.loads(cell.read_text())
     assert summary["episodes"] == 2 and summary["sampler"] == {"num_samples": 4000}
@@ -33,13 +34,13 @@ def test_table16_cell_is_cached_and_tabulated(tmp_path: Path) -> None:
     table = (out / "table.md").read_text()
     assert "| naive_warm_start | 4000 |" in table and "33.82" in table  # ours beside the thesis's initial cost
     stamp = cell.stat().st_mtime_ns
-    _run("table16_samples.py", out, "--only", "naive_warm_start_M4000")  # resumes: nothing to recompute
+    _run("table16_samples", out, "--only", "naive_warm_start_M4000")  # resumes: nothing to recompute
     assert cell.stat().st_mtime_ns == stamp
 
 
 def test_missing_student_is_skipped_not_replaced(tmp_path: Path) -> None:
     out = tmp_path / "t15"
-    stdout = _run("table15_horizon.py", out, "--students", str(tmp_path / "none"), "--single-student", "--only",
+    stdout = _run("table15_horizon", out, "--students", str(tmp_path / "none"), "--single-student", "--only",
                   "rl_warm_start_dt0.04_H5")
     assert "skipped" in stdout
     results = json.loads((out / "results.json").read_text())
@@ -50,8 +51,7 @@ def test_missing_student_is_skipped_not_replaced(tmp_path: Path) -> None:
 def test_training_seeds_merge_per_episode_means() -> None:
     """A Table 15 row from two students' cells: per episode, each student's mean over its sampler seeds;
     survival pooled; the median over (student, episode) values."""
-    sys.path.insert(0, str(REPO))
-    from experiments.warm_start_common import merge_training_seeds
+    from experiments.warm_start_seeds import merge_training_seeds
 
     def cell(name, reward, survived):  # (S = 2 sampler seeds, E = 3 episodes)
         return {"cell": name, "controller": "rl_warm_start", "episodes": 3, "replicas": 2,
@@ -81,7 +81,7 @@ def test_table18_two_students_and_the_policies_alone(tmp_path: Path) -> None:
         (pol / name).symlink_to(src / name)
     (pol / "speed_student_first_spline_h10.pt").symlink_to(src / "base_student_first_spline_h10.pt")
     out = tmp_path / "t18"
-    _run("table18_multi_policy.py", out, "--policy-dir", str(pol), "--sampler-seeds", "1",
+    _run("table18_multi_policy", out, "--policy-dir", str(pol), "--sampler-seeds", "1",
          "--only", "ws_base+speed", "alone_base", "alone_speed", "ws_rough")
     cell = json.loads((out / "cells" / "ws_base+speed.json").read_text())
     assert len(cell["student"]) == 2 and set(cell["warm_start_won"]) <= {"0", "1"}
@@ -98,7 +98,7 @@ def test_table18_stairs_part_blind_vs_aware(tmp_path: Path) -> None:
     stairs; an explicit --seconds overrides the stairs cells' 15 s; per height success, survival and climbed
     fraction, and the paired aware - blind differences (~25 s)."""
     out = tmp_path / "t18s"
-    _run("table18_multi_policy.py", out, "--stairs", "--sampler-seeds", "1")
+    _run("table18_multi_policy", out, "--stairs", "--sampler-seeds", "1")
     names = {p.stem for p in (out / "cells").glob("*.json")}
     assert names == {"ws_base_stairs_blind", "ws_base_stairs_aware", "naive_stairs_blind", "naive_stairs_aware",
                      "alone_base_stairs"}
@@ -115,11 +115,11 @@ def test_table18_stairs_part_blind_vs_aware(tmp_path: Path) -> None:
 def test_shards_split_the_cells_and_the_run_without_shard_tabulates_them(tmp_path: Path) -> None:
     out = tmp_path / "t16"
     first, second = "naive_warm_start_M10000", "naive_warm_start_M4000"  # positions 4 and 3 of table16's cells
-    stdout = _run("table16_samples.py", out, "--only", first, second, "--shard", "1/2")
+    stdout = _run("table16_samples", out, "--only", first, second, "--shard", "1/2")
     assert sorted(p.name for p in (out / "cells").iterdir()) == [f"{second}.json"]  # position 3: 3 % 2 == 1
     assert "run once more without --shard" in stdout and not (out / "table.md").exists()
     stamp = (out / "cells" / f"{second}.json").stat().st_mtime_ns
-    _run("table16_samples.py", out, "--only", first, second)  # runs the other shard's cell, reuses this one
+    _run("table16_samples", out, "--only", first, second)  # runs the other shard's cell, reuses this one
     assert (out / "cells" / f"{first}.json").is_file() and (out / "table.md").is_file()
     assert (out / "cells" / f"{second}.json").stat().st_mtime_ns == stamp
 
@@ -154,7 +154,7 @@ def test_rugged_clearance_help_and_bad_difficulty() -> None:
 def test_naive_gait_sweep_runs_a_cell_at_its_gait(tmp_path: Path) -> None:
     """Issue 38 item 6's script: one cell of the grid at 1.5 m/s, its gait recorded and tabulated."""
     out = tmp_path / "gait"
-    _run("naive_gait_sweep.py", out, "--only", "naive_f2.5_d0.5")
+    _run("naive_gait_sweep", out, "--only", "naive_f2.5_d0.5")
     cell = json.loads((out / "cells" / "naive_f2.5_d0.5.json").read_text())
     assert cell["naive_gait"] == [2.5, 0.5] and cell["episodes"] == 2
     assert "| 2.5 | 0.5 |" in (out / "table.md").read_text()
@@ -175,7 +175,6 @@ def test_com_height_applies_to_mpc_cells_and_a_cache_of_another_height_is_refuse
     cost); a cached cell run with another reference is not reused silently."""
     import argparse
 
-    sys.path.insert(0, str(REPO))
     from experiments.warm_start_common import Cell, cell_com_height, run_cells
 
     args = argparse.Namespace(com_height=0.40, out=tmp_path, only=None, threads=1)
@@ -221,7 +220,6 @@ def test_cost_gap_merges_three_students_and_splits_the_gap_by_term(tmp_path: Pat
     students, and 3 draws of student 0 (or of student 2) have probability 1/27 > 2.5 %, so it is [+10, +30] by
     hand; the other terms are 0 and the total's mean gap equals the height term's. The state rollout cost's
     v_x term likewise: students exceed naive's by 5 (k + 1), so +10 [+5, +15]."""
-    sys.path.insert(0, str(REPO))
     from dls_quadruped.mpc.cost import STATE_TERMS
     from experiments import cost_gap
 
@@ -276,7 +274,6 @@ def test_cost_gap_merges_three_students_and_splits_the_gap_by_term(tmp_path: Pat
 
 
 def test_cost_gap_without_students_names_the_missing_file(tmp_path: Path) -> None:
-    sys.path.insert(0, str(REPO))
     from dls_quadruped.cli import UserError
     from experiments import cost_gap
 
@@ -288,7 +285,6 @@ def test_cost_gap_without_students_names_the_missing_file(tmp_path: Path) -> Non
 @pytest.mark.parametrize("argv, code, text", [(["--help"], 0, "--seed-students"),
                                               (["--scale", "huge"], 2, "invalid choice: 'huge'")])
 def test_cost_gap_help_and_a_bad_scale(monkeypatch, capsys, argv, code, text):
-    sys.path.insert(0, str(REPO))
     from experiments import cost_gap
 
     monkeypatch.setattr(sys, "argv", ["cost_gap.py", *argv])
@@ -302,10 +298,9 @@ def test_table16_students_as_seeds_merge_each_rl_row(tmp_path: Path, monkeypatch
     """table16_samples.py --seed-students on cached cells built by hand: each student's M = 4 000 cell costs
     exactly 1.1x its M = 10 000 cell on every episode, so the merged RL row's Δ initial is +10.0 % with a
     zero-width interval; a missing student of a selected cell is named before anything runs."""
-    sys.path.insert(0, str(REPO))
     from dls_quadruped.cli import UserError
     from experiments import table16_samples as t16
-    from experiments.warm_start_common import seed_student_cells
+    from experiments.warm_start_seeds import seed_student_cells
 
     rng = np.random.default_rng(1)
     e, s = 4, 2
@@ -354,7 +349,6 @@ def test_table16_and_17_help_a_bad_flag_and_a_missing_student(monkeypatch, capsy
 
     from dls_quadruped.cli import run_cli
 
-    sys.path.insert(0, str(REPO))
     module = importlib.import_module(f"experiments.{script}")
     monkeypatch.setattr(sys, "argv", [f"{script}.py", "--out", str(tmp_path), *argv])
     with pytest.raises(SystemExit) as err:
