@@ -110,7 +110,13 @@ class EpisodeSchedule:
             count.zero_()
 
     def start_episodes(self, env_ids: torch.Tensor) -> None:
-        """``env_ids`` begin their next episode: episode += 1, every stream's draw count restarts."""
+        """``env_ids`` (ids, or a (B,) bool mask: static shapes) begin their next episode: episode += 1, every
+        stream's draw count restarts."""
+        if env_ids.dtype == torch.bool:
+            self.episode += env_ids.to(torch.long)
+            for count in self._draws.values():
+                count.masked_fill_(env_ids, 0)
+            return
         self.episode[env_ids] += 1
         for count in self._draws.values():
             count.index_fill_(0, env_ids, 0)  # a scalar fill: no host-to-device copy of the 0
