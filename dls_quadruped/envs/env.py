@@ -18,10 +18,9 @@ episode values (episode means of the reward terms, termination counts, curriculu
 (``envs/episode_log.py``) and read once per PPO iteration (``learning/runner.py``; ``episode_log.read()``). The
 last observation of a reset env is the first one of its new episode (as in IsaacLab).
 
-Host reads: none. Resets and pushes are masks with static shapes: every robot's reset values are computed and the
-reset robots' kept (``torch.where``), the backends take the masks (``sim/interface.py``; the ``cpu`` backend turns
-them into row ids itself), draws count only for the masked robots (``EpisodeSchedule.only``) and the curricula
-decide on the device (``core/sync_probe.py``, ``tests/envs/test_host_sync.py``).
+Host reads: none. Resets and pushes are (B,) masks with static shapes: every robot's values are computed, the masked
+ones kept (``torch.where``; the ``cpu`` backend turns masks into row ids itself), draws count only for the masked
+robots (``EpisodeSchedule.only``), curricula decide on the device (``tests/envs/test_host_sync.py``).
 
 What terms see (``env.<attr>``): ``state`` (RobotState on ``device``), ``num_envs``, ``device``, ``step_dt`` [s],
 ``max_episode_length`` [steps], ``max_episode_length_s``, ``episode_length_buf``, ``robot_weight`` [N], and the
@@ -107,6 +106,7 @@ class LocomotionEnv(VecEnv):
         self.max_episode_length = math.ceil(self.max_episode_length_s / self.step_dt)
         self.robot_weight = self.scene.sim.total_weight()
         self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
+        self._every_env = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)  # a full reset's mask
         self.common_step_counter = 0
         self._controlled_steps: int | None = None  # physics steps of the step_controlled in progress
         self._vel_err_sum = torch.zeros(self.num_envs, device=self.device)  # sum over the episode of |v_xy - cmd_xy| [m/s]
@@ -120,8 +120,7 @@ class LocomotionEnv(VecEnv):
         self.event_manager = EventManager(self.task, self)
         self.fused = FusedCache(self.compile)  # torch work compiled where the scene compiles
         self._reset_bookkeeping = self.fused(self._reset_bookkeeping_eager, "env reset bookkeeping")
-        self.episode_log = EpisodeLog(self.device)
-        """The episode values of the steps' resets, summed on the device; ``read()`` once per iteration."""
+        self.episode_log = EpisodeLog(self.device)  # the steps' episode values, summed on the device
         self.curriculum_manager = CurriculumManager(self.task, self)
         if not any(t.func in event_mdp.PLACEMENT_EVENTS and t.extra["mode"] == "reset" for t in self.event_manager.terms):
             raise self.task.error("events", "a 'reset' mode event with func reset_robot or reset_home is required "
@@ -130,7 +129,7 @@ class LocomotionEnv(VecEnv):
         self.event_manager.apply("startup")
         self.curriculum_manager.start()
         # no curriculum here: it would judge robots that were never placed (and move their rows)
-        self._reset(self._every_env(), curriculum=False)
+        self._reset(self._every_env, curriculum=False)
         self.obs_buf = self.observation_manager.compute()
         if run_dir is not None:
             save_resolved(self.task, Path(run_dir) / "task.yaml")
@@ -280,9 +279,6 @@ class LocomotionEnv(VecEnv):
         self.extras = {"time_outs": time_outs}
         return self.obs_buf, reward, dones.long(), self.extras
 
-    def _every_env(self) -> torch.Tensor:
-        return torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
-
     def reset(self, seed: int | None = None, episode_keys: torch.Tensor | None = None) -> tuple[TensorDict, dict]:
         """Reset every env (gymnasium-style); returns (obs, extras).
 
@@ -302,7 +298,7 @@ class LocomotionEnv(VecEnv):
             self.event_manager.apply("startup")  # per-robot model values follow the key too
         elif episode_keys is not None:
             raise ValueError("episode_keys needs a seed: reset(seed=..., episode_keys=...)")
-        self.extras = {"log": self._reset(self._every_env(), curriculum=seed is None)}
+        self.extras = {"log": self._reset(self._every_env, curriculum=seed is None)}
         self.obs_buf = self.observation_manager.compute()
         return self.obs_buf, self.extras
 
@@ -384,7 +380,7 @@ class LocomotionEnv(VecEnv):
         if episodes is not None:
             episode_state.restore(self, episodes)
         else:
-            self._reset(self._every_env(), curriculum=False)
+            self._reset(self._every_env, curriculum=False)
             self.obs_buf = self.observation_manager.compute()
         torch.set_rng_state(state["rng_cpu"])
         if "rng_cuda" in state and self.device.type == "cuda":

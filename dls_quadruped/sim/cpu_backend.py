@@ -2,15 +2,14 @@
 
 Design (measured in ``docs/benchmarks.md``): the robots are split into contiguous
 shards, one per worker process. Each worker owns a ``mujoco.batch.Batch`` (one thread),
-a Pinocchio model and the batched torch low-level controller, and runs the whole
-decimation loop by itself; the main process only writes commands into shared memory
-and reads the state back, once per high-level step. This spreads the Pinocchio calls,
-which hold the GIL, over the cores as well as the physics. With ``num_workers=0`` a
-single in-process shard is used (its ``Batch`` uses all threads), which is handy for
-debugging and gives bit-identical results. The worker processes themselves are :mod:`cpu_workers`.
+a Pinocchio model and the batched torch low-level controller, and runs the whole decimation loop by itself; the
+main process only writes commands into shared memory and reads the state back, once per high-level step. This
+spreads the Pinocchio calls, which hold the GIL, over the cores as well as the physics. With ``num_workers=0`` a
+single in-process shard is used (its ``Batch`` uses all threads), which is handy for debugging and gives
+bit-identical results. The worker processes themselves are :mod:`cpu_workers`.
 
 This is the ``cpu`` backend of the seam in ``sim/interface.py`` (``make_backend("cpu", ...)``); inputs may
-live on any device (they are copied to the CPU), the state lives on the CPU.
+live on any device (they are copied to the CPU; a mask of robots becomes row ids here), the state lives on the CPU.
 
 Usage::
 
@@ -205,18 +204,12 @@ class VecSim:
         if errors:
             raise RuntimeError("simulator backend failed: " + "; ".join(errors))
 
-    @staticmethod
-    def _ids(env_ids: torch.Tensor | np.ndarray | list[int]) -> torch.Tensor:
-        if isinstance(env_ids, torch.Tensor):
-            return env_ids.to("cpu", torch.long).reshape(-1)
-        return torch.as_tensor(env_ids, dtype=torch.long).reshape(-1)
-
     def _select(self, env_ids: Any, *values: Any) -> tuple[torch.Tensor, ...]:
-        """(ids, *values) of the robots ``env_ids`` names: a (N,) bool mask (values for all N robots: the masked
-        rows are kept) becomes row ids here, read back to the host, since MuJoCo's batch resets and pushes robots
-        row by row (a CPU backend has no GPU pipeline to stall); ids pass through. A value of None stays None."""
+        """(ids as a long CPU tensor, *values) of the robots ``env_ids`` names: a (N,) bool mask (values for all N
+        robots, the masked rows kept) becomes row ids here, read back to the host, since MuJoCo's batch resets and
+        pushes robots row by row (a CPU backend has no GPU pipeline to stall). A value of None stays None."""
         if not is_mask(env_ids, self.num_envs):
-            return (self._ids(env_ids), *values)
+            return (torch.as_tensor(env_ids).to("cpu", torch.long).reshape(-1), *values)
         ids = torch.nonzero(env_ids.cpu()).flatten()
         return (ids, *(None if v is None else torch.as_tensor(v).to("cpu")[ids] for v in values))
 
@@ -266,8 +259,7 @@ class VecSim:
         base_ang_vel_b: torch.Tensor | None = None,
         phase: torch.Tensor | None = None,
     ) -> RobotState:
-        """Reset robots ``env_ids`` (ids or a mask, ``sim/interface.py``) to the given state (velocities default to
-        zero, phases to trot)."""
+        """Reset robots ``env_ids`` (ids or a mask) to the given state (velocities default to zero, phases to trot)."""
         ids, base_pos_w, base_quat_w, joint_pos, joint_vel, base_lin_vel_w, base_ang_vel_b, phase = self._select(
             env_ids, base_pos_w, base_quat_w, joint_pos, joint_vel, base_lin_vel_w, base_ang_vel_b, phase)
         n = len(ids)

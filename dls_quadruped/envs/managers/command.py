@@ -86,9 +86,11 @@ class CommandManager(ManagerBase):
         return self._ranges[name]
 
     def read_ranges(self) -> None:
-        """Copy the device ranges back into ``params`` (one host read; for a checkpoint, not for the step)."""
+        """Copy the device ranges back into ``params`` (one host read; for a checkpoint, not for the step), after
+        uploading what was written into ``params`` since the last sync (:meth:`sync_ranges`)."""
         if not self._ranges:
             return
+        self.sync_ranges()
         values = torch.stack(list(self._ranges.values())).tolist()
         for k, v in zip(self._ranges, values):
             self.params[k] = [float(x) for x in v]
