@@ -119,7 +119,7 @@ class LocomotionEnv(VecEnv):
         self.termination_manager = TerminationManager(self.task, self)
         self.event_manager = EventManager(self.task, self)
         self.fused = FusedCache(self.compile)  # torch work compiled where the scene compiles
-        self._reset_bookkeeping = self.fused(self._reset_bookkeeping_eager, "env reset bookkeeping")
+        self._reset_bookkeeping = self.fused(self._reset_bookkeeping_eager, "env reset bookkeeping", eager_first=True)
         self.episode_log = EpisodeLog(self.device)  # the steps' episode values, summed on the device
         self.curriculum_manager = CurriculumManager(self.task, self)
         if not any(t.func in event_mdp.PLACEMENT_EVENTS and t.extra["mode"] == "reset" for t in self.event_manager.terms):

@@ -82,7 +82,7 @@ def reset_robot(env, env_mask: torch.Tensor, joint_scale: tuple[float, float] = 
     joints = nominal x U(joint_scale) (0.8-1.2 in "high"), base ``height`` [m] above the terrain, higher
     where a foot would start inside the terrain (``spawn_height``). The placement of every robot is one compiled
     function where the scene compiles (``scene.compile``); the backend resets the masked robots."""
-    placement = env.fused(_placement, "reset_robot placement")
+    placement = env.fused(_placement, "reset_robot placement", eager_first=True)  # its draws' streams made first
     env.scene.reset_robots(env_mask, *placement(env, joint_scale, yaw, xy_offset, height))
 
 
