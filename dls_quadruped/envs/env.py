@@ -11,10 +11,10 @@ Step order (IsaacLab's ``ManagerBasedRLEnv.step``):
 6. command manager: resample expired commands; interval events (pushes), by masks too;
 7. observation manager -> TensorDict of groups.
 
-Returns ``(obs, reward, dones, extras)`` with ``extras["time_outs"]`` (time limits, bootstrapped by PPO). The
-episode values (episode means of the reward terms, termination counts, curriculum values, and
-``Episode_Metric/lin_vel_xy_error``: mean over the resetting envs of the per-step planar velocity-tracking error
-|v_xy,b - v_cmd,xy| [m/s] averaged over their episode) are summed on the device in :attr:`episode_log`
+Returns ``(obs, reward, dones, extras)`` with ``extras["time_outs"]`` (time limits, bootstrapped by PPO) and an
+empty ``extras["log"]``: the episode values (episode means of the reward terms, termination counts, curriculum
+values, and ``Episode_Metric/lin_vel_xy_error``: mean over the resetting envs of the per-step planar velocity-tracking
+error |v_xy,b - v_cmd,xy| [m/s] averaged over their episode) are summed on the device in :attr:`episode_log`
 (``envs/episode_log.py``) and read once per PPO iteration (``learning/runner.py``; ``episode_log.read()``). The
 last observation of a reset env is the first one of its new episode (as in IsaacLab).
 
@@ -276,7 +276,7 @@ class LocomotionEnv(VecEnv):
         self.event_manager.apply("interval", dt=self.step_dt)
         self.refresh_state()
         self.obs_buf = self.observation_manager.compute()
-        self.extras = {"time_outs": time_outs}
+        self.extras = {"time_outs": time_outs, "log": {}}  # log: the episode values are in episode_log
         return self.obs_buf, reward, dones.long(), self.extras
 
     def reset(self, seed: int | None = None, episode_keys: torch.Tensor | None = None) -> tuple[TensorDict, dict]:

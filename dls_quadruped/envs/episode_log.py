@@ -46,9 +46,11 @@ class EpisodeLog:
         new = [k for k in keys if k not in self.keys]
         if new:
             self.keys = (*self.keys, *new)
-            pad = torch.zeros(len(new), dtype=torch.float64, device=self.device)
-            self._sums = torch.cat([self._sums, pad])
-            self._steps = torch.cat([self._steps, pad])
+            # normal tensors even under inference mode (rsl-rl's rollouts): summed into in place in and out of it
+            with torch.inference_mode(False):
+                pad = torch.zeros(len(new), dtype=torch.float64, device=self.device)
+                self._sums = torch.cat([self._sums, pad])
+                self._steps = torch.cat([self._steps, pad])
 
     def read(self) -> dict[str, float]:
         """``{key: mean over the steps with resets since the last read}`` (keys without such steps are left out),

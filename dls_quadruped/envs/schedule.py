@@ -142,8 +142,9 @@ class EpisodeSchedule:
         """(n, *shape) int64 hashes in [0, 2**32); advances ``stream``'s draw count of ``env_ids`` by one."""
         env_ids = torch.as_tensor(env_ids, device=self.device, dtype=torch.long)
         count = self._draws.get(stream)  # get, not setdefault: a compiled caller guards on this stream alone
-        if count is None:
-            count = self._draws[stream] = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
+        if count is None:  # a normal tensor even under inference mode (rsl-rl's rollouts): reset in place outside it
+            with torch.inference_mode(False):
+                count = self._draws[stream] = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
         n, size = len(env_ids), 1
         for s in shape:
             size *= int(s)

@@ -35,6 +35,19 @@ def test_a_key_that_appears_later_averages_over_its_own_steps_and_nan_of_a_quiet
     assert log.read() == {"a": pytest.approx(2.0), "c": pytest.approx(15.0)}
 
 
+def test_sums_begun_under_inference_mode_are_read_and_added_to_outside_it():
+    """rsl-rl collects rollouts under ``torch.inference_mode``; the log is read by the runner and stepped by other
+    callers outside it."""
+    log = EpisodeLog("cpu")
+    with torch.inference_mode():
+        log.add({"a": _t(1.0)}, torch.tensor(True))
+    assert log.read() == {"a": pytest.approx(1.0)}
+    log.add({"a": _t(3.0)}, torch.tensor(True))
+    with torch.inference_mode():
+        log.add({"a": _t(5.0)}, torch.tensor(True))
+    assert log.read() == {"a": pytest.approx(4.0)}
+
+
 def test_adding_reads_nothing_back():
     from dls_quadruped.core.sync_probe import sync_probe
 

@@ -75,7 +75,7 @@ class CurriculumManager(ManagerBase):
     def state_dict(self) -> dict[str, Any]:
         """``{"state": terms' state, "values": last value per term}``, with Python numbers for 0-dim tensors (a
         device flag is read back here, once per checkpoint)."""
-        return {"state": _to_host(copy.deepcopy(self.state)), "values": self.values_as_floats()}
+        return {"state": copy.deepcopy(_to_host(self.state)), "values": self.values_as_floats()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.check_state_dict(state)

@@ -61,7 +61,7 @@ def penalties_when_walking(env, env_mask: torch.Tensor, terms: list[str], reward
             rm.weights[t] = 0.0
     if not isinstance(state["enabled"], torch.Tensor):  # built, or loaded from a checkpoint: a flag on the device
         state["enabled"] = torch.tensor(bool(state["enabled"]), device=env.device)
-    enabled = state["enabled"]
-    enabled |= rm.episode_fraction(reward_term, env_mask) > threshold
+    # a new tensor, not in place: the flag may have been made under inference mode (rsl-rl's rollouts)
+    enabled = state["enabled"] = state["enabled"] | (rm.episode_fraction(reward_term, env_mask) > threshold)
     rm.weights.switch(state["targets"], enabled)
     return enabled.float()
