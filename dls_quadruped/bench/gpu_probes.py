@@ -11,6 +11,8 @@ import time
 import traceback
 import warnings
 from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 
 import numpy as np
 import torch
@@ -234,46 +236,95 @@ def gpu_busy(backend: str, device: torch.device, num_envs: int, steps: int, warm
 FAULTY = {"nan_action": 1, "posinf_action": 2, "neginf_action": 3, "diverged_push": 4}
 """The fault trials' robots: a NaN, a +inf and a -inf action row at one step, and a push at 5 km/s (beyond the
 backends' velocity bound) into the same step."""
+WARP_FAULTY = {"contact_overflow": 5}
+"""On the Warp backends also: a robot put with its base 5 cm below the ground, every link in it (measured on
+warp-cpu: 24 contacts and 96 constraint rows, over base's ``njmax`` of 64), whose world overflows MuJoCo Warp's
+constraint rows."""
+
+
+def _sink(env, row: int) -> None:
+    """Reset robot ``row`` where it is, its base 5 cm below the (flat) ground: every link penetrates it."""
+    s = env.state
+    mask = torch.zeros(env.num_envs, dtype=torch.bool, device=s.base_pos_w.device)
+    mask[row] = True
+    pos = s.base_pos_w.double().clone()
+    pos[:, 2] = -0.05
+    env.scene.sim.reset(mask, pos, s.base_quat_w.double(), s.joint_pos.double())
 
 
 def faults(backend: str, device: torch.device, num_envs: int = 8, steps: int = 8, fault_step: int = 4) -> dict:
-    """Fault trials: the robots of ``FAULTY`` get their fault at policy step ``fault_step``; each must be reset
-    (done) at that step or the next, every observation must stay finite, and the other robots must run as in
-    the same env without faults (max |difference| of their observations; 0 on the CPU devices, where worlds do
-    not interact)."""
+    """Fault trials: the robots of ``FAULTY`` (and on the Warp backends ``WARP_FAULTY``) get their fault at policy
+    step ``fault_step``; each must be reset (done) at that step or the next, every observation must stay finite, and
+    the other robots must run as in the same env without faults (max |difference| of their observations; 0 on the
+    CPU backend, where worlds do not interact). ``overflowed``: the robots whose world MuJoCo Warp flagged out of
+    contacts or constraint rows during the fault step; ``sim_diverged``: the robots the ``sim_diverged``
+    termination ended (those of the push and the overflow); ``sim_diverged_logged``: how many the episode log
+    counted (its mean over the steps with resets: the faults' step is the only one)."""
     from dls_quadruped.envs.config import load_task
     from dls_quadruped.envs.env import LocomotionEnv
 
-    if num_envs <= max(FAULTY.values()):
-        raise ValueError(f"faults: num_envs must be > {max(FAULTY.values())}, got {num_envs}")
+    faulty = dict(FAULTY, **(WARP_FAULTY if backend != "cpu" else {}))
+    if num_envs <= max(faulty.values()):
+        raise ValueError(f"faults: num_envs must be > {max(faulty.values())}, got {num_envs}")
     overrides = {"env": {"episode_length_s": 100.0}, "events": {},
                  "commands": {"base_velocity": {"resampling_time_s": [100.0, 100.0]}},
                  "scene": {"backend": backend, "num_workers": 0}}
     g = torch.Generator().manual_seed(0)
     actions = [0.3 * torch.randn(num_envs, 28, generator=g) for _ in range(steps)]
     runs = []
-    for faulty in (False, True):
+    for with_faults in (False, True):
         env = LocomotionEnv(load_task("base", overrides=overrides), num_envs=num_envs, device=str(device), seed=0,
                             verbose=False)
+        overflow: list[torch.Tensor] = []
         try:
-            obs, dones = [], []
+            obs, dones, diverged = [], [], []
             for k, a in enumerate(actions):
-                a = a.to(device)
-                if faulty and k == fault_step:
+                a, sunk = a.to(device), False
+                if with_faults and k == fault_step:
                     a = a.clone()
                     for row, v in zip((1, 2, 3), (float("nan"), float("inf"), float("-inf"))):
                         a[row] = v
                     ids = torch.tensor([FAULTY["diverged_push"]], device=device)
                     env.scene.sim.set_base_velocity(ids, torch.tensor([[0.0, 0.0, 5.0e3]], device=device))
-                o, _, d, _ = env.step(a)
+                    if "contact_overflow" in faulty:
+                        _sink(env, faulty["contact_overflow"])
+                        sunk = True
+                with _overflow_seen(env.scene.sim) if sunk else nullcontext([]) as seen:
+                    o, _, d, _ = env.step(a)
+                overflow += seen
                 obs.append(o["policy"].cpu())
                 dones.append(d.bool().cpu())
+                diverged.append(env.termination_manager.term_dones["sim_diverged"].cpu().clone())
+            counted = env.episode_log.read().get("Episode_Termination/sim_diverged", 0.0)
         finally:
             env.close()
-        runs.append((torch.stack(obs), torch.stack(dones)))
-    (ref_obs, _), (obs, dones) = runs
-    others = [i for i in range(num_envs) if i not in FAULTY.values()]
-    reset = {name: bool(dones[fault_step:fault_step + 2, i].any()) for name, i in FAULTY.items()}
+        runs.append((torch.stack(obs), torch.stack(dones), torch.stack(diverged), overflow, counted))
+    (ref_obs, *_), (obs, dones, diverged, overflow, counted) = runs
+    others = [i for i in range(num_envs) if i not in faulty.values()]
+    reset = {name: bool(dones[fault_step:fault_step + 2, i].any()) for name, i in faulty.items()}
     return {"num_envs": num_envs, "fault_step": fault_step, "reset": reset, "all_reset": all(reset.values()),
             "others_reset": int(dones[:, others].sum()), "finite": bool(torch.isfinite(obs).all()),
-            "others_max_abs_diff": float((obs[:, others] - ref_obs[:, others]).abs().max())}
+            "others_max_abs_diff": float((obs[:, others] - ref_obs[:, others]).abs().max()),
+            "overflowed": [int(i) for i in torch.nonzero(torch.stack(overflow).any(0)).flatten()] if overflow else [],
+            "sim_diverged": [int(i) for i in torch.nonzero(diverged.any(0)).flatten()],
+            "sim_diverged_logged": counted}
+
+
+@contextmanager
+def _overflow_seen(sim) -> Iterator[list[torch.Tensor]]:
+    """While the block runs, MuJoCo Warp's contact and constraint-row overflow bits of every world, (N,) bool, before
+    each physics step's ``settle`` (which flags those robots diverged) of ``sim`` (a Warp backend)."""
+    from dls_quadruped.sim.warp_collision import ALLOCATION_OVERFLOWS
+
+    seen: list[torch.Tensor] = []
+    settle = sim.rate.settle
+
+    def recording() -> None:
+        seen.append(((sim._overflow & ALLOCATION_OVERFLOWS) != 0).cpu())
+        settle()
+
+    sim.rate.settle = recording
+    try:
+        yield seen
+    finally:
+        sim.rate.settle = settle

@@ -79,7 +79,7 @@ def instrument_env(env: LocomotionEnv, timer: StageTimer) -> None:
     timer.wrap(env.action_manager, "process", "action")
     timer.wrap(env.termination_manager, "compute", "termination")
     timer.wrap(env.reward_manager, "compute", "reward")
-    timer.wrap(env, "_reset_idx", "reset")
+    timer.wrap(env, "_reset", "reset")
     timer.wrap(env.observation_manager, "compute", "observation")
 
 

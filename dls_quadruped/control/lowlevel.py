@@ -163,10 +163,19 @@ class LowLevelController:
         """Reset the gait phase (default: trot offsets) and lift-off positions of robots ``ids``.
 
         Args:
-            ids: (n,) robot indices.
+            ids: (n,) robot indices, or a (B,) bool mask of the robots to reset (then n = B: the next two
+                arguments hold every robot's rows and only the masked ones are used).
             foot_pos_w: (n, 4, 3) [m] current foot positions (the lift-off point of a first swing).
             phase: (n, 4) phases in [0, 1), or None for the trot offsets.
         """
+        if ids.dtype == torch.bool:  # a mask (B,) with foot_pos_w and phase of every robot: the masked rows kept
+            new_phase = trot_phases(len(ids), device=self.device, dtype=self.phase.dtype) if phase is None else phase
+            self.phase.copy_(torch.where(ids[:, None], new_phase.to(self.phase), self.phase))
+            self.p_lo_w.copy_(torch.where(ids[:, None, None], foot_pos_w.to(self.p_lo_w), self.p_lo_w))
+            self.contact.masked_fill_(ids[:, None], True)
+            self._fresh.masked_fill_(ids, True)
+            self.target_vel_xy_w.masked_fill_(ids[:, None, None], 0.0)
+            return
         self.phase[ids] = (trot_phases(len(ids), device=self.device, dtype=self.phase.dtype) if phase is None
                            else phase.to(self.phase))
         self.p_lo_w[ids] = foot_pos_w.to(self.p_lo_w)

@@ -60,9 +60,10 @@ first draw stream); past the limit dynamo runs the function eagerly without tell
 class Fused:
     """``fn`` compiled with ``torch.compile(fullgraph=True, dynamic=dynamic)`` when ``enabled``, else ``fn`` itself.
 
-    ``dynamic=True`` for functions whose batch size changes from call to call (a reset's robots); their first call
-    runs eagerly, so that what they make on first use (an episode-schedule stream's counters) exists before they
-    are traced and is not a guard that fails on the second call.
+    ``dynamic=True`` for functions whose batch size changes from call to call (a reset's robots). ``eager_first``
+    (default: ``dynamic``): the first call runs eagerly, so that what the function makes on first use (an
+    episode-schedule stream's counters) exists before it is traced and is not a guard that fails on the second
+    call.
 
     Attributes:
         name: what the warning calls it.
@@ -70,14 +71,15 @@ class Fused:
         error: the compile error that switched it to eager, if any.
     """
 
-    def __init__(self, fn: Callable[..., Any], enabled: bool, name: str | None = None, dynamic: bool = False):
+    def __init__(self, fn: Callable[..., Any], enabled: bool, name: str | None = None, dynamic: bool = False,
+                 eager_first: bool | None = None):
         self.fn = fn
         self.name = name or getattr(fn, "__qualname__", repr(fn))
         self.compiled = bool(enabled)
         self.error: BaseException | None = None
         self._impl = torch.compile(fn, fullgraph=True, dynamic=dynamic) if enabled else fn
         self._first = bool(enabled)
-        self._eager_first = bool(enabled and dynamic)
+        self._eager_first = bool(enabled and (dynamic if eager_first is None else eager_first))
         if enabled:
             dynamo_config = torch._dynamo.config
             dynamo_config.recompile_limit = max(dynamo_config.recompile_limit, RECOMPILE_LIMIT)
@@ -102,7 +104,7 @@ class Fused:
 
 
 class FusedCache:
-    """One :class:`Fused` per function, all compiled or all eager: ``cache(fn, name, dynamic)`` returns ``fn``'s.
+    """One :class:`Fused` per function, all compiled or all eager: ``cache(fn, name, ...)`` returns ``fn``'s.
 
     An env keeps one (``LocomotionEnv.fused``) so that an event function's torch work, e.g. ``reset_robot``'s
     placement, is compiled where the env's scene compiles, once per env.
@@ -112,9 +114,10 @@ class FusedCache:
         self.enabled = bool(enabled)
         self._fused: dict[Callable[..., Any], Fused] = {}
 
-    def __call__(self, fn: Callable[..., Any], name: str | None = None, dynamic: bool = False) -> Fused:
+    def __call__(self, fn: Callable[..., Any], name: str | None = None, dynamic: bool = False,
+                 eager_first: bool | None = None) -> Fused:
         if fn not in self._fused:
-            self._fused[fn] = Fused(fn, self.enabled, name, dynamic=dynamic)
+            self._fused[fn] = Fused(fn, self.enabled, name, dynamic=dynamic, eager_first=eager_first)
         return self._fused[fn]
 
 

@@ -6,21 +6,21 @@ Step order (IsaacLab's ``ManagerBasedRLEnv.step``):
 2. the simulator backend's ``step(decimation)`` (``sim/interface.py``): 4 physics steps at 200 Hz, low-level control at every one;
 3. episode counters += 1; termination manager -> dones (terminated | time_outs);
 4. reward manager -> reward (weights x dt);
-5. reset the done envs: curriculum (reads their episode data) -> reset events (placement,
+5. reset the done envs, by their (B,) mask: curriculum (reads their episode data) -> reset events (placement,
    joint randomisation, wrench) -> every manager's reset (episode logs) -> counters = 0;
-6. command manager: resample expired commands; interval events (pushes);
+6. command manager: resample expired commands; interval events (pushes), by masks too;
 7. observation manager -> TensorDict of groups.
 
-Returns ``(obs, reward, dones, extras)`` with ``extras["time_outs"]`` (time limits, bootstrapped by PPO) and
-``extras["log"]`` (episode means, curriculum values, and ``Episode_Metric/lin_vel_xy_error``: mean over the
-resetting envs of the per-step planar velocity-tracking error |v_xy,b - v_cmd,xy| [m/s] averaged over their
-episode). The episode values are 0-dim tensors on ``device`` (as IsaacLab's; rsl-rl's logger reads them once per
-iteration), the curriculum values floats. The last observation of a reset env is the first one of its new episode
-(as in IsaacLab).
+Returns ``(obs, reward, dones, extras)`` with ``extras["time_outs"]`` (time limits, bootstrapped by PPO) and an
+empty ``extras["log"]``: the episode values (episode means of the reward terms, termination counts, curriculum
+values, and ``Episode_Metric/lin_vel_xy_error``: mean over the resetting envs of the per-step planar velocity-tracking
+error |v_xy,b - v_cmd,xy| [m/s] averaged over their episode) are summed on the device in :attr:`episode_log`
+(``envs/episode_log.py``) and read once per PPO iteration (``learning/runner.py``; ``episode_log.read()``). The
+last observation of a reset env is the first one of its new episode (as in IsaacLab).
 
-Host reads: one per step, how many robots reset and how many each interval event (push) fires on (backends reset
-and push by row id; ``nonzero_static`` finds them), plus one per interval term with ``interval_s[0] <= step_dt``;
-the rest queues device work only (``core/sync_probe.py``, ``tests/envs/test_host_sync.py``).
+Host reads: none. Resets and pushes are (B,) masks with static shapes: every robot's values are computed, the masked
+ones kept (``torch.where``; the ``cpu`` backend turns masks into row ids itself), draws count only for the masked
+robots (``EpisodeSchedule.only``), curricula decide on the device (``tests/envs/test_host_sync.py``).
 
 What terms see (``env.<attr>``): ``state`` (RobotState on ``device``), ``num_envs``, ``device``, ``step_dt`` [s],
 ``max_episode_length`` [steps], ``max_episode_length_s``, ``episode_length_buf``, ``robot_weight`` [N], and the
@@ -48,6 +48,7 @@ from dls_quadruped.envs.config import (
     load_task,
     save_resolved,
 )
+from dls_quadruped.envs.episode_log import EpisodeLog
 from dls_quadruped.envs.managers.action import ActionManager
 from dls_quadruped.envs.managers.command import CommandManager
 from dls_quadruped.envs.managers.curriculum import CurriculumManager
@@ -105,6 +106,7 @@ class LocomotionEnv(VecEnv):
         self.max_episode_length = math.ceil(self.max_episode_length_s / self.step_dt)
         self.robot_weight = self.scene.sim.total_weight()
         self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
+        self._every_env = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)  # a full reset's mask
         self.common_step_counter = 0
         self._controlled_steps: int | None = None  # physics steps of the step_controlled in progress
         self._vel_err_sum = torch.zeros(self.num_envs, device=self.device)  # sum over the episode of |v_xy - cmd_xy| [m/s]
@@ -116,8 +118,9 @@ class LocomotionEnv(VecEnv):
         self.reward_manager = RewardManager(self.task, self)
         self.termination_manager = TerminationManager(self.task, self)
         self.event_manager = EventManager(self.task, self)
-        self.fused = FusedCache(self.compile)  # torch work compiled where the scene compiles; dynamic: reset ids
-        self._reset_bookkeeping = self.fused(self._reset_bookkeeping_eager, "env reset bookkeeping", dynamic=True)
+        self.fused = FusedCache(self.compile)  # torch work compiled where the scene compiles
+        self._reset_bookkeeping = self.fused(self._reset_bookkeeping_eager, "env reset bookkeeping", eager_first=True)
+        self.episode_log = EpisodeLog(self.device)  # the steps' episode values, summed on the device
         self.curriculum_manager = CurriculumManager(self.task, self)
         if not any(t.func in event_mdp.PLACEMENT_EVENTS and t.extra["mode"] == "reset" for t in self.event_manager.terms):
             raise self.task.error("events", "a 'reset' mode event with func reset_robot or reset_home is required "
@@ -126,7 +129,7 @@ class LocomotionEnv(VecEnv):
         self.event_manager.apply("startup")
         self.curriculum_manager.start()
         # no curriculum here: it would judge robots that were never placed (and move their rows)
-        self._reset_idx(torch.arange(self.num_envs, device=self.device), curriculum=False)
+        self._reset(self._every_env, curriculum=False)
         self.obs_buf = self.observation_manager.compute()
         if run_dir is not None:
             save_resolved(self.task, Path(run_dir) / "task.yaml")
@@ -268,17 +271,12 @@ class LocomotionEnv(VecEnv):
         dones = self.termination_manager.compute(nonfinite)
         reward = self.reward_manager.compute(self.step_dt)
         time_outs = self.termination_manager.time_outs.clone()
-        self.extras = {"log": {}}
-        masks = {None: dones, **self.event_manager.due(self.step_dt, dones)}  # resets, pushes: one host read
-        counts = torch.stack(tuple(masks.values())).sum(dim=1).tolist()
-        rows = {k: torch.nonzero_static(m, size=c).flatten() for (k, m), c in zip(masks.items(), counts)}
-        if len(reset_ids := rows.pop(None)):
-            self._reset_idx(reset_ids)
+        self.episode_log.add(self._reset(dones), dones.any())
         self.command_manager.compute(self.step_dt)
-        self.event_manager.apply("interval", dt=self.step_dt, due=rows)
+        self.event_manager.apply("interval", dt=self.step_dt)
         self.refresh_state()
         self.obs_buf = self.observation_manager.compute()
-        self.extras["time_outs"] = time_outs
+        self.extras = {"time_outs": time_outs, "log": {}}  # log: the episode values are in episode_log
         return self.obs_buf, reward, dones.long(), self.extras
 
     def reset(self, seed: int | None = None, episode_keys: torch.Tensor | None = None) -> tuple[TensorDict, dict]:
@@ -293,7 +291,6 @@ class LocomotionEnv(VecEnv):
             episode_keys: (num_envs,) non-negative integer keys (default ``arange(num_envs)``); only
                 with ``seed``. K policies on the same E episodes in one env: ``arange(K * E) % E``.
         """
-        ids = torch.arange(self.num_envs, device=self.device)
         if seed is not None:
             self.seed = int(seed)
             self.schedule.restart(self.seed, episode_keys)
@@ -301,28 +298,31 @@ class LocomotionEnv(VecEnv):
             self.event_manager.apply("startup")  # per-robot model values follow the key too
         elif episode_keys is not None:
             raise ValueError("episode_keys needs a seed: reset(seed=..., episode_keys=...)")
-        self._reset_idx(ids, curriculum=seed is None)
+        self.extras = {"log": self._reset(self._every_env, curriculum=seed is None)}
         self.obs_buf = self.observation_manager.compute()
         return self.obs_buf, self.extras
 
-    def _reset_idx(self, env_ids: torch.Tensor, curriculum: bool = True) -> None:
-        log = self.extras.setdefault("log", {})
-        self.schedule.start_episodes(env_ids)
+    def _reset(self, env_mask: torch.Tensor, curriculum: bool = True) -> dict[str, torch.Tensor]:
+        """Start the next episode of the envs of ``env_mask`` (B,) bool (step 5 of the module docstring; every row
+        computed, the masked ones kept); returns the episode values of the envs that ended (0-dim tensors)."""
+        log: dict[str, torch.Tensor] = {}
+        self.schedule.start_episodes(env_mask)
         if curriculum:
-            log.update(self.curriculum_manager.compute(env_ids))
-        self.event_manager.apply("reset", env_ids)
+            log.update(self.curriculum_manager.compute(env_mask))
+        self.event_manager.apply("reset", env_mask)
         self.refresh_state()
-        log.update(self._reset_bookkeeping(env_ids))
+        log.update(self._reset_bookkeeping(env_mask))
+        return log
 
-    def _reset_bookkeeping_eager(self, env_ids: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _reset_bookkeeping_eager(self, env_mask: torch.Tensor) -> dict[str, torch.Tensor]:
         """The managers' resets (logged episode sums, counts; commands resampled), the env's metric and counters."""
         log: dict[str, torch.Tensor] = {}
         for manager in (self.reward_manager, self.termination_manager, self.action_manager, self.command_manager):
-            log.update(manager.reset(env_ids))
-        steps = self.episode_length_buf[env_ids].clamp(min=1)
-        log["Episode_Metric/lin_vel_xy_error"] = (self._vel_err_sum[env_ids] / steps).mean()
-        self._vel_err_sum.index_fill_(0, env_ids, 0.0)  # scalar fills: no host-to-device copies
-        self.episode_length_buf.index_fill_(0, env_ids, 0)
+            log.update(manager.reset(env_mask))
+        err = self._vel_err_sum / self.episode_length_buf.clamp(min=1)
+        log["Episode_Metric/lin_vel_xy_error"] = torch.where(env_mask, err, 0.0).sum() / env_mask.sum().clamp(min=1)
+        self._vel_err_sum.masked_fill_(env_mask, 0.0)  # scalar fills: no host-to-device copies
+        self.episode_length_buf.masked_fill_(env_mask, 0)
         return log
 
     # ------------------------------------------------------------------ checkpoint state
@@ -380,7 +380,7 @@ class LocomotionEnv(VecEnv):
         if episodes is not None:
             episode_state.restore(self, episodes)
         else:
-            self._reset_idx(torch.arange(self.num_envs, device=self.device), curriculum=False)
+            self._reset(self._every_env, curriculum=False)
             self.obs_buf = self.observation_manager.compute()
         torch.set_rng_state(state["rng_cpu"])
         if "rng_cuda" in state and self.device.type == "cuda":

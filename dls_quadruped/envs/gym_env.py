@@ -27,8 +27,8 @@ so by default (``final_obs="truncated"``) it is computed on steps where an episo
 for those rows: what bootstrapping needs (a fall's return is not bootstrapped), and rare. ``"all"``
 adds the falls (every step, in practice, at large N), ``"none"`` never.
 
-``info``: ``"time_outs"`` (N,) bool (= truncated, rsl-rl's name), ``"log"`` (the env's episode
-means, curriculum values), and where an episode ended, ``"episode"`` = {"r": return, "l": length
+``info``: ``"time_outs"`` (N,) bool (= truncated, rsl-rl's name), ``"log"`` (on steps where an episode ended, the
+env's episode means and curriculum values, floats read from ``LocomotionEnv.episode_log``), and where an episode ended, ``"episode"`` = {"r": return, "l": length
 [steps], "t": wall time [s]} with mask ``"_episode"``, as ``gymnasium.wrappers.vector.
 RecordEpisodeStatistics`` writes it (with ``episode_statistics=False`` that wrapper can write it
 instead; it refuses to overwrite the key).
@@ -123,15 +123,16 @@ class LocomotionVectorEnv(gymnasium.vector.VectorEnv):
 
     # ------------------------------------------------------------------ final observation
     def _observe_before_resets(self) -> None:
-        """Wrap the env's ``_reset_idx`` (on this instance only) to observe the robots before a reset in step."""
-        reset_idx = self.env._reset_idx
+        """Wrap the env's ``_reset`` (on this instance only) to observe the robots before a reset in step."""
+        reset = self.env._reset
 
-        def observe_then_reset(env_ids: torch.Tensor, *args: Any, **kwargs: Any) -> None:
-            if self._stepping and (self.final_obs == "all" or bool(self.env.termination_manager.time_outs.any())):
+        def observe_then_reset(env_mask: torch.Tensor, *args: Any, **kwargs: Any) -> dict[str, torch.Tensor]:
+            ended = self.env.termination_manager.time_outs if self.final_obs == "truncated" else env_mask
+            if self._stepping and bool(ended.any()):  # the env's step reads nothing back; this wrapper does
                 self._final_obs = self._observe_without_drawing()
-            reset_idx(env_ids, *args, **kwargs)
+            return reset(env_mask, *args, **kwargs)
 
-        self.env._reset_idx = observe_then_reset
+        self.env._reset = observe_then_reset
 
     def _observe_without_drawing(self) -> dict[str, torch.Tensor]:
         """Every group's observation now, leaving the episode schedule's counters and torch's RNG as they were
@@ -189,8 +190,9 @@ class LocomotionVectorEnv(gymnasium.vector.VectorEnv):
         terminated = dones & ~truncated
         self._returns += reward.double()
         self._lengths += 1
-        info: dict[str, Any] = {"time_outs": truncated.clone(), "log": dict(extras.get("log", {}))}
+        info: dict[str, Any] = {"time_outs": truncated.clone(), "log": {}}
         if dones.any():
+            info["log"] = self.env.episode_log.read()
             now = time.perf_counter()
             if self.episode_statistics:
                 zero = torch.zeros((), dtype=torch.float64, device=self.device)

@@ -110,7 +110,13 @@ class EpisodeSchedule:
             count.zero_()
 
     def start_episodes(self, env_ids: torch.Tensor) -> None:
-        """``env_ids`` begin their next episode: episode += 1, every stream's draw count restarts."""
+        """``env_ids`` (ids, or a (B,) bool mask: static shapes) begin their next episode: episode += 1, every
+        stream's draw count restarts."""
+        if env_ids.dtype == torch.bool:
+            self.episode += env_ids.to(torch.long)
+            for count in self._draws.values():
+                count.masked_fill_(env_ids, 0)
+            return
         self.episode[env_ids] += 1
         for count in self._draws.values():
             count.index_fill_(0, env_ids, 0)  # a scalar fill: no host-to-device copy of the 0
@@ -136,8 +142,9 @@ class EpisodeSchedule:
         """(n, *shape) int64 hashes in [0, 2**32); advances ``stream``'s draw count of ``env_ids`` by one."""
         env_ids = torch.as_tensor(env_ids, device=self.device, dtype=torch.long)
         count = self._draws.get(stream)  # get, not setdefault: a compiled caller guards on this stream alone
-        if count is None:
-            count = self._draws[stream] = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
+        if count is None:  # a normal tensor even under inference mode (rsl-rl's rollouts): reset in place outside it
+            with torch.inference_mode(False):
+                count = self._draws[stream] = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
         n, size = len(env_ids), 1
         for s in shape:
             size *= int(s)

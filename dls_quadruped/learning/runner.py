@@ -18,7 +18,8 @@ iteration (then raises ``TrainingInterrupted``). With a ``deadline`` (``train --
 at the end of the last iteration that leaves time for one more iteration and the closing save and export
 (raises ``TimeLimitReached`` after saving). Every iteration also logs ``learning/diagnostics.py``'s
 ``Diagnostics/*`` scalars (action std and clip fractions per latent-action group, ignored F/p, KL, learning
-rate) and prints them on one line.
+rate) and prints them on one line, and hands rsl-rl's logger the env's episode values, summed on the device over
+the iteration (``LocomotionEnv.episode_log``).
 
 Under torchrun the runner joins the process group with gloo on the CPU and NCCL on GPUs
 (``learning/distributed.py``; rsl-rl-lib itself only knows NCCL); rsl-rl all-reduces the gradients,
@@ -93,6 +94,7 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
 
         def log_then_checkpoint(*args, **kwargs) -> None:
             # rsl-rl calls logger.log once per iteration, after the update and before its own save
+            self._collect_episode_log()
             log(*args, **kwargs)
             self._log_diagnostics(kwargs["it"])
             self._end_of_iteration()
@@ -132,6 +134,16 @@ class AtomicOnPolicyRunner(OnPolicyRunner):
         signal.signal(signal.SIGINT, handler)
         signal.signal(signal.SIGTERM, handler)
         return previous
+
+    def _collect_episode_log(self) -> None:
+        """Hand rsl-rl's logger the iteration's episode values: the env sums them on the device
+        (``LocomotionEnv.episode_log``) and they are read here, once per iteration, instead of being handed over at
+        every step (``extras["log"]``, which the logger would read one step at a time). Every rank reads (and
+        restarts) its sums; rank 0 logs them."""
+        episode_log = getattr(self.env, "episode_log", None)
+        values = {} if episode_log is None else episode_log.read()
+        if values and self.logger.writer is not None:
+            self.logger.ep_extras.append(values)
 
     def _log_diagnostics(self, it: int) -> None:
         """Write the iteration's ``TrainingDiagnostics`` as ``Diagnostics/<name>`` scalars and one console line."""

@@ -10,7 +10,7 @@ single in-process shard is used (its ``Batch`` uses all threads), which is handy
 debugging and gives bit-identical results. The worker processes and their pipes are :mod:`cpu_workers`.
 
 This is the ``cpu`` backend of the seam in ``sim/interface.py`` (``make_backend("cpu", ...)``); inputs may
-live on any device (they are copied to the CPU), the state lives on the CPU.
+live on any device (they are copied to the CPU; a mask of robots becomes row ids here), the state lives on the CPU.
 
 Usage::
 
@@ -40,6 +40,7 @@ from dls_quadruped.sim.cpu_workers import (
 )
 from dls_quadruped.sim.interface import (
     SimConfig,
+    is_mask,
     reset_coordinates,
     robot_weight,
     standing_references,
@@ -132,11 +133,14 @@ class VecSim:
             raise WorkerError("the simulator is closed (a worker failed earlier or close() was called)")
         return self.workers
 
-    @staticmethod
-    def _ids(env_ids: torch.Tensor | np.ndarray | list[int]) -> torch.Tensor:
-        if isinstance(env_ids, torch.Tensor):
-            return env_ids.to("cpu", torch.long).reshape(-1)
-        return torch.as_tensor(env_ids, dtype=torch.long).reshape(-1)
+    def _select(self, env_ids: Any, *values: Any) -> tuple[torch.Tensor, ...]:
+        """(ids as a long CPU tensor, *values) of the robots ``env_ids`` names: a (N,) bool mask (values for all N
+        robots, the masked rows kept) becomes row ids here, read back to the host, since MuJoCo's batch resets and
+        pushes robots row by row (a CPU backend has no GPU pipeline to stall). A value of None stays None."""
+        if not is_mask(env_ids, self.num_envs):
+            return (torch.as_tensor(env_ids).to("cpu", torch.long).reshape(-1), *values)
+        ids = torch.nonzero(env_ids.cpu()).flatten()
+        return (ids, *(None if v is None else torch.as_tensor(v).to("cpu")[ids] for v in values))
 
     def _check_rows(self, name: str, value: torch.Tensor, n: int, shape: tuple[int, ...]) -> torch.Tensor:
         """``value`` as a float64 CPU tensor of shape (n, *shape) with finite entries (from any device)."""
@@ -184,8 +188,9 @@ class VecSim:
         base_ang_vel_b: torch.Tensor | None = None,
         phase: torch.Tensor | None = None,
     ) -> RobotState:
-        """Reset robots ``env_ids`` to the given state (velocities default to zero, phases to trot)."""
-        ids = self._ids(env_ids)
+        """Reset robots ``env_ids`` (ids or a mask) to the given state (velocities default to zero, phases to trot)."""
+        ids, base_pos_w, base_quat_w, joint_pos, joint_vel, base_lin_vel_w, base_ang_vel_b, phase = self._select(
+            env_ids, base_pos_w, base_quat_w, joint_pos, joint_vel, base_lin_vel_w, base_ang_vel_b, phase)
         n = len(ids)
         if n == 0:
             return self.state
@@ -206,14 +211,14 @@ class VecSim:
 
     def set_external_wrench(self, env_ids: torch.Tensor, force_w: torch.Tensor, torque_w: torch.Tensor) -> None:
         """Constant external force [N] and torque [N m] on the base (world frame) until changed."""
-        ids = self._ids(env_ids)
+        ids, force_w, torque_w = self._select(env_ids, force_w, torque_w)
         n = len(ids)
         self.buf.command["wrench_w"][ids] = torch.cat(
             [self._check_rows("force_w", force_w, n, (3,)), self._check_rows("torque_w", torque_w, n, (3,))], dim=1)
 
     def set_base_velocity(self, env_ids: torch.Tensor, lin_vel_w: torch.Tensor) -> RobotState:
         """Set the base linear velocity (world frame) of robots ``env_ids``: a push."""
-        ids = self._ids(env_ids)
+        ids, lin_vel_w = self._select(env_ids, lin_vel_w)
         self.buf.command["set_lin_vel_w"][ids] = self._check_rows("lin_vel_w", lin_vel_w, len(ids), (3,))
         self._dispatch("set_lin_vel", ids)
         return self._refresh_state()
@@ -232,7 +237,7 @@ class VecSim:
 
         if name not in MODEL_FIELDS:
             raise ValueError(f"unknown model field {name!r}; allowed: mujoco.batch.MODEL_FIELDS")
-        ids = self._ids(env_ids)
+        ids, values = self._select(env_ids, values.detach() if isinstance(values, torch.Tensor) else values)
         if isinstance(values, torch.Tensor):
             values = values.detach().to("cpu", torch.float64).numpy()
         values = np.asarray(values, dtype=np.float64)

@@ -6,7 +6,10 @@ without touching them. The contract:
 
 * **Inputs on any device, any float dtype.** ``set_references``, ``reset``, ``set_external_wrench``,
   ``set_base_velocity`` and ``set_model_field`` accept torch tensors (or numpy arrays) wherever they live;
-  the backend moves them to where it computes. Row ids are ``(n,)`` integer tensors, lists or arrays.
+  the backend moves them to where it computes. Rows are ``(n,)`` integer ids (tensors, lists or arrays) with
+  ``n`` rows of values, or a ``(N,)`` bool tensor, a mask of the robots to change, with values for all ``N`` robots
+  (the unmasked rows' values are ignored, and need not be finite): the env resets and pushes by masks, so that
+  a GPU step has static shapes and reads nothing back (:func:`is_mask`).
 * **State on the backend's device.** ``state`` (and what ``step`` / ``reset`` return) is a
   :class:`~dls_quadruped.core.state.RobotState` on :attr:`SimBackend.device`, live buffers that the next call
   overwrites (``RobotState.clone`` to keep one). The env copies it to its own device only when the two differ.
@@ -109,14 +112,22 @@ def robot_weight(model: mujoco.MjModel) -> float:
     return float(model.body_subtreemass[1] * -model.opt.gravity[2])
 
 
+def is_mask(rows: Any, num_envs: int) -> bool:
+    """Whether ``rows`` (a backend method's ``env_ids``) is a (``num_envs``,) bool mask rather than row ids."""
+    return isinstance(rows, torch.Tensor) and rows.dtype == torch.bool and tuple(rows.shape) == (num_envs,)
+
+
 def standing_references(command: dict[str, torch.Tensor], rows: slice | torch.Tensor, weight: float) -> None:
-    """Write the standing references into ``command``'s ``rows``: all four legs in stance (f = 0, d = 1),
+    """Write the standing references into ``command``'s ``rows`` (a slice, ids, or an (N,) bool mask): all four
+    legs in stance (f = 0, d = 1),
     the weight shared equally, no foothold. Every backend gives these to a robot at construction and at
     its reset, until its first ``set_references`` (the state published at a reset reads the duty,
     ``contact_cmd = phase < d``, so a robot must not start an episode with its previous episode's duty)."""
     for t, value in ((command["freq"], 0.0), (command["duty"], 1.0), (command["p_td_w"], 0.0), (command["F_w"], 0.0),
                      (command["F_w"][:, :, 2], weight / 4.0)):
-        if isinstance(rows, torch.Tensor):
+        if isinstance(rows, torch.Tensor) and rows.dtype == torch.bool:
+            t.masked_fill_(rows.to(t.device).view(-1, *[1] * (t.dim() - 1)), value)
+        elif isinstance(rows, torch.Tensor):
             t.index_fill_(0, rows.to(t.device), value)  # t[rows] = value would copy value from the host on CUDA
         else:
             t[rows] = value

@@ -35,6 +35,7 @@ bias forces (the CPU backend uses Pinocchio: the same quantities, ``tests/contro
 
 from __future__ import annotations
 
+import functools
 import warnings
 from contextlib import ExitStack
 from typing import Any, Self
@@ -233,39 +234,59 @@ class WarpSim:
         """Reset robots ``env_ids`` (velocities default to zero, phases to trot); their wrench is cleared and
         they stand until their next references (``SimBackend.reset``)."""
         self._check_open()
-        ids = self.inputs.ids(env_ids)
-        n = len(ids)
+        mask = self.inputs.mask(env_ids)
+        ids = self.inputs.ids(env_ids) if mask is None else None
+        n = self.num_envs if mask is not None else len(ids)
         if n == 0:
             return self.state
-        dev = self.device
-        qpos, qvel = reset_coordinates(self.inputs.rows, n, base_pos_w, base_quat_w, joint_pos, joint_vel,
-                                       base_lin_vel_w, base_ang_vel_b, device=dev)
-        phase = None if phase is None else self.inputs.rows("phase", phase, n, (4,))
+        rows = functools.partial(self.inputs.rows, mask=mask)
+        qpos, qvel = reset_coordinates(rows, n, base_pos_w, base_quat_w, joint_pos, joint_vel, base_lin_vel_w,
+                                       base_ang_vel_b, device=self.device)
+        phase = None if phase is None else rows("phase", phase, n, (4,))
         w, torch_stream = self.worlds, self.worlds.torch_stream()
-        w.reset_mask.zero_()
-        w.reset_mask.index_fill_(0, ids, True)  # scalar fills: x[ids] = v copies v from the host on CUDA
+        if mask is None:
+            w.reset_mask.zero_()
+            w.reset_mask.index_fill_(0, ids, True)  # scalar fills: x[ids] = v copies v from the host on CUDA
+        else:
+            w.reset_mask.copy_(mask)
         with self._scope():
             w.reset_data(torch_stream)  # captured graphs (WarpWorlds): one launch each
-            self._qpos[ids] = qpos.to(self._qpos.dtype)
-            self._qvel[ids] = qvel.to(self._qvel.dtype)
-            self._time.index_fill_(0, ids, 0.0)
+            if mask is None:
+                self._qpos[ids] = qpos.to(self._qpos.dtype)
+                self._qvel[ids] = qvel.to(self._qvel.dtype)
+                self._time.index_fill_(0, ids, 0.0)
+            else:  # static shapes: every row computed, the masked ones kept
+                self._qpos.copy_(torch.where(mask[:, None], qpos.to(self._qpos.dtype), self._qpos))
+                self._qvel.copy_(torch.where(mask[:, None], qvel.to(self._qvel.dtype), self._qvel))
+                self._time.masked_fill_(mask, 0.0)
             w.forward(torch_stream)  # every stage, sensors included: the reset robots' published forces
         self._terms = self._dynamics_terms()
-        self.rate.reset_rows(ids, self._terms.foot_pos_w, phase)  # sensors, flags, references, controller
+        # sensors, flags, references, controller
+        self.rate.reset_rows(ids if mask is None else mask, self._terms.foot_pos_w, phase)
         return self._publish()
 
     def set_external_wrench(self, env_ids: Any, force_w: Any, torque_w: Any) -> None:
         """Constant external force [N] and torque [N m] on the base (world frame) until changed."""
-        ids = self.inputs.ids(env_ids)
-        n = len(ids)
-        self.wrench_w[ids] = torch.cat([self.inputs.rows("force_w", force_w, n, (3,)),
-                                        self.inputs.rows("torque_w", torque_w, n, (3,))], dim=1).to(self.wrench_w)
+        mask = self.inputs.mask(env_ids)
+        ids = self.inputs.ids(env_ids) if mask is None else None
+        n = self.num_envs if mask is not None else len(ids)
+        wrench = torch.cat([self.inputs.rows("force_w", force_w, n, (3,), mask),
+                            self.inputs.rows("torque_w", torque_w, n, (3,), mask)], dim=1).to(self.wrench_w)
+        if mask is None:
+            self.wrench_w[ids] = wrench
+        else:
+            self.wrench_w.copy_(torch.where(mask[:, None], wrench, self.wrench_w))
 
     def set_base_velocity(self, env_ids: Any, lin_vel_w: Any) -> RobotState:
         """Set the base linear velocity (world frame) of robots ``env_ids``: a push."""
         self._check_open()
-        ids = self.inputs.ids(env_ids)
-        self._qvel[ids, 0:3] = self.inputs.rows("lin_vel_w", lin_vel_w, len(ids), (3,)).to(self._qvel.dtype)
+        mask = self.inputs.mask(env_ids)
+        if mask is None:
+            ids = self.inputs.ids(env_ids)
+            self._qvel[ids, 0:3] = self.inputs.rows("lin_vel_w", lin_vel_w, len(ids), (3,)).to(self._qvel.dtype)
+        else:
+            v = self.inputs.rows("lin_vel_w", lin_vel_w, self.num_envs, (3,), mask).to(self._qvel.dtype)
+            self._qvel[:, 0:3] = torch.where(mask[:, None], v, self._qvel[:, 0:3])
         with self._scope():
             # the whole step1, replayed from its graph (one launch): its velocity stage alone (fwd_velocity +
             # sensor_vel) is not equivalent -- on warp-cpu it moved the pushed robot's foot forces by up to 18 N on
@@ -281,7 +302,9 @@ class WarpSim:
         modelled (the CPU backend's Pinocchio model stays nominal)."""
         self._check_open()
         field = self.worlds.batched_field(name)
-        ids = self.inputs.ids(env_ids)
+        mask = self.inputs.mask(env_ids)
+        # a mask keeps its rows of values for every robot: as ids of all robots, with the others' old values
+        ids = self.inputs.ids(env_ids) if mask is None else torch.arange(self.num_envs, device=self.device)
         values = torch.as_tensor(values).to(self.device, field.dtype)
         if len(values) != len(ids):
             raise ValueError(f"values must have one row per env id ({len(ids)}), got {len(values)}")
@@ -289,11 +312,14 @@ class WarpSim:
             if values.shape[1:] != field.shape[1:]:
                 raise ValueError(f"{name} values must be (n, {', '.join(map(str, field.shape[1:]))}), "
                                  f"got {tuple(values.shape)}")
-            field[ids] = values
+            at = ids
         else:
             idx = torch.as_tensor(np.asarray(index.cpu() if isinstance(index, torch.Tensor) else index),
                                   dtype=torch.long, device=self.device)
-            field[ids[:, None], idx[None, :]] = values
+            at = (ids[:, None], idx[None, :])
+        if mask is not None:
+            values = torch.where(mask.view(-1, *[1] * (values.dim() - 1)), values, field[at])
+        field[at] = values
         with self._scope():  # positions and the mass matrix of the new model (a mass changes M)
             self._step1(self.worlds.torch_stream())
         self._terms = self._dynamics_terms()

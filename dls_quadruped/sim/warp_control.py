@@ -114,9 +114,9 @@ class PhysicsRate:
         contact_sensors.copy_(sensordata)  # step1 zeroes the acceleration-stage sensors
 
     def reset_rows(self, ids: torch.Tensor, foot_pos_w: torch.Tensor, phase: torch.Tensor | None) -> None:
-        """After a reset's ``forward``: the robots ``ids`` get their contact sensors, cleared flags, wrench and
-        torques, standing references and a fresh controller (phases ``phase`` or trot, lift-off at ``foot_pos_w``,
-        (N, 4, 3) of every robot)."""
+        """After a reset's ``forward``: the robots ``ids`` (ids, or an (N,) bool mask) get their contact sensors,
+        cleared flags, wrench and torques, standing references and a fresh controller (phases ``phase`` or trot,
+        lift-off at ``foot_pos_w``, (N, 4, 3) of every robot)."""
         s = self.sim
         self._reset(ids, foot_pos_w, phase, s.total_weight(), s._contact_sensors, s._sensordata, s.diverged,
                     s.wrench_w, s.tau, s.command)
@@ -124,6 +124,14 @@ class PhysicsRate:
     @fused_method("WarpSim reset rows", dynamic=True)  # a reset's robots vary
     def _reset(self, ids, foot_pos_w, phase, weight, contact_sensors, sensordata, diverged, wrench_w, tau,
                command) -> None:
+        if ids.dtype == torch.bool:  # a mask (N,): static shapes, the masked rows kept
+            contact_sensors.copy_(torch.where(ids[:, None], sensordata, contact_sensors))
+            diverged.logical_and_(~ids)
+            wrench_w.masked_fill_(ids[:, None], 0.0)
+            standing_references(command, ids, weight)
+            self.sim.controller.reset(ids, foot_pos_w, phase)
+            tau.masked_fill_(ids[:, None], 0.0)
+            return
         contact_sensors[ids] = sensordata[ids]
         diverged.index_fill_(0, ids, False)  # scalar fills: x[ids] = v copies v from the host on CUDA
         wrench_w.index_fill_(0, ids, 0.0)

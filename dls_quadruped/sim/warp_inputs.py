@@ -47,6 +47,13 @@ class DeviceInputs:
                              f"max {int(host.max())}")
         return host.to(self.device)
 
+    def mask(self, env_ids: Any) -> torch.Tensor | None:
+        """``env_ids`` as a (N,) bool mask on the device when it is one (``sim/interface.py is_mask``; a host
+        mask is uploaded), else None (row ids: :meth:`ids`)."""
+        if isinstance(env_ids, torch.Tensor) and env_ids.dtype == torch.bool and env_ids.shape == (self.num_envs,):
+            return env_ids.to(self.device)
+        return None
+
     def flag(self, name: str) -> torch.Tensor:
         """The device-side flag of input ``name`` (set when a value arrived invalid)."""
         if name not in self.bad_inputs:
@@ -60,17 +67,22 @@ class DeviceInputs:
             raise ValueError(f"{name} must have shape {(n, *shape)}, got {tuple(value.shape)}")
         return value
 
-    def rows(self, name: str, value: Any, n: int, shape: tuple[int, ...]) -> torch.Tensor:
+    def rows(self, name: str, value: Any, n: int, shape: tuple[int, ...], mask: torch.Tensor | None = None
+             ) -> torch.Tensor:
         """``value`` as a float64 tensor on the device of shape (n, *shape) with finite entries: checked on the host
-        when it comes from there, on the device (flagged, no host read) when it is already on the device."""
+        when it comes from there, on the device (flagged, no host read) when it is already on the device. With
+        ``mask`` (n,) bool, only the masked rows must be finite (the others are not used)."""
         if isinstance(value, torch.Tensor) and value.device == self.device:
             value = self.shaped(name, value, n, shape)
-            self.flag(name).logical_or_(~torch.isfinite(value).all())
+            bad = ~torch.isfinite(value).flatten(1).all(dim=1)
+            self.flag(name).logical_or_((bad if mask is None else bad & mask).any())
             return value
         host = torch.as_tensor(value).cpu().to(torch.float64)  # host data: checked before it is uploaded
         if host.shape != (n, *shape):
             raise ValueError(f"{name} must have shape {(n, *shape)}, got {tuple(host.shape)}")
         finite = torch.isfinite(host).reshape(n, -1).all(dim=1)
+        if mask is not None:
+            finite |= ~mask.cpu()
         if not bool(finite.all()):
             rows = torch.nonzero(~finite).flatten().tolist()
             raise ValueError(f"{name} has non-finite values in rows {rows[:10]}")

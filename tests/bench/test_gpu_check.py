@@ -112,6 +112,25 @@ def test_fault_trials_reset_the_faulty_robots_and_leave_the_others_bit_identical
     rep = faults("cpu", torch.device("cpu"))
     assert rep["reset"] == {name: True for name in FAULTY}
     assert rep["finite"] and rep["others_reset"] == 0 and rep["others_max_abs_diff"] == 0.0
+    assert rep["sim_diverged"] == [FAULTY["diverged_push"]] and rep["sim_diverged_logged"] == 1.0
+
+
+@pytest.mark.slow
+def test_a_world_that_overflows_its_constraint_rows_is_reset_and_counted_on_warp_cpu():
+    """On warp-cpu the trials add a robot sunk 5 cm into the ground (every link penetrating: 96 constraint rows, over
+    base's njmax of 64): MuJoCo Warp flags its world alone, the backend flags the robot diverged, ``sim_diverged``
+    ends and counts it with the pushed one, and the other robots run bit for bit as without the faults (the contact
+    buffer they share did not overflow)."""
+    pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
+    import torch
+
+    from dls_quadruped.bench.gpu_probes import FAULTY, WARP_FAULTY, faults
+
+    rep = faults("warp-cpu", torch.device("cpu"))
+    row = WARP_FAULTY["contact_overflow"]
+    assert rep["overflowed"] == [row] and rep["reset"] == {name: True for name in {**FAULTY, **WARP_FAULTY}}
+    assert rep["sim_diverged"] == sorted([FAULTY["diverged_push"], row]) and rep["sim_diverged_logged"] == 2.0
+    assert rep["finite"] and rep["others_reset"] == 0 and rep["others_max_abs_diff"] == 0.0
 
 
 def test_fault_trials_need_more_robots_than_faults():

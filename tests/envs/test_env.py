@@ -48,8 +48,10 @@ def test_time_out_bookkeeping():
         failed = env.termination_manager.terminated
         assert torch.equal(extras["time_outs"], ~failed) and dones.bool().all()
         assert (env.episode_length_buf == 0).all()
-        assert "Episode_Reward/track_lin_vel_xy" in extras["log"]
-        assert extras["log"]["Episode_Termination/time_out"] == float((~failed).sum())
+        log = env.episode_log.read()  # the steps' episode values, summed on the device, read once
+        assert extras["log"] == {} and "Episode_Reward/track_lin_vel_xy" in log
+        assert log["Episode_Termination/time_out"] == float((~failed).sum())  # the one step with resets
+        assert env.episode_log.read() == {}  # read restarts the sums
     finally:
         env.close()
 
@@ -60,15 +62,15 @@ def test_events_touch_only_targeted_envs():
         captured = {}
         env.scene.sim.set_model_field = lambda name, ids, values, index=None: captured.__setitem__(
             name, (ids, values, index))
-        ids = torch.tensor([1, 3])
-        ev_mdp.randomize_friction(env, ids, friction_range=(0.4, 0.8))
-        got_ids, values, index = captured["geom_friction"]
+        mask = torch.tensor([False, True, False, True])  # terms act on masks; the backend keeps the masked rows
+        ev_mdp.randomize_friction(env, mask, friction_range=(0.4, 0.8))
+        got_mask, values, index = captured["geom_friction"]
         geoms = env.scene.friction_geom_ids
-        assert got_ids.tolist() == [1, 3] and list(index) == geoms and values.shape == (2, 4, 3)
+        assert got_mask is mask and list(index) == geoms and values.shape == (4, 4, 3)
         assert [env.scene.model.geom(g).name for g in geoms] == list(C.FOOT_GEOM_NAMES)
         assert ((values[..., 0] >= 0.4) & (values[..., 0] <= 0.8)).all()
         assert (values[..., 1:] == env.scene.model.geom_friction[geoms, 1:]).all()  # torsional, rolling kept
-        ev_mdp.randomize_base_mass(env, ids, scale_range=(0.85, 1.15))
+        ev_mdp.randomize_base_mass(env, mask, scale_range=(0.85, 1.15))
         _, mass, _ = captured["body_mass"]
         # Table 3: +-15 % of the whole robot's mass (24.64 kg), carried by the trunk, not +-15 % of the trunk
         ratio = mass.sum(axis=1) / env.scene.model.body_mass.sum()
@@ -77,14 +79,15 @@ def test_events_touch_only_targeted_envs():
         np.testing.assert_allclose(added, (ratio - 1.0) * C.TOTAL_MASS, rtol=1e-9)
         # push: only envs 0 and 2 change velocity, by at most 0.5 m/s per axis
         before = env.state.base_lin_vel_w.clone()
-        ev_mdp.push_robot(env, torch.tensor([0, 2]), velocity_range=(-0.5, 0.5))
+        ev_mdp.push_robot(env, torch.tensor([True, False, True, False]), velocity_range=(-0.5, 0.5))
         env.refresh_state()
         after = env.state.base_lin_vel_w
         assert torch.equal(after[[1, 3]], before[[1, 3]])
         d = (after[[0, 2], :2] - before[[0, 2], :2]).abs()
         assert (d <= 0.5 + 1e-5).all() and (d > 0).any()
         w0 = env.scene.sim.buf.command["wrench_w"].clone()
-        ev_mdp.external_wrench(env, torch.tensor([2]), force_range=(-10, 10), torque_range=(-1, 1))
+        ev_mdp.external_wrench(env, torch.tensor([False, False, True, False]), force_range=(-10, 10),
+                               torque_range=(-1, 1))
         w = env.scene.sim.buf.command["wrench_w"]
         assert torch.equal(w[[0, 1, 3]], w0[[0, 1, 3]]) and (w[2, :3].abs() <= 10).all() and (w[2, 3:].abs() <= 1).all()
         assert not torch.equal(w[2], w0[2])
@@ -107,9 +110,9 @@ def test_terrain_curriculum_moves_levels_up_and_down():
         env.command_manager.commanded_disp[:] = torch.tensor([7.5, 0.0])  # asked for 7.5 m
         env.command_manager.commanded_disp[2] = 0.0  # env 2: asked to stand and stood: stays
         env.command_manager.commanded_disp[3, 0] = 0.15
-        cur_mdp.terrain_levels(env, torch.tensor([0, 1, 2]))
+        cur_mdp.terrain_levels(env, torch.tensor([True, True, True, False]))
         assert scene.terrain_levels[:3].tolist() == [2, 0, 1]
-        assert int(scene.terrain_levels[3]) == 1  # not in env_ids: untouched
+        assert int(scene.terrain_levels[3]) == 1  # not in the mask: untouched
         assert torch.equal(scene.env_origins[0], scene.tile_origins[2, scene.terrain_types[0]])
         # solving the last row sends the robot to a random row; never below 0
         scene.update_levels(torch.tensor([1]), torch.tensor([-1]))
@@ -171,7 +174,7 @@ def test_terrain_curriculum_keeps_a_perfect_tracker_on_an_arc_and_demotes_a_fall
         env._state = state
         env.episode_length_buf[:] = 750
         env.termination_manager.time_outs[:] = torch.tensor([True, False, True, True])
-        cur_mdp.terrain_levels(env, torch.tensor([0, 1]))
+        cur_mdp.terrain_levels(env, torch.tensor([True, True, False, False]))
         assert scene.terrain_levels.tolist() == [1, 0, 1, 1]
     finally:
         env.close()
@@ -182,7 +185,7 @@ def test_penalties_switch_on_once_walking():
     try:
         rm = env.reward_manager
         assert rm.weights["action_rate"] == 0.0  # off until the robot walks
-        ids = torch.arange(4)
+        ids = torch.ones(4, dtype=torch.bool)
         rm.episode_sums["track_lin_vel_xy"][:] = 0.2 * 1.5 * env.max_episode_length_s  # 20 % of max
         cur_mdp.penalties_when_walking(env, ids, ["action_rate"], "track_lin_vel_xy", 0.5)
         assert rm.weights["action_rate"] == 0.0
@@ -259,18 +262,22 @@ def test_speed_curriculum_widens_forward_range():
     try:
         cm, rm = env.command_manager, env.reward_manager
         assert list(cm.params["lin_vel_x"]) == [0.0, 1.0]
-        ids = torch.arange(4)
+        ids, mask = torch.arange(4), torch.ones(4, dtype=torch.bool)
         full = rm.weights["track_lin_vel_xy"] * env.max_episode_length_s
         rm.episode_sums["track_lin_vel_xy"][:] = 0.5 * full  # below the 0.7 threshold: no change
-        assert cur_mdp.command_speed_growth(env, ids, "track_lin_vel_xy", 0.7, 0.1, 2.1) == pytest.approx(1.0)
+        assert float(cur_mdp.command_speed_growth(env, mask, "track_lin_vel_xy", 0.7, 0.1, 2.1)) == pytest.approx(1.0)
+        assert float(cur_mdp.command_speed_growth(env, ~mask, "track_lin_vel_xy", 0.7, 0.1, 2.1)) == 1.0  # no env
         rm.episode_sums["track_lin_vel_xy"][:] = 0.9 * full
         for _ in range(15):
-            top = cur_mdp.command_speed_growth(env, ids, "track_lin_vel_xy", 0.7, 0.1, 2.1)
-        assert top == pytest.approx(2.1)  # capped at the task's top speed
-        # 500 draws: successive draws of the 4 envs' schedules (each call advances their command stream)
-        cmd = torch.cat([env.command_manager.term.func(env, ids, **cm.params) for _ in range(125)])
+            top = cur_mdp.command_speed_growth(env, mask, "track_lin_vel_xy", 0.7, 0.1, 2.1)
+        assert float(top) == pytest.approx(2.1)  # capped at the task's top speed
+        # the curriculum wrote the device range the (compiled) samplers read; 500 draws from it: successive draws of
+        # the 4 envs' schedules (each call advances their command stream)
+        assert cm.range("lin_vel_x").tolist() == [0.0, pytest.approx(2.1)] and cm.params["lin_vel_x"] == [0.0, 1.0]
+        cmd = torch.cat([env.command_manager.term.func(env, ids, **cm._sampler_params()) for _ in range(125)])
         assert cmd[:, 0].min() >= 0.0 and cmd[:, 0].max() <= 2.1 and cmd[:, 0].max() > 1.5
-        # what the (compiled) samplers read: the range's device tensor, synced from params outside compiled code
+        # the host copy catches up when read back (a checkpoint); a later sync uploads nothing new
+        assert env.command_manager.state_dict()["params"]["lin_vel_x"] == [0.0, pytest.approx(2.1)]
         cm.sync_ranges()
         assert cm._ranges["lin_vel_x"].tolist() == [0.0, pytest.approx(2.1)]
         # the same numbers from the tensor ranges as from the Python lists, on the same schedule state
@@ -350,9 +357,9 @@ def test_velocity_tracking_metric_is_the_episode_mean_planar_error():
             by_hand += torch.linalg.vector_norm(obs_mdp.base_lin_vel(env)[:, :2] - env.command_manager.command[:, :2],
                                                 dim=-1)
         torch.testing.assert_close(env._vel_err_sum, by_hand)
-        _, _, dones, extras = env.step(torch.zeros(4, 28))
+        _, _, dones, _ = env.step(torch.zeros(4, 28))
         assert dones.bool().all()
-        metric = extras["log"]["Episode_Metric/lin_vel_xy_error"]
+        metric = env.episode_log.read()["Episode_Metric/lin_vel_xy_error"]
         assert metric >= float(by_hand.mean()) / 10 - 1e-6  # the 10th step only adds a non-negative error
         assert metric <= float(by_hand.mean()) / 10 + 10.0 / 10  # and at most 10 m/s (a sanity bound) over 10 steps
         assert (env._vel_err_sum == 0).all()

@@ -62,15 +62,16 @@ def test_nan_robot_is_reset_and_counted_others_go_on(env):
     action = torch.zeros(3, 28)
     action[1, 4] = float("nan")
     action[2, 0] = float("inf")
+    env.episode_log.read()  # what earlier steps logged
     obs, reward, dones, extras = env.step(action)
     assert dones.tolist() == [0, 1, 1]
-    assert extras["log"]["Episode_Termination/nonfinite_action"] == 2.0
+    assert env.episode_log.read()["Episode_Termination/nonfinite_action"] == 2.0
     assert not extras["time_outs"][1:].any()  # a failure, not a time limit: PPO must not bootstrap it
     assert env.episode_length_buf.tolist() == [int(length_before[0]) + 1, 0, 0]
     assert torch.isfinite(obs["policy"]).all() and torch.isfinite(reward).all()
     assert torch.isfinite(env.action_manager.raw_action).all()
     _, _, dones, extras = env.step(torch.zeros(3, 28))
-    assert not dones.any() and extras["log"] == {}
+    assert not dones.any() and env.episode_log.read() == {}  # no reset, nothing logged
 
 
 def test_env_state_round_trips_into_a_fresh_env():

@@ -1,12 +1,14 @@
-"""No host synchronisation inside ``LocomotionEnv.step`` beyond a written allow-list (``core/sync_probe.py``).
+"""No host synchronisation inside ``LocomotionEnv.step`` (``core/sync_probe.py``), resets and pushes included.
 
 On a GPU each host read of device memory (``.item()``, ``bool(t)``, ``torch.nonzero``, ...) waits for every
 queued kernel, and each tensor built from Python numbers or numpy is a copy from the host. The probe counts
 both by call site while ``env.step`` runs, on any device; the Warp backend on Warp's CPU device runs the
 GPU code path (the controller and the leg dynamics in torch, on the backend's device) without a GPU.
 
-Steps are counted after one warm-up step (constants are built and cached on first use), without events and
-with resets (short episodes, a non-finite action), command resampling and pushes every few steps.
+Steps are counted after warm-up steps (constants are built and cached on first use; compiled functions compile),
+without events and with resets (short episodes, a non-finite action), command resampling and pushes every few
+steps. The env resets and pushes by masks (static shapes), so the only reads left are the Warp backend's, once
+every ``check_every`` step calls (one PPO iteration).
 """
 
 from __future__ import annotations
@@ -25,34 +27,22 @@ QUIET = {"commands": {"base_velocity": {"resampling_time_s": [100.0, 100.0]}}}
 
 
 def _eventful(first_push_s: float) -> dict:
-    """Episodes of 10 policy steps (0.02 s each), commands resampled every few steps, pushes every 0.02-0.08 s."""
+    """Episodes of 10 policy steps (0.02 s each), commands resampled every few steps, pushes every 0.02-0.08 s,
+    a wrench drawn at every reset."""
     return {"env": {"episode_length_s": 0.2},
             "commands": {"base_velocity": {"resampling_time_s": [0.05, 0.1]}},
             "events": {"push": {"func": "push_robot", "mode": "interval", "interval_s": [first_push_s, 0.08],
-                                "params": {"velocity_range": [-0.5, 0.5]}}}}
+                                "params": {"velocity_range": [-0.5, 0.5]}},
+                       "wrench": {"func": "external_wrench", "mode": "reset",
+                                  "params": {"force_range": [-3.0, 3.0], "torque_range": [-0.3, 0.3]}}}}
 
 
-EVENTFUL = _eventful(0.04)  # interval_s[0] > step_dt: the pushes' robots are read with the resets
+EVENTFUL = _eventful(0.04)
 EVENTFUL_AT_ONCE = _eventful(0.02)  # interval_s[0] <= step_dt: a robot reset this step may be pushed at once
-
-PER_STEP = {
-    # the backends reset and push robots by row id (SimBackend.reset), so the env reads how many robots reset and
-    # how many each interval term pushes, in one read (the ids then come from torch.nonzero_static)
-    "dls_quadruped/envs/env.py:_finish_step": 1,
-    # an interval term with interval_s[0] <= step_dt finds its robots after the resets: one read per such term
-    "dls_quadruped/envs/managers/event.py:apply": 1,
-}
-"""Sites allowed in every step, with how many reads each may make per step (per such interval term for events)."""
-
-ON_RESET = {
-    # a curriculum that switches reward weights on (penalties_when_walking) decides on the host
-    "dls_quadruped/envs/managers/reward.py:episode_fraction",
-}
-"""Sites allowed on steps with resets only."""
 
 WARP_BACKEND = {
     # sim/warp_backend.py checks device inputs on the device and reads the flags (and its contact overflow) once
-    # every check_every (24) step calls: at most once in these runs
+    # every check_every (24) step calls: one PPO iteration
     "dls_quadruped/sim/warp_backend.py:_check_overflow",
     "dls_quadruped/sim/warp_backend.py:check_inputs",
 }
@@ -60,12 +50,13 @@ WARP_BACKEND = {
 
 CPU_BACKEND_FILES = ("dls_quadruped/sim/cpu_backend.py", "dls_quadruped/sim/cpu_workers.py",
                      "dls_quadruped/sim/shard.py")
-"""The CPU backend moves state between torch and its MuJoCo/Pinocchio shards by design: not counted."""
+"""The CPU backend moves state between torch and its MuJoCo/Pinocchio shards by design (it turns the env's masks
+into row ids too): not counted."""
 
 
-def _env(backend: str, overrides: dict) -> LocomotionEnv:
-    scene = {"backend": backend, "num_workers": 0}
-    return LocomotionEnv(load_task("base", overrides={**SMALL, **overrides, "scene": scene}), num_envs=4, seed=0,
+def _env(backend: str, overrides: dict, task: str = "base", compile: bool = False) -> LocomotionEnv:
+    scene = {"backend": backend, "num_workers": 0, "compile": compile}
+    return LocomotionEnv(load_task(task, overrides={**SMALL, **overrides, "scene": scene}), num_envs=4, seed=0,
                          verbose=False)
 
 
@@ -76,24 +67,33 @@ def _actions(steps: int) -> list[torch.Tensor]:
     return acts
 
 
-def _run(env: LocomotionEnv, steps: int, exclude: tuple[str, ...] = ()):
-    """(probe report, number of robot resets) of ``steps`` steps after one warm-up step."""
-    acts = _actions(steps + 1)
-    env.step(acts[0])
+def _run(env: LocomotionEnv, steps: int, exclude: tuple[str, ...] = (), warmup: int = 1):
+    """(probe report, number of robot resets, number of pushed robots, graphs dynamo compiled during the probed
+    steps) of ``steps`` steps after ``warmup`` steps."""
+    from torch._dynamo.utils import counters
+
+    acts = _actions(steps + warmup)
+    pushed = []
+    if hasattr(env.scene.sim, "set_base_velocity"):
+        push = env.scene.sim.set_base_velocity
+        env.scene.sim.set_base_velocity = lambda mask, v: pushed.append(mask.clone()) or push(mask, v)
+    for a in acts[:warmup]:
+        env.step(a)
     dones = []
+    graphs = counters["stats"]["unique_graphs"]
     with sync_probe(exclude=exclude) as report:
-        for a in acts[1:]:
+        for a in acts[warmup:]:
             dones.append(env.step(a)[2])
-    return report, int(torch.stack(dones).sum())
+    graphs = counters["stats"]["unique_graphs"] - graphs
+    return report, int(torch.stack(dones).sum()), int(torch.stack(pushed[warmup:]).sum()) if pushed else 0, graphs
 
 
-def _check(report, steps: int, allowed: set[str], interval_terms: int) -> None:
+def _check(report, steps: int, allowed: set[str], check_every: int = 24) -> None:
     assert report.outside(allowed) == {}, f"host reads or uploads inside env.step: {report.by_site()}"
     per_site: dict[str, int] = {}
     for site, n in report.counts.items():
         per_site[site.key()] = per_site.get(site.key(), 0) + n
-    assert per_site.get("dls_quadruped/envs/env.py:_finish_step", 0) <= steps, per_site
-    assert per_site.get("dls_quadruped/envs/managers/event.py:apply", 0) <= steps * interval_terms, per_site
+    assert all(n <= 2 * (steps // check_every + 1) for n in per_site.values()), per_site  # flags and their names
 
 
 @pytest.fixture(scope="module")
@@ -101,82 +101,93 @@ def warp():
     return pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
 
 
-@pytest.mark.parametrize("overrides,interval_terms", [(QUIET, 0), (EVENTFUL, 0), (EVENTFUL_AT_ONCE, 1)],
+@pytest.mark.parametrize("overrides", [QUIET, EVENTFUL, EVENTFUL_AT_ONCE],
                          ids=["no_events", "resets_pushes", "resets_pushes_at_once"])
-def test_warp_step_reads_the_host_only_at_allowed_sites(warp, overrides, interval_terms):
+def test_warp_step_reads_nothing_back(warp, overrides):
     env = _env("warp-cpu", overrides)
     try:
         steps = 12
-        report, resets = _run(env, steps)
-        checks = sum(n for s, n in report.counts.items() if s.key() == "dls_quadruped/envs/managers/event.py:apply")
+        report, resets, pushes, _ = _run(env, steps)
     finally:
         env.close()
     assert resets > 0  # the non-finite action at least
     if overrides is not QUIET:
-        assert resets > 4  # episodes of 10 steps
-    assert (checks > 0) == bool(interval_terms)  # the push term read its own robots only when it had to
-    _check(report, steps, set(PER_STEP) | ON_RESET | WARP_BACKEND, interval_terms)
+        assert resets > 4 and pushes > 2  # episodes of 10 steps, pushes every 1-4 steps
+    _check(report, steps, WARP_BACKEND)
 
 
-@pytest.mark.parametrize("overrides,interval_terms", [(EVENTFUL, 0), (EVENTFUL_AT_ONCE, 1)],
-                         ids=["resets_pushes", "resets_pushes_at_once"])
-def test_cpu_step_reads_the_host_only_at_allowed_sites(overrides, interval_terms):
+@pytest.mark.parametrize("overrides", [EVENTFUL, EVENTFUL_AT_ONCE], ids=["resets_pushes", "resets_pushes_at_once"])
+def test_cpu_step_reads_nothing_back_outside_the_backend(overrides):
     """The same outside the CPU backend's files (cheap: no MuJoCo Warp needed, so CI runs it)."""
     env = _env("cpu", overrides)
     try:
         steps = 12
-        report, resets = _run(env, steps, exclude=CPU_BACKEND_FILES)
+        report, resets, pushes, _ = _run(env, steps, exclude=CPU_BACKEND_FILES)
     finally:
         env.close()
-    assert resets > 4
-    _check(report, steps, set(PER_STEP) | ON_RESET, interval_terms)
+    assert resets > 4 and pushes > 2
+    _check(report, steps, set())
 
 
-def test_the_terrain_curriculum_reads_nothing_back_during_the_step():
-    """Rough (terrain levels moved at every reset): the curriculum's logged mean level stays on the device, so a step
-    with resets reads the host only where base's does."""
-    env = LocomotionEnv(load_task("rough", overrides={**SMALL, "env": {"episode_length_s": 0.2},
-                                                      "scene": {"backend": "cpu", "num_workers": 0}}),
-                        num_envs=4, seed=0, verbose=False)
+@pytest.mark.parametrize("task", ["rough", "speed"])
+def test_curricula_decide_on_the_device(task):
+    """Rough (terrain levels moved at every reset) and speed (the forward-speed range grown and the penalties switched
+    on from the reset robots' episode rewards): the decisions and the logged values stay on the device, so a step
+    with resets reads nothing back. The thresholds are lowered to 0 so the decisions do change things."""
+    overrides = {"env": {"episode_length_s": 0.2}}
+    if task == "speed":
+        overrides["curriculum"] = {"speed": {"params": {"threshold": -1.0}},
+                                   "penalties": {"params": {"threshold": -1.0}}}
+    env = _env("cpu", overrides, task=task)
     try:
         steps = 12
-        report, resets = _run(env, steps, exclude=CPU_BACKEND_FILES)
-        logged = env.curriculum_manager.values["terrain_levels"]
+        speed = env.command_manager.range("lin_vel_x") if task == "speed" else torch.zeros(2)
+        upper_before = float(speed[1])
+        report, resets, _, _ = _run(env, steps, exclude=CPU_BACKEND_FILES)
+        logged = env.curriculum_manager.values
+        log = env.episode_log.read()
+        upper_after = float(speed[1])
+        weights = env.reward_manager.weights.as_dict()
     finally:
         env.close()
     assert resets > 4
-    assert isinstance(logged, torch.Tensor) and logged.dim() == 0
-    _check(report, steps, set(PER_STEP) | ON_RESET, 0)
+    assert all(isinstance(v, torch.Tensor) and v.dim() == 0 for v in logged.values())
+    assert all(f"Curriculum/{k}" in log for k in logged)
+    if task == "speed":  # every step with resets raised the range by 0.1 m/s; the penalties switched on
+        assert upper_after > upper_before + 0.15 and weights["action_rate"] != 0.0
+        assert log["Curriculum/penalties"] == 1.0
+    _check(report, steps, set())
 
 
-def test_pushes_read_with_the_resets_are_the_pushes_found_after_them(monkeypatch):
-    """The robots a push term fires on, read before the resets (``EventManager.due``), are the ones ``apply``
-    finds itself after them: two envs, one with ``due`` disabled, push the same robots at the same steps and give
-    bit-identical steps with resets."""
-    from dls_quadruped.envs.managers.event import EventManager
+@pytest.mark.slow
+@pytest.mark.parametrize("backend", ["warp-cpu", "cpu"])
+def test_compiled_step_reads_nothing_back_and_recompiles_nothing(backend):
+    """``scene.compile: true``, resets and pushes at most steps: after the warm-up steps (compiles, first captures),
+    no host read or upload in ``env.step`` (the Warp backend's once-per-iteration check aside), no compiled function
+    fell back to eager, and in the steady state after that window none compiles again (static shapes: a reset of
+    another number of robots is the same graph)."""
+    if backend == "warp-cpu":
+        pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
+    from dls_quadruped.core.compile import Fused
+    from dls_quadruped.envs.mdp.events import _placement
 
-    def rollout(env: LocomotionEnv) -> tuple[list[torch.Tensor], list[tuple[int, list[int]]]]:
-        out, pushed, step = [], [], [0]
-        push = env.scene.sim.set_base_velocity
-        env.scene.sim.set_base_velocity = lambda ids, v: pushed.append((step[0], ids.tolist())) or push(ids, v)
-        try:
-            for step[0], a in enumerate(_actions(16)):
-                obs, rew, dones, _ = env.step(a)
-                out += [obs["policy"], rew, dones, env.state.base_lin_vel_w]
-        finally:
-            env.close()
-        return out, pushed
-
-    calls: list[int] = []
-    due = EventManager.due
-    monkeypatch.setattr(EventManager, "due", lambda self, dt, r: calls.append(1) or due(self, dt, r))
-    read_with_resets, pushed = rollout(_env("cpu", EVENTFUL))
-    monkeypatch.setattr(EventManager, "due", lambda self, dt, r: {})
-    found_after, pushed_after = rollout(_env("cpu", EVENTFUL))
-    assert len(calls) == 16 and len(pushed) > 4  # pushes every 2-4 steps
-    assert pushed == pushed_after
-    for a, b in zip(read_with_resets, found_after, strict=True):
-        assert torch.equal(a, b)
+    env = _env(backend, EVENTFUL_AT_ONCE, compile=True)
+    try:
+        steps = 20
+        report, resets, pushes, _ = _run(env, steps, exclude=CPU_BACKEND_FILES if backend == "cpu" else (), warmup=3)
+        _, more_resets, _, graphs = _run(env, 10, warmup=0)  # first uses (a stream's first push) compiled above
+        fused = [env.reward_manager._compute, env.observation_manager._groups, env.termination_manager._compute,
+                 env.action_manager._convert, env.command_manager._compute, env.command_manager._integrate,
+                 env._reset_bookkeeping, env.fused(_placement)]
+        if backend == "warp-cpu":
+            rate = env.scene.sim.rate
+            fused += [rate._control, rate._settle, rate._terms, rate._publish, rate._store, rate._reset]
+    finally:
+        env.close()
+    _check(report, steps, WARP_BACKEND if backend == "warp-cpu" else set())
+    assert all(isinstance(f, Fused) and f.compiled for f in fused), [f.name for f in fused if not f.compiled]
+    assert resets > 6 and pushes > 4 and more_resets > 2
+    assert graphs == 0
 
 
 def test_probe_catches_planted_reads_and_uploads():
@@ -195,7 +206,7 @@ def test_probe_catches_planted_reads_and_uploads():
 
     term.func = leaky
     try:
-        report, _ = _run(env, 3, exclude=CPU_BACKEND_FILES)
+        report, _, _, _ = _run(env, 3, exclude=CPU_BACKEND_FILES)
         after = env.step(torch.zeros(4, 28))
         with sync_probe(exclude=CPU_BACKEND_FILES) as empty:
             pass

@@ -124,7 +124,7 @@ def test_env_applies_the_students_first_action_and_keeps_the_state_it_was_chosen
 
 def test_split_is_logged_per_term_at_reset(walked):
     env, _, _ = walked
-    logs = env.reward_manager.reset(torch.arange(3))
+    logs = env.reward_manager.reset(torch.ones(3, dtype=torch.bool))
     split = sum(float(logs[f"Episode_Reward/mpc_trajectory_cost/{n}"]) for n in TERM_NAMES)
     assert split == pytest.approx(float(logs["Episode_Reward/mpc_trajectory_cost"]), rel=1e-4)
     assert float(logs["Episode_Reward/mpc_trajectory_cost"]) < 0

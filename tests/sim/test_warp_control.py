@@ -34,11 +34,11 @@ def _run(compile: bool, steps: int = 25):
         g = torch.Generator().manual_seed(0)
         rows, resets, logs = [], 0, {}
         for _ in range(steps):
-            _, rew, done, extras = env.step(torch.randn(4, 28, generator=g))
+            _, rew, done, _ = env.step(torch.randn(4, 28, generator=g))
             s = env.state
             rows.append(torch.cat([s.base_pos_w, s.joint_pos, s.joint_torque, s.foot_pos_w.flatten(1)], dim=1).double())
             resets += int(done.sum())
-            for k, v in extras["log"].items():  # the reset path's episode sums, counts and metrics
+            for k, v in env.episode_log.read().items():  # the reset path's episode sums, counts and metrics
                 logs.setdefault(k, []).append(float(v))
         reset_path = (env._reset_bookkeeping, env.fused(_placement), env.command_manager._compute,
                       env.command_manager._integrate, env.scene.sim.rate._reset)

@@ -167,11 +167,12 @@ class ActionManager(ManagerBase):
         first = mpc_horizon.first_raw_action(raw.nan_to_num(), self.horizon)
         return torch.isfinite(raw).all(dim=1) & finite_entries(first, self.cfg).all(dim=1)
 
-    def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
+    def reset(self, env_mask: torch.Tensor) -> dict[str, float]:
+        """Clear the actions of the envs of ``env_mask`` (B,) bool."""
         # saturated and stance_frac stay: they describe the action just held, read after the step's resets
         bufs = [self.raw_action, self.prev_raw_action, self.applied_action, self.violation, self.applied_physical]
         for buf in bufs + ([self.raw_horizon] if self.horizon is not None else []):
-            buf.index_fill_(0, env_ids, 0.0)  # x[ids] = 0.0 copies the 0 from the host on CUDA
+            buf.masked_fill_(env_mask[:, None], 0.0)  # a scalar fill: no host-to-device copy of the 0
         return {}
 
     def summary(self) -> str:

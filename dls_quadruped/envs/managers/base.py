@@ -60,8 +60,9 @@ class ManagerBase:
     def __init__(self, env) -> None:
         self.env = env
 
-    def reset(self, env_ids: torch.Tensor) -> dict[str, Any]:
-        """Episode logs of ``env_ids``, whose episodes ended; their per-episode buffers are cleared."""
+    def reset(self, env_mask: torch.Tensor) -> dict[str, Any]:
+        """Episode logs (0-dim tensors) of the envs of ``env_mask`` (B,) bool, whose episodes ended; their per-episode
+        buffers are cleared (static shapes: masked fills, no host read)."""
         return {}
 
     def state_dict(self) -> dict[str, Any]:

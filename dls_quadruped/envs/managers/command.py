@@ -80,36 +80,48 @@ class CommandManager(ManagerBase):
                 t.copy_(torch.tensor(value, dtype=torch.float64))
                 self._range_values[k] = value
 
+    def range(self, name: str) -> torch.Tensor:
+        """The (2,) float64 device tensor of the ``[low, high]`` parameter ``name`` the samplers read; a curriculum
+        writes into it on the device (``params`` catches up in :meth:`read_ranges`, when a checkpoint is saved)."""
+        return self._ranges[name]
+
+    def read_ranges(self) -> None:
+        """Copy the device ranges back into ``params`` (one host read; for a checkpoint, not for the step), after
+        uploading what was written into ``params`` since the last sync (:meth:`sync_ranges`)."""
+        if not self._ranges:
+            return
+        self.sync_ranges()
+        values = torch.stack(list(self._ranges.values())).tolist()
+        for k, v in zip(self._ranges, values):
+            self.params[k] = [float(x) for x in v]
+            self._range_values[k] = tuple(float(x) for x in v)
+
     def _sampler_params(self) -> dict[str, Any]:
         return {k: self._ranges.get(k, v) for k, v in self.params.items()}
-
-    def resample(self, env_ids: torch.Tensor) -> None:
-        if len(env_ids) == 0:
-            return
-        self.command[env_ids] = self.term.func(self.env, env_ids, **self._sampler_params()).to(self.command)
-        lo, hi = self.resampling_time_s
-        self.time_left[env_ids] = self.env.schedule.uniform(env_ids, (), lo, hi, stream="command_time")
 
     def compute(self, dt: float) -> None:
         """Advance the timers by the policy step and resample the expired commands.
 
-        Masked, without reading on the host which expired: every env draws, only the expired ones keep
-        their draws and advance their schedule streams (``EpisodeSchedule.only``), so the numbers are those of
-        resampling the expired envs alone. Compiled with ``scene.compile``; the ranges are device tensors, so a
-        curriculum widening one does not recompile it."""
+        Masked, without reading on the host which expired (:meth:`_resample_where`). Compiled with
+        ``scene.compile``; the ranges are device tensors, so a curriculum widening one does not recompile it."""
         self.sync_ranges()
         self._compute(dt)
 
     def _compute_eager(self, dt: float) -> None:
         self.time_left -= dt
-        expired = self.time_left <= 0.0
+        self._resample_where(self.time_left <= 0.0)
+
+    def _resample_where(self, env_mask: torch.Tensor) -> None:
+        """New commands and resampling times for the envs of ``env_mask`` (B,) bool: every env draws, only the masked
+        ones keep their draws and advance their schedule streams (``EpisodeSchedule.only``), so the numbers are those
+        of resampling the masked envs alone."""
         ids = self._all_ids
-        with self.env.schedule.only(expired):
+        with self.env.schedule.only(env_mask):
             command = self.term.func(self.env, ids, **self._sampler_params()).to(self.command)
             lo, hi = self.resampling_time_s
             time_left = self.env.schedule.uniform(ids, (), lo, hi, stream="command_time")
-        self.command.copy_(torch.where(expired[:, None], command, self.command))
-        self.time_left.copy_(torch.where(expired, time_left, self.time_left))
+        self.command.copy_(torch.where(env_mask[:, None], command, self.command))
+        self.time_left.copy_(torch.where(env_mask, time_left, self.time_left))
 
     def integrate(self, dt: float) -> None:
         """Advance the exact tracker by one policy step of the current command: heading by
@@ -123,15 +135,18 @@ class CommandManager(ManagerBase):
         self.commanded_disp += dt * torch.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], dim=-1)
         self.commanded_yaw += dt * omega
 
-    def reset(self, env_ids: torch.Tensor) -> dict[str, float]:
-        """Resample the commands of ``env_ids`` and restart their tracker at the robot's (reset) heading."""
-        self.resample(env_ids)
-        self.commanded_disp.index_fill_(0, env_ids, 0.0)
-        self.commanded_yaw[env_ids] = yaw_from_quat(self.env.state.base_quat_w[env_ids]).to(self.commanded_yaw)
+    def reset(self, env_mask: torch.Tensor) -> dict[str, float]:
+        """Resample the commands of the envs of ``env_mask`` (B,) bool and restart their tracker at the robot's (reset)
+        heading."""
+        self._resample_where(env_mask)
+        self.commanded_disp.masked_fill_(env_mask[:, None], 0.0)
+        yaw = yaw_from_quat(self.env.state.base_quat_w).to(self.commanded_yaw)
+        self.commanded_yaw.copy_(torch.where(env_mask, yaw, self.commanded_yaw))
         return {}
 
     def state_dict(self) -> dict[str, Any]:
         """``{"params": {name: value}}``: the command term's parameters (ranges) as a curriculum left them."""
+        self.read_ranges()
         return {"params": copy.deepcopy(self.params)}
 
     def check_state_dict(self, state: dict[str, Any]) -> None:
@@ -140,6 +155,7 @@ class CommandManager(ManagerBase):
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.check_state_dict(state)
+        self.read_ranges()  # where a curriculum left the device ranges: sync_ranges then uploads what differs
         self.params.clear()
         self.params.update(copy.deepcopy(state["params"]))  # in place: the term holds this dict
         self.sync_ranges()

@@ -1,7 +1,7 @@
-"""Curriculum manager: terms ``term(env, env_ids, **params) -> float | Tensor`` run for the envs being reset
-(before the other managers clear their episode data); values are logged as ``Curriculum/<term>``. A term may
-return a 0-dim tensor on the env's device so that logging it reads nothing back during the step (the logger
-reads once per iteration); ``values_as_floats`` and checkpoints convert."""
+"""Curriculum manager: terms ``term(env, env_mask, **params) -> Tensor`` run at every step for the envs being reset,
+a (B,) bool mask (before the other managers clear their episode data), inside ``schedule.only(env_mask)``; their
+0-dim values are logged as ``Curriculum/<term>`` without a host read (the env's episode log is read once per
+iteration); ``values_as_floats`` and checkpoints convert."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from dls_quadruped.envs.mdp import curriculum as cur_mdp
 
 def resolve_curriculum(task: TaskConfig) -> list[Term]:
     """The ``curriculum`` section checked and resolved."""
-    return resolve_terms(task, "curriculum", cur_mdp, {}, positional=("env", "env_ids"))
+    return resolve_terms(task, "curriculum", cur_mdp, {}, positional=("env", "env_mask"))
 
 
 REWARD_NAME_PARAMS = ("reward_term", "terms")
@@ -56,11 +56,13 @@ class CurriculumManager(ManagerBase):
 
     def start(self) -> None:
         """Build-time call with no env (terms set their initial state)."""
-        self.compute(torch.zeros(0, dtype=torch.long, device=self.env.device))
+        self.compute(torch.zeros(self.env.num_envs, dtype=torch.bool, device=self.env.device))
 
-    def compute(self, env_ids: torch.Tensor) -> dict[str, float | torch.Tensor]:
-        for t in self.terms:
-            self.values[t.name] = t(self.env, env_ids)
+    def compute(self, env_mask: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Run every term for the envs of ``env_mask`` (B,) bool; returns ``{"Curriculum/<term>": 0-dim value}``."""
+        with self.env.schedule.only(env_mask):
+            for t in self.terms:
+                self.values[t.name] = t(self.env, env_mask)
         command_manager = getattr(self.env, "command_manager", None)
         if command_manager is not None:  # a range a term widened reaches the samplers before the reset resamples
             command_manager.sync_ranges()
@@ -71,8 +73,9 @@ class CurriculumManager(ManagerBase):
         return {k: float(v) for k, v in self.values.items()}
 
     def state_dict(self) -> dict[str, Any]:
-        """``{"state": terms' state, "values": last value per term}`` (floats)."""
-        return {"state": copy.deepcopy(self.state), "values": self.values_as_floats()}
+        """``{"state": terms' state, "values": last value per term}``, with Python numbers for 0-dim tensors (a
+        device flag is read back here, once per checkpoint)."""
+        return {"state": copy.deepcopy(_to_host(self.state)), "values": self.values_as_floats()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.check_state_dict(state)
@@ -83,3 +86,14 @@ class CurriculumManager(ManagerBase):
     def summary(self) -> str:
         return format_table("curriculum", ("term", "function", "params"),
                             [(t.name, t.func.__name__, t.params) for t in self.terms])
+
+
+def _to_host(value: Any) -> Any:
+    """``value`` with every 0-dim tensor inside (dicts, lists) replaced by its Python number."""
+    if isinstance(value, torch.Tensor) and value.dim() == 0:
+        return value.item()
+    if isinstance(value, dict):
+        return {k: _to_host(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(_to_host(v) for v in value)
+    return value

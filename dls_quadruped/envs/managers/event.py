@@ -1,7 +1,8 @@
 """Event manager: terms run at ``startup`` (once), at ``reset`` (for the reset envs) or on an
 ``interval`` (per-env timer drawn from ``interval_s`` [s], e.g. pushes every 8-12 s; as in IsaacLab,
 a reset env draws a fresh timer, so an episode's push times do not depend on the one before).
-Timers come from the env's episode schedule (stream ``interval/<term>``)."""
+Timers come from the env's episode schedule (stream ``interval/<term>``). Terms act on (B,) bool masks of robots
+(``envs/mdp/events.py``): static shapes, no host read."""
 
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ MODES = ("startup", "reset", "interval")
 
 def resolve_events(task: TaskConfig) -> list[Term]:
     """The ``events`` section checked and resolved: known modes, ``interval_s`` on interval events."""
-    terms = resolve_terms(task, "events", event_mdp, {"mode": ..., "interval_s": None}, positional=("env", "env_ids"))
+    terms = resolve_terms(task, "events", event_mdp, {"mode": ..., "interval_s": None}, positional=("env", "env_mask"))
     for t in terms:
         key = f"events.{t.name}"
         if t.extra["mode"] not in MODES:
@@ -32,59 +33,59 @@ def resolve_events(task: TaskConfig) -> list[Term]:
 
 
 class EventManager(ManagerBase):
+    """Runs the event terms by (B,) bool masks of the robots they act on (``envs/mdp/events.py``): every robot's
+    values are computed and the masked ones kept, so no step reads back which robots reset or are pushed."""
+
     def __init__(self, task: TaskConfig, env):
         super().__init__(env)
         # placement first: VecSim.reset clears the base wrench, so e.g. external_wrench must come after it
         self.terms = sorted(resolve_events(task), key=lambda t: t.func is not event_mdp.reset_robot)
         self.timers: dict[str, torch.Tensor] = {}
+        """Per interval term, (B,) seconds [s] until each robot's next event."""
+        for t in self._interval_terms():
+            self.timers[t.name] = torch.zeros(env.num_envs, device=env.device)
         self.restart_timers()
 
-    def _draw(self, term, env_ids: torch.Tensor) -> torch.Tensor:
+    def _all(self) -> torch.Tensor:
+        return torch.ones(self.env.num_envs, dtype=torch.bool, device=self.env.device)
+
+    def _redraw(self, term: Term, env_mask: torch.Tensor) -> None:
+        """Fresh timers of interval ``term`` for the robots of ``env_mask``, inside ``schedule.only(env_mask)``."""
         lo, hi = term.extra["interval_s"]
-        return self.env.schedule.uniform(env_ids, (), float(lo), float(hi), stream=f"interval/{term.name}")
+        ids = torch.arange(self.env.num_envs, device=self.env.device)
+        fresh = self.env.schedule.uniform(ids, (), float(lo), float(hi), stream=f"interval/{term.name}")
+        self.timers[term.name].copy_(torch.where(env_mask, fresh, self.timers[term.name]))
 
-    def restart_timers(self, env_ids: torch.Tensor | None = None) -> None:
-        """Draw fresh interval timers for ``env_ids`` (default: every env)."""
-        if env_ids is None:
-            env_ids = torch.arange(self.env.num_envs, device=self.env.device)
-        for t in self.terms:
-            if t.extra["mode"] == "interval":
-                if t.name not in self.timers:
-                    self.timers[t.name] = torch.zeros(self.env.num_envs, device=self.env.device)
-                self.timers[t.name][env_ids] = self._draw(t, env_ids)
+    def _interval_terms(self) -> list[Term]:
+        return [t for t in self.terms if t.extra["mode"] == "interval"]
 
-    def due(self, dt: float, resetting: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The (B,) bool masks of the robots each interval term fires on at this step's ``apply("interval", dt)``,
-        known before ``resetting`` robots reset (so that the env reads them with its reset mask, in one host read).
+    def restart_timers(self, env_mask: torch.Tensor | None = None) -> None:
+        """Draw fresh interval timers for the robots of ``env_mask`` (B,) bool (default: every env)."""
+        env_mask = self._all() if env_mask is None else env_mask
+        with self.env.schedule.only(env_mask):
+            for t in self._interval_terms():
+                self._redraw(t, env_mask)
 
-        A robot not reset fires iff ``timer - dt <= 0`` (apply's own float operation on the same timer); a reset
-        robot draws a fresh timer of at least ``interval_s[0]``, so it cannot fire when ``interval_s[0] > dt``.
-        Terms with ``interval_s[0] <= dt`` are left out: ``apply`` then finds their robots itself (one more read).
-        """
-        return {t.name: (self.timers[t.name] - dt <= 0.0) & ~resetting for t in self.terms
-                if t.extra["mode"] == "interval" and float(t.extra["interval_s"][0]) - dt > 1e-6}
-
-    def apply(self, mode: str, env_ids: torch.Tensor | None = None, dt: float = 0.0,
-              due: dict[str, torch.Tensor] | None = None) -> None:
-        """Run the terms of ``mode``; ``env_ids`` for reset, ``dt`` [s] advances interval timers; ``due``: for
-        interval terms, the ids of the robots they fire on, from :meth:`due`'s masks (the others are found here)."""
-        all_ids = torch.arange(self.env.num_envs, device=self.env.device)
-        for t in self.terms:
-            if t.extra["mode"] != mode:
-                continue
-            if mode == "interval":
-                timer = self.timers[t.name]
-                timer -= dt
-                ids = due[t.name] if due is not None and t.name in due else torch.nonzero(timer <= 0.0).flatten()
-                if len(ids):
-                    timer[ids] = self._draw(t, ids)
-                    t(self.env, ids)
-            elif mode == "startup":
-                t(self.env, all_ids)
-            elif env_ids is not None and len(env_ids):
-                t(self.env, env_ids)
-        if mode == "reset" and env_ids is not None and len(env_ids):
-            self.restart_timers(env_ids)
+    def apply(self, mode: str, env_mask: torch.Tensor | None = None, dt: float = 0.0) -> None:
+        """Run the terms of ``mode``: ``startup`` on every env, ``reset`` on the robots of ``env_mask`` (B,) bool
+        (their interval timers are redrawn too), ``interval`` after advancing every timer by ``dt`` [s] on the robots
+        whose timer ran out (their timers redrawn). Each term's draws count only for the robots it acts on."""
+        if mode == "interval":
+            for t in self._interval_terms():
+                self.timers[t.name] -= dt
+                due = self.timers[t.name] <= 0.0
+                with self.env.schedule.only(due):
+                    self._redraw(t, due)
+                    t(self.env, due)
+            return
+        env_mask = self._all() if env_mask is None or mode == "startup" else env_mask
+        with self.env.schedule.only(env_mask):
+            for t in self.terms:
+                if t.extra["mode"] == mode:
+                    t(self.env, env_mask)
+            if mode == "reset":
+                for t in self._interval_terms():
+                    self._redraw(t, env_mask)
 
     def summary(self) -> str:
         rows = [(t.name, t.func.__name__, t.extra["mode"], t.extra["interval_s"] or "", t.params) for t in self.terms]

@@ -1,14 +1,15 @@
 """Reward manager: r = sum_i w_i r_i dt (IsaacLab convention: weights are per second).
 
-Weights are mutable (``self.weights``) so a curriculum can switch terms on. Each write also lands in a device
-tensor the (compiled) compute reads, so switching a weight neither recompiles nor uploads per step. Episode sums
-per term are logged at reset as ``Episode_Reward/<term>`` (sum over the episode / episode length in s, a 0-dim
-tensor). A term function with a ``parts(env) -> {name: (B,)}`` attribute (its last value split into parts that sum
+Weights are mutable (``self.weights``) so a curriculum can switch terms on. They live in a device tensor the
+(compiled) compute reads, so switching a weight neither recompiles nor uploads per step, and a curriculum switches
+them on the device (``Weights.switch``). Episode sums per term are logged at reset as ``Episode_Reward/<term>`` (sum
+over the episode / episode length in s, mean over the reset envs, a 0-dim tensor). A term function with a ``parts(env) -> {name: (B,)}`` attribute (its last value split into parts that sum
 to it) has each part logged the same way, weighted, as ``Episode_Reward/<term>/<part>``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator, MutableMapping
 from typing import Any
 
 import torch
@@ -29,33 +30,67 @@ def resolve_rewards(task: TaskConfig) -> list[Term]:
     return resolve_terms(task, "rewards", reward_mdp, {"weight": ...})
 
 
-class Weights(dict):
-    """``{term: weight}`` whose every write is mirrored into ``tensor`` (float32, (terms,), on the env's device).
+class Weights(MutableMapping):
+    """``{term: weight}`` kept on the device: ``tensor`` (float32, (terms,)), which the (compiled) compute reads, and
+    a float64 twin that holds the values as written (reading a weight by name reads it back: not for the step).
 
     A term whose weight is 0 when the manager is built is not computed (it cannot reward anything) until a write
-    makes it non-zero; ``on_activate`` is then called once (the manager rebuilds its compiled compute)."""
+    makes it non-zero; ``on_activate`` is then called once (the manager rebuilds its compiled compute). A curriculum
+    switches weights on the device with :meth:`switch`, without a host read."""
 
     def __init__(self, names: list[str], values: list[float], device: torch.device, on_activate) -> None:
-        super().__init__(zip(names, values))
         self.index = {n: i for i, n in enumerate(names)}
         self.tensor = torch.tensor(values, dtype=torch.float32, device=device)
+        self._values = torch.tensor(values, dtype=torch.float64, device=device)
         self.active = tuple(i for i, v in enumerate(values) if v != 0.0)
         self._on_activate = on_activate
+        self._switches: dict[tuple[str, ...], tuple[torch.Tensor, torch.Tensor]] = {}
 
-    def __setitem__(self, name: str, value: float) -> None:
+    def _check(self, name: str) -> int:
         if name not in self.index:
             raise KeyError(f"unknown reward term {name!r}; allowed: {sorted(self.index)}")
-        value = float(value)
-        super().__setitem__(name, value)
-        i = self.index[name]
+        return self.index[name]
+
+    def __getitem__(self, name: str) -> float:
+        return float(self._values[self._check(name)])
+
+    def __setitem__(self, name: str, value: float) -> None:
+        i, value = self._check(name), float(value)
         self.tensor[i] = value  # in place: the compiled compute keeps reading the same storage
+        self._values[i] = value
         if value != 0.0 and i not in self.active:
             self.active = tuple(sorted((*self.active, i)))
             self._on_activate()
 
-    def update(self, other=(), **kwargs) -> None:
-        for name, value in dict(other, **kwargs).items():
-            self[name] = value
+    def __delitem__(self, name: str) -> None:
+        raise TypeError("reward weights cannot be removed; set a weight to 0 instead")
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.index)
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def as_dict(self) -> dict[str, float]:
+        """Every weight as a Python float (one host read)."""
+        return dict(zip(self.index, self._values.tolist()))
+
+    def switch(self, targets: dict[str, float], on: torch.Tensor) -> None:
+        """Set the weights of ``targets`` to their values where ``on`` (a 0-dim bool on the device) holds, else to
+        0, on the device (no host read; the index and values are uploaded once per set of names). A target that is
+        not 0 activates its term on the first call, on the host (rebuilding the compute once)."""
+        key = tuple(targets)
+        if key not in self._switches:
+            for name, value in targets.items():
+                if value != 0.0 and self._check(name) not in self.active:
+                    self[name] = value
+            idx = torch.tensor([self._check(n) for n in key], device=self.tensor.device)
+            self._switches[key] = idx, torch.tensor([float(targets[n]) for n in key], dtype=torch.float64,
+                                                    device=self.tensor.device)
+        idx, values = self._switches[key]
+        chosen = torch.where(on, values, 0.0)
+        self._values.index_copy_(0, idx, chosen)
+        self.tensor.index_copy_(0, idx, chosen.float())
 
 
 class RewardManager(ManagerBase):
@@ -100,28 +135,30 @@ class RewardManager(ManagerBase):
                 self.part_sums[key] += torch.nan_to_num(v.float(), nan=0.0, posinf=0.0, neginf=0.0) * w[i] * dt
         return total
 
-    def episode_fraction(self, name: str, env_ids: torch.Tensor) -> float:
-        """Mean episode sum of ``name`` over ``env_ids`` divided by its maximum weight x episode length
-        (1.0 = a bounded kernel at its maximum for the whole episode)."""
-        if name not in self.weights:
-            raise KeyError(f"unknown reward term {name!r}; allowed: {sorted(self.weights)}")
-        w = self.weights[name]
-        if w == 0.0 or len(env_ids) == 0:
-            return 0.0
-        return float(self.episode_sums[name][env_ids].mean() / (w * self.env.max_episode_length_s))
+    def episode_fraction(self, name: str, env_mask: torch.Tensor) -> torch.Tensor:
+        """0-dim, on the device: mean episode sum of ``name`` over the envs of ``env_mask`` (B,) bool divided by its
+        weight x episode length (1.0 = a bounded kernel at its maximum for the whole episode); 0 when the mask is
+        empty or the weight is 0."""
+        i = self.weights._check(name)
+        count = env_mask.sum()
+        mean = torch.where(env_mask, self.episode_sums[name], 0.0).sum() / count.clamp(min=1)
+        w = self.weights.tensor[i]
+        return torch.where((w != 0.0) & (count > 0), mean / (w * self.env.max_episode_length_s), 0.0)
 
-    def reset(self, env_ids: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Episode sums of ``env_ids`` (mean over them / episode length [s]) as 0-dim tensors on the env's device
-        (not read back here: the logger does that, once per iteration), then cleared."""
+    def reset(self, env_mask: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Episode sums of the envs of ``env_mask`` (B,) bool (mean over them / episode length [s]; 0 when none) as
+        0-dim tensors on the env's device (not read back here: the env's episode log is read once per iteration),
+        then cleared."""
         logs = {}
+        count = env_mask.sum().clamp(min=1)
         for name, s in (self.episode_sums | self.part_sums).items():
-            logs[f"Episode_Reward/{name}"] = s[env_ids].mean() / self.env.max_episode_length_s
-            s.index_fill_(0, env_ids, 0.0)
+            logs[f"Episode_Reward/{name}"] = torch.where(env_mask, s, 0.0).sum() / count / self.env.max_episode_length_s
+            s.masked_fill_(env_mask, 0.0)
         return logs
 
     def state_dict(self) -> dict[str, Any]:
         """``{"weights": {term: weight}}``: the weights as a curriculum left them."""
-        return {"weights": dict(self.weights)}
+        return {"weights": self.weights.as_dict()}
 
     def check_state_dict(self, state: dict[str, Any]) -> None:
         if set(state["weights"]) != set(self.weights):
@@ -132,5 +169,6 @@ class RewardManager(ManagerBase):
         self.weights.update(state["weights"])
 
     def summary(self) -> str:
-        rows = [(t.name, t.func.__name__, self.weights[t.name], t.params) for t in self.terms]
+        weights = self.weights.as_dict()
+        rows = [(t.name, t.func.__name__, weights[t.name], t.params) for t in self.terms]
         return format_table("rewards", ("term", "function", "weight", "params"), rows)

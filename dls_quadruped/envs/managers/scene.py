@@ -102,8 +102,18 @@ class SceneManager(ManagerBase):
         return self.terrain_levels.float() / max(self.terrain.num_rows - 1, 1)
 
     def update_levels(self, env_ids: torch.Tensor, delta: torch.Tensor) -> None:
-        """Move envs by ``delta`` rows; beyond the last row -> a random row; below 0 -> 0."""
+        """Move envs by ``delta`` rows; beyond the last row -> a random row; below 0 -> 0. ``env_ids``: (n,) ids with
+        ``delta`` (n,), or a (B,) bool mask with ``delta`` (B,) of every env (static shapes: the masked rows kept; the
+        curriculum calls it so, inside ``schedule.only(mask)``)."""
         rows = self.terrain.num_rows
+        if env_ids.dtype == torch.bool:
+            ids = torch.arange(self.env.num_envs, device=self.env.device)
+            lv = self.terrain_levels + delta
+            lv = torch.where(lv >= rows, self.env.schedule.integers(ids, 0, rows, stream="terrain_level"),
+                             lv.clamp(min=0))
+            self.terrain_levels.copy_(torch.where(env_ids, lv, self.terrain_levels))
+            self.env_origins.copy_(self.tile_origins[self.terrain_levels, self.terrain_types])
+            return
         lv = self.terrain_levels[env_ids] + delta
         lv = torch.where(lv >= rows, self.env.schedule.integers(env_ids, 0, rows, stream="terrain_level"), lv.clamp(min=0))
         self.terrain_levels[env_ids] = lv

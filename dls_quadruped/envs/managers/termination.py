@@ -62,9 +62,10 @@ class TerminationManager(ManagerBase):
         self.time_outs &= ~self.terminated
         return self.terminated | self.time_outs
 
-    def reset(self, env_ids: torch.Tensor) -> dict[str, torch.Tensor]:
-        """How many of ``env_ids`` each term ended, as 0-dim float tensors on the env's device (not read back)."""
-        return {f"Episode_Termination/{name}": d[env_ids].float().sum() for name, d in self.term_dones.items()}
+    def reset(self, env_mask: torch.Tensor) -> dict[str, torch.Tensor]:
+        """How many of the envs of ``env_mask`` (B,) bool each term ended, as 0-dim float tensors on the env's device
+        (not read back)."""
+        return {f"Episode_Termination/{name}": (d & env_mask).float().sum() for name, d in self.term_dones.items()}
 
     def summary(self) -> str:
         rows = [(t.name, t.func.__name__, t.extra["time_out"], t.params) for t in self.terms]

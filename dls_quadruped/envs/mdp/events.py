@@ -1,13 +1,18 @@
-"""Event terms (thesis 4.3.2): ``event(env, env_ids, **params)``, applied only to ``env_ids``.
+"""Event terms (thesis 4.3.2): ``event(env, env_mask, **params)``, applied to the robots of ``env_mask``.
 
+``env_mask`` is a (B,) bool mask: a term computes its values for every robot and the backend keeps the masked rows
+(``sim/interface.py``), so a step with resets and pushes has static shapes and reads nothing back to the host.
 Modes (set per term in the task file): ``startup`` (once, all envs), ``reset`` (envs being reset),
 ``interval`` (per-env timer drawn from ``interval_s``). "High" values are in ``tasks/rough.yaml``;
 "low" ones (one third of the variation) in ``tasks/_low_perturbation.yaml``.
-Every draw comes from the env's episode schedule (one stream per term function, ``envs/schedule.py``).
+Every draw comes from the env's episode schedule (one stream per term function, ``envs/schedule.py``); the event
+manager calls a term inside ``schedule.only(env_mask)``, so only the masked robots' draws count, and they are the
+numbers a draw of those robots alone would give.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import mujoco
@@ -19,9 +24,10 @@ from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.interface import home_state
 
 
-def _uniform(env, env_ids: torch.Tensor, shape: tuple[int, ...], rng, stream: str) -> torch.Tensor:
-    """(n, *shape) U[rng) of ``env_ids`` (n,) from the env's episode schedule."""
-    return env.schedule.uniform(env_ids, shape, float(rng[0]), float(rng[1]), stream=stream)
+def _uniform(env, shape: tuple[int, ...], rng, stream: str) -> torch.Tensor:
+    """(B, *shape) U[rng) of every env from the env's episode schedule."""
+    ids = torch.arange(env.num_envs, device=env.device)
+    return env.schedule.uniform(ids, shape, float(rng[0]), float(rng[1]), stream=stream)
 
 
 _CONSTANTS = {name: value.tolist() for name, value in vars(C).items() if name.isupper() and hasattr(value, "tolist")}
@@ -69,33 +75,33 @@ def spawn_height(terrain, xy: torch.Tensor, yaw: torch.Tensor, q: torch.Tensor, 
     return ground + height + raise_by.clamp(min=0.0)
 
 
-def reset_robot(env, env_ids: torch.Tensor, joint_scale: tuple[float, float] = (1.0, 1.0),
+def reset_robot(env, env_mask: torch.Tensor, joint_scale: tuple[float, float] = (1.0, 1.0),
                 yaw: tuple[float, float] = (-math.pi, math.pi), xy_offset: float = 0.0,
                 height: float = float(C.STANDING_BASE_HEIGHT + 0.02)) -> None:
     """Place robots on their terrain origin: random yaw, xy offset within +-``xy_offset`` [m],
     joints = nominal x U(joint_scale) (0.8-1.2 in "high"), base ``height`` [m] above the terrain, higher
-    where a foot would start inside the terrain (``spawn_height``). The placement is one compiled function of the
-    robots' ids where the scene compiles (``scene.compile``, dynamic batch size)."""
-    placement = env.fused(_placement, "reset_robot placement", dynamic=True)
-    env.scene.reset_robots(env_ids, *placement(env, env_ids, joint_scale, yaw, xy_offset, height))
+    where a foot would start inside the terrain (``spawn_height``). The placement of every robot is one compiled
+    function where the scene compiles (``scene.compile``); the backend resets the masked robots."""
+    placement = env.fused(_placement, "reset_robot placement", eager_first=True)  # its draws' streams made first
+    env.scene.reset_robots(env_mask, *placement(env, joint_scale, yaw, xy_offset, height))
 
 
-def _placement(env, env_ids: torch.Tensor, joint_scale: tuple[float, float], yaw: tuple[float, float],
-               xy_offset: float, height: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``reset_robot``'s base positions (n, 3), orientations (n, 4) and joint positions (n, 12)."""
+def _placement(env, joint_scale: tuple[float, float], yaw: tuple[float, float], xy_offset: float,
+               height: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``reset_robot``'s base positions (B, 3), orientations (B, 4) and joint positions (B, 12) of every robot."""
     dev = env.device
-    origins = env.scene.env_origins[env_ids]
-    xy = origins[:, :2] + _uniform(env, env_ids, (2,), (-xy_offset, xy_offset), "reset_robot")
+    origins = env.scene.env_origins
+    xy = origins[:, :2] + _uniform(env, (2,), (-xy_offset, xy_offset), "reset_robot")
     nominal = _constant("NOMINAL_JOINT_POS", torch.float32, dev)
-    q = nominal * _uniform(env, env_ids, (12,), joint_scale, "reset_robot")
+    q = nominal * _uniform(env, (12,), joint_scale, "reset_robot")
     lim = _constant("JOINT_RANGES", torch.float32, dev)
     q = torch.clamp(q, lim[:, 0], lim[:, 1])
-    heading = _uniform(env, env_ids, (), yaw, "reset_robot")
+    heading = _uniform(env, (), yaw, "reset_robot")
     z = spawn_height(env.scene.terrain, xy, heading, q, height)
     return torch.cat([xy, z[:, None]], dim=-1), quat_from_yaw(heading), q
 
 
-def reset_home(env, env_ids: torch.Tensor, joint_noise: float = 0.0, yaw: float | list[float] = 0.0,
+def reset_home(env, env_mask: torch.Tensor, joint_noise: float = 0.0, yaw: float | list[float] = 0.0,
                origin_xy: list[float] = (0.0, 0.0), seed: int = 0) -> None:
     """Place robots in the home pose of ``sim.interface.home_state``: base ``STANDING_BASE_HEIGHT + 5 mm`` above
     z = 0 at ``origin_xy`` (x, y) [m] (a flat patch), heading ``yaw`` [rad] (one for all envs or one per env),
@@ -105,17 +111,27 @@ def reset_home(env, env_ids: torch.Tensor, joint_noise: float = 0.0, yaw: float 
     (a backend reset clears the base wrench). ``origin_xy`` is a point, not a ``[low, high]`` range."""
     if len(origin_xy) != 2:
         raise ValueError(f"reset_home: origin_xy must be (x, y) [m], got {origin_xy!r}")
-    home = home_state(env.num_envs, seed, joint_noise, yaw)
+    yaw_key = tuple(float(y) for y in yaw) if isinstance(yaw, (list, tuple)) else float(yaw)
+    pos, quat, joints = _home_rows(env.num_envs, seed, float(joint_noise), yaw_key,
+                                   tuple(float(x) for x in origin_xy), env.device)
+    env.scene.reset_robots(env_mask, pos, quat, joints)
+
+
+@functools.lru_cache(maxsize=16)
+def _home_rows(num: int, seed: int, joint_noise: float, yaw: float | tuple[float, ...], origin_xy: tuple[float, float],
+               device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``reset_home``'s base positions (num, 3), orientations (num, 4) and joints (num, 12), float64 on ``device``,
+    built once per set of parameters (a reset then uploads nothing); read-only."""
+    home = home_state(num, seed, joint_noise, torch.tensor(yaw, dtype=torch.float64) if isinstance(yaw, tuple) else yaw)
     pos = home["base_pos_w"] + torch.tensor([*origin_xy, 0.0], dtype=torch.float64)
-    ids = env_ids.cpu()
-    env.scene.reset_robots(env_ids, pos[ids], home["base_quat_w"][ids], home["joint_pos"][ids])
+    return pos.to(device), home["base_quat_w"].to(device), home["joint_pos"].to(device)
 
 
 PLACEMENT_EVENTS = (reset_robot, reset_home)
 """The reset events that place robots; an env needs one of them in ``reset`` mode."""
 
 
-def randomize_friction(env, env_ids: torch.Tensor, friction_range: tuple[float, float]) -> None:
+def randomize_friction(env, env_mask: torch.Tensor, friction_range: tuple[float, float]) -> None:
     """Sliding friction of the foot-ground contacts, U(friction_range) per env.
 
     MuJoCo has one Coulomb coefficient per contact, so the thesis' static/dynamic pair (mu_s in
@@ -124,14 +140,14 @@ def randomize_friction(env, env_ids: torch.Tensor, friction_range: tuple[float, 
     value is written to the four foot geoms (``scene.friction_geom_ids``).
     """
     ids = env.scene.friction_geom_ids
-    mu = _uniform(env, env_ids, (), friction_range, "randomize_friction")
+    mu = _uniform(env, (), friction_range, "randomize_friction")
     nominal = torch.as_tensor(env.scene.model.geom_friction[ids], dtype=torch.float64, device=mu.device)
-    values = nominal.expand(len(env_ids), *nominal.shape).clone()  # (n, 4, 3)
+    values = nominal.expand(env.num_envs, *nominal.shape).clone()  # (B, 4, 3)
     values[:, :, 0] = mu[:, None]
-    env.scene.sim.set_model_field("geom_friction", env_ids, values, index=ids)
+    env.scene.sim.set_model_field("geom_friction", env_mask, values, index=ids)
 
 
-def randomize_base_mass(env, env_ids: torch.Tensor, scale_range: tuple[float, float]) -> None:
+def randomize_base_mass(env, env_mask: torch.Tensor, scale_range: tuple[float, float]) -> None:
     """Robot mass x U(scale_range) per env (Table 3: 0.85-1.15 "high", 0.95-1.05 speed/"low").
 
     The scale is of the whole robot's mass (24.64 kg), as Table 3 states, and the difference is
@@ -140,26 +156,24 @@ def randomize_base_mass(env, env_ids: torch.Tensor, scale_range: tuple[float, fl
     """
     model = env.scene.model
     bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, C.BASE_BODY_NAME)
-    scale = _uniform(env, env_ids, (), scale_range, "randomize_base_mass")
+    scale = _uniform(env, (), scale_range, "randomize_base_mass")
     nominal = torch.as_tensor(model.body_mass, dtype=torch.float64, device=scale.device)
-    values = nominal.expand(len(env_ids), *nominal.shape).clone()  # (n, nbody)
+    values = nominal.expand(env.num_envs, *nominal.shape).clone()  # (B, nbody)
     robot_mass = float(model.body_subtreemass[bid])
     values[:, bid] += (scale - 1.0) * robot_mass
-    env.scene.sim.set_model_field("body_mass", env_ids, values)
+    env.scene.sim.set_model_field("body_mass", env_mask, values)
 
 
-def external_wrench(env, env_ids: torch.Tensor, force_range: tuple[float, float],
+def external_wrench(env, env_mask: torch.Tensor, force_range: tuple[float, float],
                     torque_range: tuple[float, float]) -> None:
     """Constant force [N] and torque [N m] on the base, each world component U(range), until the next call."""
-    force = _uniform(env, env_ids, (3,), force_range, "external_wrench")
-    torque = _uniform(env, env_ids, (3,), torque_range, "external_wrench")
-    env.scene.sim.set_external_wrench(env_ids, force, torque)
+    force = _uniform(env, (3,), force_range, "external_wrench")
+    torque = _uniform(env, (3,), torque_range, "external_wrench")
+    env.scene.sim.set_external_wrench(env_mask, force, torque)
 
 
-def push_robot(env, env_ids: torch.Tensor, velocity_range: tuple[float, float]) -> None:
+def push_robot(env, env_mask: torch.Tensor, velocity_range: tuple[float, float]) -> None:
     """Push: add U(velocity_range) [m/s] to the base x and y velocity (world frame)."""
-    if len(env_ids) == 0:
-        return
-    v = env.state.base_lin_vel_w[env_ids].clone()
-    v[:, :2] += _uniform(env, env_ids, (2,), velocity_range, "push_robot")
-    env.scene.sim.set_base_velocity(env_ids, v)
+    v = env.state.base_lin_vel_w.clone()
+    v[:, :2] += _uniform(env, (2,), velocity_range, "push_robot")
+    env.scene.sim.set_base_velocity(env_mask, v)
