@@ -28,10 +28,10 @@ for those rows: what bootstrapping needs (a fall's return is not bootstrapped), 
 adds the falls (every step, in practice, at large N), ``"none"`` never.
 
 ``info``: ``"time_outs"`` (N,) bool (= truncated, rsl-rl's name), ``"log"`` (on steps where an episode ended, the
-env's episode means and curriculum values, floats read from ``LocomotionEnv.episode_log``), and where an episode ended, ``"episode"`` = {"r": return, "l": length
-[steps], "t": wall time [s]} with mask ``"_episode"``, as ``gymnasium.wrappers.vector.
-RecordEpisodeStatistics`` writes it (with ``episode_statistics=False`` that wrapper can write it
-instead; it refuses to overwrite the key).
+env's episode means and curriculum values, floats read from ``LocomotionEnv.episode_log``), and where an episode
+ended, ``"episode"`` = {"r": return, "l": length [steps], "t": wall time [s]} with mask ``"_episode"``, as
+``gymnasium.wrappers.vector.RecordEpisodeStatistics`` writes it (with ``episode_statistics=False`` that wrapper can
+write it instead; it refuses to overwrite the key).
 """
 
 from __future__ import annotations

@@ -3,8 +3,9 @@
 Weights are mutable (``self.weights``) so a curriculum can switch terms on. They live in a device tensor the
 (compiled) compute reads, so switching a weight neither recompiles nor uploads per step, and a curriculum switches
 them on the device (``Weights.switch``). Episode sums per term are logged at reset as ``Episode_Reward/<term>`` (sum
-over the episode / episode length in s, mean over the reset envs, a 0-dim tensor). A term function with a ``parts(env) -> {name: (B,)}`` attribute (its last value split into parts that sum
-to it) has each part logged the same way, weighted, as ``Episode_Reward/<term>/<part>``.
+over the episode / episode length in s, mean over the reset envs, a 0-dim tensor). A term function with a
+``parts(env) -> {name: (B,)}`` attribute (its last value split into parts that sum to it) has each part logged
+the same way, weighted, as ``Episode_Reward/<term>/<part>``.
 """
 
 from __future__ import annotations
