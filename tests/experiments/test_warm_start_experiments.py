@@ -126,14 +126,14 @@ def test_shards_split_the_cells_and_the_run_without_shard_tabulates_them(tmp_pat
 
 @pytest.mark.parametrize("bad", ["2/2", "1", "a/b", "0/0"])
 def test_bad_shard_is_a_one_line_usage_error(tmp_path: Path, bad: str) -> None:
-    cmd = [sys.executable, str(REPO / "experiments" / "table16_samples.py"), "--out", str(tmp_path), "--shard", bad]
+    cmd = [sys.executable, "-m", "experiments.table16_samples", "--out", str(tmp_path), "--shard", bad]
     res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
     assert res.returncode == 2 and "--shard" in res.stderr and "K/N" in res.stderr
     assert not (tmp_path / "cells").exists()
 
 
 def test_table15_shards_refuse_to_distil_students_side_by_side(tmp_path: Path) -> None:
-    cmd = [sys.executable, str(REPO / "experiments" / "table15_horizon.py"), "--out", str(tmp_path / "t15"),
+    cmd = [sys.executable, "-m", "experiments.table15_horizon", "--out", str(tmp_path / "t15"),
            "--students", str(tmp_path / "none"), "--only", "rl_warm_start_dt0.04_H5_seed0", "--shard", "0/2"]
     res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
     assert res.returncode == 2 and "--students-only" in res.stderr and "(0.04, 5)" in res.stderr
@@ -141,11 +141,11 @@ def test_table15_shards_refuse_to_distil_students_side_by_side(tmp_path: Path) -
 
 
 def test_rugged_clearance_help_and_bad_difficulty() -> None:
-    script = str(REPO / "experiments" / "rugged_clearance.py")
-    ok = subprocess.run([sys.executable, script, "--help"], cwd=REPO, capture_output=True, text=True, timeout=120,
+    script = ["-m", "experiments.rugged_clearance"]
+    ok = subprocess.run([sys.executable, *script, "--help"], cwd=REPO, capture_output=True, text=True, timeout=120,
                         check=False)
     assert ok.returncode == 0 and "--difficulty" in ok.stdout
-    bad = subprocess.run([sys.executable, script, "--difficulty", "1.5"], cwd=REPO, capture_output=True, text=True,
+    bad = subprocess.run([sys.executable, *script, "--difficulty", "1.5"], cwd=REPO, capture_output=True, text=True,
                          timeout=120, check=False)
     assert bad.returncode == 2 and "each must be in [0, 1], got [1.5]" in bad.stderr
 
@@ -161,11 +161,11 @@ def test_naive_gait_sweep_runs_a_cell_at_its_gait(tmp_path: Path) -> None:
 
 
 def test_naive_gait_sweep_help_and_bad_scale() -> None:
-    script = str(REPO / "experiments" / "naive_gait_sweep.py")
-    ok = subprocess.run([sys.executable, script, "--help"], cwd=REPO, capture_output=True, text=True, timeout=120,
+    script = ["-m", "experiments.naive_gait_sweep"]
+    ok = subprocess.run([sys.executable, *script, "--help"], cwd=REPO, capture_output=True, text=True, timeout=120,
                         check=False)
     assert ok.returncode == 0 and "gait" in ok.stdout and "--shard" in ok.stdout
-    bad = subprocess.run([sys.executable, script, "--scale", "huge"], cwd=REPO, capture_output=True, text=True,
+    bad = subprocess.run([sys.executable, *script, "--scale", "huge"], cwd=REPO, capture_output=True, text=True,
                          timeout=120, check=False)
     assert bad.returncode == 2 and "invalid choice: 'huge'" in bad.stderr
 
@@ -192,7 +192,7 @@ def test_com_height_applies_to_mpc_cells_and_a_cache_of_another_height_is_refuse
 
 
 def test_com_height_out_of_range_is_a_usage_error() -> None:
-    bad = subprocess.run([sys.executable, str(REPO / "experiments" / "table14_warm_start_encodings.py"),
+    bad = subprocess.run([sys.executable, "-m", "experiments.table14_warm_start_encodings",
                           "--com-height", "0.9"], cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
     assert bad.returncode == 2 and "--com-height must be in [0.1, 0.6] m, got 0.9" in bad.stderr
 
