@@ -53,6 +53,10 @@ PROSE: dict[str, tuple[str, ...]] = {
     "the MPC lowers the RL policy's initial cost": ('"The MPC lowers the RL policy\'s initial cost"',),
     "RL warm start earns more reward than naive": ('"RL warm start earns more reward than naive"',),
     "the RL policy alone has the best reward": ('"The RL policy alone has the best reward"',),
+    "the RL warm start starts above naive, also from a policy trained on the MPC's cost (preregistered)":
+        ("The negative result with the 5.3 policy",),
+    "training on the MPC's cost lowers the warm start's IC below the DAgger student's":
+        ("Secondary 1 (5.3 − DAgger student as warm starts)",),
     "RL initial cost rises with the horizon": ("RL initial cost rises with the horizon",),
     "naive exception: 0.1 s costlier than 0.2 s": ("The naive 0.1 s exception (0.1 s costlier than 0.2 s)",),
     "RL below naive at 0.1 s": ("RL below naive at short horizons", "at 0.1 s"),

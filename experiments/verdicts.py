@@ -85,6 +85,7 @@ class Row:
 
 M15, T14, T17 = "table15_horizon_medium", "table14_warm_start_encodings_medium", "table17_gait_optimisation_medium"
 T18, V15 = "table18_multi_policy_medium_simple", "table18_multi_policy_medium_v15"
+MC = "mpc_cost/eval_medium"
 D, E, W, P = "distillation.md", "experts.md", "warm_start.md", "multiple_policies.md"
 SWEEP = D + "#table-11-settled-where-does-the-gap-appear-plan-committed-at-f92556b-before-the-first-result"
 
@@ -170,6 +171,14 @@ ROWS = [
     Row("6 · Table 14", "the RL policy alone has the best reward", "2.365", "RL alone − RL warm, reward/step",
         lambda: gap(T14, "rl_baseline", "rl_warm_start_first-spline", "rl_reward", digits=3),
         W + "#table-14-encodings", +1),
+    Row("6 · 5.3 (ours)", "the RL warm start starts above naive, also from a policy trained on the MPC's cost "
+        "(preregistered)", "5.3 proposed, not run", "5.3 warm start (W = −0.1, 2 seeds) − naive, IC",
+        lambda: gap(MC, "rl_warm_start_w0.1", "naive_warm_start"), "mpc_cost.md#results", +1,
+        note="the manipulation check passed (c −3.78 [−4.18, −3.38]); the student's gap is +11.1"),
+    Row("6 · 5.3 (ours)", "training on the MPC's cost lowers the warm start's IC below the DAgger student's",
+        "5.3 proposed, not run", "5.3 − student warm start (W = −0.1, 2 seeds), IC",
+        lambda: gap(MC, "rl_warm_start_w0.1", "rl_warm_start_student"), "mpc_cost.md#results", -1,
+        note="seed 0 −5.7 [−8.7, −3.0], seed 1 −1.2 [−4.0, +1.4]"),
     Row("7 · Table 15", "RL initial cost rises with the horizon", "14.62 → 32.93", "(0.02 s, 5) − (0.02 s, 10), RL IC",
         lambda: gap(M15, "rl_warm_start_dt0.02_H5", "rl_warm_start_dt0.02_H10"), W + "#table-15-horizon", -1),
     Row("7 · Table 15", "naive exception: 0.1 s costlier than 0.2 s", "31.41 vs 28.61",
