@@ -89,3 +89,13 @@ def test_networks_keep_the_chosen_checkpoints_actor_and_critic(tmp_path):
     assert got["iter"] == want["iter"] and set(got) == {*want.keys() - {"infos"}, "infos"}
     S.networks(STUDENT, tmp_path / "none.pt")  # the student has no critic: nothing written
     assert not (tmp_path / "none.pt").exists()
+
+
+def test_the_evaluation_refuses_a_run_name_it_cannot_weigh(tmp_path):
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "experiments.mpc_cost_eval", "--runs", "w0.2_s0", "--out",
+                          str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
+    assert res.returncode != 0 and "w0.2_s0" in res.stderr and "<w>_s<seed>" in res.stderr
+    assert not (tmp_path / "cells").exists()  # refused before any cell ran
