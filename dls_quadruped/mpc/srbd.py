@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from dls_quadruped.core.rotations import euler_from_quat
+from dls_quadruped.core.torch_cache import constant_tensor
 from dls_quadruped.robots.aliengo import constants as C
 
 STATE_DIM = 24
@@ -228,7 +229,7 @@ def srbd_state_from_base(
     dtype, device = base_pos_w.dtype, base_pos_w.device
     euler = euler_from_quat(base_quat_w)
     rot = rotation_from_euler(euler)  # (B, 3, 3) base -> world
-    c_b = torch.tensor(model.com_offset_b, dtype=dtype, device=device).expand_as(base_pos_w)
+    c_b = constant_tensor(tuple(model.com_offset_b), dtype, device).expand_as(base_pos_w)
     com_pos_w = base_pos_w + (rot @ c_b.unsqueeze(-1)).squeeze(-1)
     com_vel_w = base_lin_vel_w + (rot @ torch.cross(base_ang_vel_b, c_b, dim=-1).unsqueeze(-1)).squeeze(-1)
     return SRBDState(com_pos_w, com_vel_w, euler, base_ang_vel_b.clone(), foot_pos_w.clone())
