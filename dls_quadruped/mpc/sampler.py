@@ -188,10 +188,9 @@ class SamplingMPC:
 
     def uses_device_solve(self, num_warm_starts: int) -> bool:
         """Whether a solve runs on the device path (:mod:`warp_solve`): the ``warp`` kernel (or ``cpp`` on CUDA with
-        Warp installed), ``fused`` on, no step-cost recording, no arbitration between several warm starts."""
+        Warp installed), ``fused`` on, no arbitration between several warm starts."""
         kernel = resolved_kernel(self.cfg.kernel, self.device)
-        return (kernel == "warp" and self.fused and not self.record_step_costs
-                and not (self.cfg.arbitrates and num_warm_starts > 1))
+        return kernel == "warp" and self.fused and not (self.cfg.arbitrates and num_warm_starts > 1)
 
     def validate_shapes(self, state: SRBDState, refs: Refs, warm_starts: Sequence[torch.Tensor],
                         proportions: Sequence[float] | None, phase: torch.Tensor,

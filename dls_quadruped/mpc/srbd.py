@@ -53,7 +53,7 @@ class SRBDModel:
 
     def inertia_tensor(self, dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> torch.Tensor:
         """(3, 3) inertia as a tensor."""
-        return torch.tensor(self.inertia_b, dtype=dtype, device=device)
+        return constant_tensor(tuple(map(tuple, self.inertia_b)), dtype, device)
 
 
 @functools.lru_cache(maxsize=1)
@@ -269,7 +269,7 @@ def srbd_step(
     feet = x[..., 12:24].unflatten(-1, (NUM_LEGS, 3))
     c = contact.to(dtype).unsqueeze(-1)  # (..., 4, 1)
     inertia = model.inertia_tensor(dtype, device)
-    gravity = torch.tensor([0.0, 0.0, -model.gravity], dtype=dtype, device=device)
+    gravity = constant_tensor((0.0, 0.0, -model.gravity), dtype, device)
     f_c = c * force_w  # (..., 4, 3) forces of the stance legs
     acc = gravity + f_c.sum(-2) / model.mass
     torque_w = torch.cross(feet - p.unsqueeze(-2), f_c, dim=-1).sum(-2)  # (p_f - p_c) x F
