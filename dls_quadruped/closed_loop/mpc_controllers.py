@@ -21,8 +21,8 @@ manager applies: the MPC's latent-action configuration is the env's, ``Controlle
 through the env's action path (``env.apply_action``), so the observation's last action, the action rewards and
 the terrain height of the touch-down targets see what was applied; with ``references=True`` the solve's world
 references (``MPCResult.foot_target_w``, ``force_w``) go straight to the backend instead. The MPC runs where its
-kernel runs (``cpp``: the CPU; the torch kernels: the env's device, unless ``device`` says otherwise); inputs are
-moved there.
+kernel runs (``cpp``: the CPU, or Warp's kernel on the env's device when that is CUDA, ``sampler.resolved_kernel``;
+the torch and Warp kernels: the env's device, unless ``device`` says otherwise); inputs are moved there.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ from dls_quadruped.mpc import warm_start
 from dls_quadruped.mpc.baseline import ModelBasedBaseline, optimised
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.inputs import ground_inputs, heuristic_footholds_h, mpc_inputs
-from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
+from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC, resolved_kernel
 
 
 def mpc_physics_steps(cfg: ControllerConfig, env) -> int:
@@ -94,8 +94,9 @@ class MPCController(Controller):
         self.solves_per_step = self.commands_per_step
         self.references = references
         self.baseline_cfg = self.cfg.baseline_config()
-        if device is None:  # the C++ kernel computes on the CPU; the torch kernels where the env's tensors are
-            device = "cpu" if self.cfg.sampler.kernel == "cpp" else env.device
+        if device is None:  # the C++ kernel computes on the CPU; the others (Warp's for cpp on CUDA) on the env's
+            kernel = resolved_kernel(self.cfg.sampler.kernel, torch.device(env.device))
+            device = "cpu" if kernel == "cpp" else env.device
         self.device = torch.device(device)
         self.height_fn = env.scene.terrain.height_at if self.cfg.ground == "terrain" else None
         self.result: MPCResult | None = None

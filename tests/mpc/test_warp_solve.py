@@ -173,7 +173,7 @@ def test_step_costs_on_the_device_path_are_the_torch_decodings(perturbed_standin
     ``decode_winners`` computes for the same winner (re-drawn from the seed and layout by torch), the fallback
     robot's +inf; the solve reads nothing back to the host."""
     cfg = SamplerConfig(num_samples=300, horizon=10, kernel="warp")
-    mpc, results = _solves(perturbed_standing, cfg, 3, 2, nan_at=1)
+    mpc, _ = _solves(perturbed_standing, cfg, 3, 2, nan_at=1)
     mpc.record_step_costs = True
     state, refs, phase = perturbed_standing(3, 3)
     ws = [mpc.naive_warm_start(warm_start.nominal_trot(3, cfg)), warm_start.nominal_trot(3, cfg, freq=1.8)]
