@@ -205,7 +205,9 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     Every metric is masked (NaN) after a robot's episode ended, so once every robot's episode has ended
     the remaining steps could change nothing but the video's frames: with ``stop_when_all_ended`` the
     loop stops there (a survival cell whose robots all fell early no longer simulates the rest of the
-    15 s); the traces keep their ``num_steps`` rows (NaN as before) and the video's last frame is held.
+    15 s); the traces keep their ``num_steps`` rows (NaN as before) and the video's last frame is held. On a
+    device backend (not ``cpu``) the loop looks every ``SYNC_EVERY`` steps (so it may stop up to 24 steps later,
+    masked ones): nothing else is read back before the recorder's one read-back at the end.
 
     ``timing``: ``wall`` (the loop), ``kernel`` (MPC cost kernel), ``solve`` (whole MPC solves incl.
     the kernel, warm starts, decode), ``policy`` (network queries), ``probe`` (initial-cost metric), and
