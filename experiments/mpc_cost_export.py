@@ -1,9 +1,11 @@
 """Export a horizon-space PPO actor (``base_mpc_cost``) as a student program, for the closed loop's ``--student``.
 
 The inverse of ``experiments/mpc_cost_init.py``: the checkpoint's actor (an MLP from the 259 observations to the
-encoded horizon in raw units, no observation normaliser) becomes a ``learning.student.Student`` whose normaliser is
-the identity (mean 0, sigma + eps = 1) and whose last layer's rows are divided by the output scale (the student
-multiplies them back), so the program's output is the actor's mean exactly; the encoding metadata (p, F, H, dt, from
+encoded horizon in raw units) becomes a ``learning.student.Student`` whose normaliser is the actor's own (a run from
+scratch keeps rsl-rl's running normaliser, the same ``EmpiricalNormalization``) or, without one (the runs started
+from the student, whose normaliser was folded into the first layer), the identity (mean 0, sigma + eps = 1), and
+whose last layer's rows are divided by the output scale (the student multiplies them back), so the program's
+output is the actor's mean exactly; the encoding metadata (p, F, H, dt, from
 the task's ``actions.horizon``) goes with it, so ``rl_warm_start`` checks it against the MPC like any student.
 
     python -m experiments.mpc_cost_export runs/base_mpc_cost/w0.1_s0/model_499.pt --out runs/mpc_cost/w0.1_s0.pt2
@@ -25,10 +27,8 @@ from dls_quadruped.mpc.config import EncodingConfig
 
 
 def student_from_actor(actor: dict, enc: EncodingConfig, obs_dim: int, activation: str = "elu") -> Student:
-    """A :class:`Student` computing ``actor``'s mean (an rsl-rl ``MLPModel`` state dict without a normaliser)."""
-    if any(k.startswith("obs_normalizer.") for k in actor):
-        raise UserError("the actor has an observation normaliser; this export expects base_mpc_cost's actor "
-                        "(agent.actor.obs_normalization: false)")
+    """A :class:`Student` computing ``actor``'s mean (an rsl-rl ``MLPModel`` state dict, with or without its
+    observation normaliser)."""
     layers = sorted(int(k.split(".")[1]) for k in actor if k.startswith("mlp.") and k.endswith(".weight"))
     hidden = [int(actor[f"mlp.{i}.weight"].shape[0]) for i in layers[:-1]]
     student = Student(obs_dim, enc, hidden, activation)
@@ -38,6 +38,10 @@ def student_from_actor(actor: dict, enc: EncodingConfig, obs_dim: int, activatio
     state[f"{last}.bias"] = state[f"{last}.bias"] / student.output_scale
     student.mlp.load_state_dict(state)
     norm = student.obs_normalizer
+    own = {k.removeprefix("obs_normalizer."): v for k, v in actor.items() if k.startswith("obs_normalizer.")}
+    if own:
+        norm.load_state_dict(own)  # the actor's running normaliser, frozen (eval mode)
+        return student.eval()
     with torch.no_grad():  # identity: (x - 0) / (sigma + eps) with sigma + eps = 1
         norm._mean.zero_()
         norm._std.fill_(1.0 - norm.eps)

@@ -106,3 +106,27 @@ def test_export_back_to_a_student_round_trips(networks, tmp_path):
     with torch.no_grad():
         torch.testing.assert_close(back(obs), original(obs), rtol=1e-4, atol=1e-4)
         torch.testing.assert_close(back.first_action(obs), original.first_action(obs), rtol=1e-4, atol=1e-4)
+
+
+def test_an_actor_with_its_own_normaliser_exports_with_it():
+    """A run from scratch keeps rsl-rl's running normaliser: the exported program computes the actor's mean,
+    mlp(normaliser(obs)), written out here with rsl-rl's own modules."""
+    from rsl_rl.modules import MLP, EmpiricalNormalization
+
+    from dls_quadruped.mpc.config import EncodingConfig
+    from experiments.mpc_cost_export import student_from_actor
+
+    enc = EncodingConfig("first", "spline", 10)
+    gen = torch.Generator().manual_seed(1)
+    norm = EmpiricalNormalization(259)
+    norm.train()
+    norm(3.0 + 2.0 * torch.randn(64, 259, generator=gen))  # running stats far from (0, 1)
+    norm.eval()
+    mlp = MLP(259, 64, [32, 16], "elu")
+    actor = {**{f"mlp.{k}": v for k, v in mlp.state_dict().items()},
+             **{f"obs_normalizer.{k}": v for k, v in norm.state_dict().items()}}
+    student = student_from_actor(actor, enc, 259)
+    obs = 3.0 + 2.0 * torch.randn(5, 259, generator=gen)
+    with torch.no_grad():
+        torch.testing.assert_close(student(obs), mlp(norm(obs)), rtol=1e-5, atol=1e-5)
+        assert not torch.allclose(student(obs), mlp(obs), atol=1e-2)  # the normaliser mattered
