@@ -158,27 +158,30 @@ def cell_rows(todo: list[Cell], results: dict, rows: dict[str, list[str]]) -> li
 
 
 def figure(results: dict, path: Path) -> None:
-    """Per outcome: the total RL - N, the Shapley parts of the gait and of the forces and the interaction, mean [95 %
-    CI], the plan's margin shaded."""
+    """Per outcome, mean [95 % CI]: the total RL - N, the path N -> G -> RL (the student's gait and footholds with
+    the naive forces, then the student's forces on its own gait), the Shapley parts and the interaction; the plan's
+    margin shaded."""
     plt = pyplot()
     keys = [(n, k) for n, k, _ in OUTCOMES if k in ("initial_cost", "rl_reward", "survived")]
-    fig, axes = plt.subplots(1, len(keys), figsize=(5 * len(keys), 3.8))
-    picks = (0, 3, 6, 7)
+    fig, axes = plt.subplots(1, len(keys), figsize=(5.5 * len(keys), 4.2))
+    picks = ((0, "RL - N"), (1, "G - N\n(gait)"), (5, "RL - G\n(forces)"), (3, "Shapley\ngait"),
+             (6, "Shapley\nforces"), (7, "interaction"))
     for ax, (name, key) in zip(np.atleast_1d(axes), keys):
         values = arm_values(results, key)
         if values is None:
             continue
-        for i, j in enumerate(picks):
+        for i, (j, _) in enumerate(picks):
             d = contrast(values, CONTRASTS[j][1])
             m, (lo, hi) = d["mean"], d["ci95"]
             ax.errorbar(i, m, yerr=[[m - lo], [hi - m]], fmt="o", color=f"C{i}", capsize=4)
         if key in MARGINS:
             ax.axhspan(-MARGINS[key], MARGINS[key], color="0.9", zorder=0)
         ax.axhline(0, color="k", lw=0.8)
-        ax.set_xticks(range(len(picks)), ["RL - N", "gait", "forces", "interaction"])
-        ax.set_title(name, fontsize=9)
+        ax.set_xticks(range(len(picks)), [label_ for _, label_ in picks], fontsize=7)
+        ax.set_yscale("symlog", linthresh=50.0 if key.startswith("initial") else 0.05)
+        ax.set_title(name + " (symmetric log scale)", fontsize=9)
     fig.suptitle("RL - naive warm start taken apart: the student's gait and footholds vs its forces "
-                 "(3 students, paired episodes; grey: the plan's margin)", fontsize=9)
+                 "(3 students, 100 paired episodes; grey: the plan's margin)", fontsize=9)
     save(fig, path)
 
 
