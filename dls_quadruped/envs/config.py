@@ -261,8 +261,9 @@ def load_task(task: str | Path, overrides: dict | None = None, validate: bool = 
     loaded = TaskConfig(path.stem, path, data, sources)
     missing = [name for name in REQUIRED_SECTIONS if name not in data]
     if validate and missing and not path.name.startswith("_"):
+        them = "it" if len(missing) == 1 else "them"
         raise ConfigError(f"{path}: no {' and no '.join(repr(m) for m in missing)} section (in the file or what it "
-                          f"inherits); a task needs {list(REQUIRED_SECTIONS)}: add {'it' if len(missing) == 1 else 'them'}, or "
+                          f"inherits); a task needs {list(REQUIRED_SECTIONS)}: add {them}, or "
                           "`inherit: _common.yaml` (tasks/) for the shared ones")
     for check in _TASK_CHECKS if validate else ():
         check(loaded)

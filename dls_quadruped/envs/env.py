@@ -3,7 +3,8 @@
 Step order (IsaacLab's ``ManagerBasedRLEnv.step``):
 
 1. action manager: raw (B, 28) -> world references -> the backend's ``set_references``;
-2. the simulator backend's ``step(decimation)`` (``sim/interface.py``): 4 physics steps at 200 Hz, low-level control at every one;
+2. the simulator backend's ``step(decimation)`` (``sim/interface.py``): 4 physics steps at 200 Hz, low-level control
+   at every one;
 3. episode counters += 1; termination manager -> dones (terminated | time_outs);
 4. reward manager -> reward (weights x dt);
 5. reset the done envs, by their (B,) mask: curriculum (reads their episode data) -> reset events (placement,
@@ -39,7 +40,7 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from dls_quadruped.core.compile import FusedCache, compile_wanted
+from dls_quadruped.core.compile import FusedCache, compile_wanted, fused_method
 from dls_quadruped.core.state import RobotState
 from dls_quadruped.envs import episode_state
 from dls_quadruped.envs.config import (
@@ -89,7 +90,8 @@ class LocomotionEnv(VecEnv):
         self.env_cfg = dataclass_from_dict(EnvConfig, self.task.section("env"), self.task, "env")
         self.num_envs = self.env_cfg.num_envs if num_envs is None else num_envs
         if isinstance(self.num_envs, bool) or not isinstance(self.num_envs, int) or self.num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")  # 0 is refused, not read as the default
+            # 0 is refused, not read as the default
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         self.device = torch.device(device)
         self.seed = self.env_cfg.seed if seed is None else seed
         torch.manual_seed(self.seed)
@@ -109,7 +111,8 @@ class LocomotionEnv(VecEnv):
         self._every_env = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)  # a full reset's mask
         self.common_step_counter = 0
         self._controlled_steps: int | None = None  # physics steps of the step_controlled in progress
-        self._vel_err_sum = torch.zeros(self.num_envs, device=self.device)  # sum over the episode of |v_xy - cmd_xy| [m/s]
+        # sum over the episode of |v_xy - cmd_xy| [m/s]
+        self._vel_err_sum = torch.zeros(self.num_envs, device=self.device)
         self._state = self._to_device(self.scene.sim.state)
         self.command_manager = CommandManager(self.task, self)
         self.action_manager = ActionManager(self.task, self)
@@ -119,10 +122,11 @@ class LocomotionEnv(VecEnv):
         self.termination_manager = TerminationManager(self.task, self)
         self.event_manager = EventManager(self.task, self)
         self.fused = FusedCache(self.compile)  # torch work compiled where the scene compiles
-        self._reset_bookkeeping = self.fused(self._reset_bookkeeping_eager, "env reset bookkeeping", eager_first=True)
         self.episode_log = EpisodeLog(self.device)  # the steps' episode values, summed on the device
         self.curriculum_manager = CurriculumManager(self.task, self)
-        if not any(t.func in event_mdp.PLACEMENT_EVENTS and t.extra["mode"] == "reset" for t in self.event_manager.terms):
+        placements = [t for t in self.event_manager.terms
+                      if t.func in event_mdp.PLACEMENT_EVENTS and t.extra["mode"] == "reset"]
+        if not placements:
             raise self.task.error("events", "a 'reset' mode event with func reset_robot or reset_home is required "
                                             "(it places robots)")
         self.extras: dict = {"log": {}}
@@ -215,8 +219,10 @@ class LocomotionEnv(VecEnv):
         """Inside :meth:`step_controlled`: world-frame references (freq, duty (B, 4), p_td_w (B, 4, 3) [m], F_w
         (B, 4, 3) [N]) straight to the backend's ``set_references`` for ``num_physics_steps`` physics steps, for a
         controller that makes its own references (the balance controller, the model-based baseline); the action
-        manager, and so the action terms of observations and rewards, do not see them. Raises as :meth:`apply_action`."""
-        return self._advance("apply_references", num_physics_steps, lambda: self.scene.sim.set_references(freq, duty, p_td_w, F_w))
+        manager, and so the action terms of observations and rewards, do not see them. Raises as
+        :meth:`apply_action`."""
+        return self._advance("apply_references", num_physics_steps,
+                             lambda: self.scene.sim.set_references(freq, duty, p_td_w, F_w))
 
     def _advance(self, caller: str, num_physics_steps: int, send: Callable[[], None]) -> RobotState:
         """Check that ``num_physics_steps`` more fit the policy step, ``send()`` the references, step, refresh."""
@@ -314,7 +320,8 @@ class LocomotionEnv(VecEnv):
         log.update(self._reset_bookkeeping(env_mask))
         return log
 
-    def _reset_bookkeeping_eager(self, env_mask: torch.Tensor) -> dict[str, torch.Tensor]:
+    @fused_method("env reset bookkeeping", eager_first=True)
+    def _reset_bookkeeping(self, env_mask: torch.Tensor) -> dict[str, torch.Tensor]:
         """The managers' resets (logged episode sums, counts; commands resampled), the env's metric and counters."""
         log: dict[str, torch.Tensor] = {}
         for manager in (self.reward_manager, self.termination_manager, self.action_manager, self.command_manager):

@@ -4,7 +4,8 @@
 managers use at build time run here (term functions, parameter names, types and ranges, manager keys),
 plus the dataclass sections (``env``, ``scene``, ``terrain``, ``actions.latent``) and the ``agent``
 section against rsl-rl. A bad value therefore fails with the file and dotted key before a run
-directory, a simulator or a worker exists. Sections a file does not have (fragments such as ``_base_rewards.yaml``) are skipped.
+directory, a simulator or a worker exists. Sections a file does not have (fragments such as
+``_base_rewards.yaml``) are skipped.
 """
 
 from __future__ import annotations

@@ -115,7 +115,8 @@ class SceneManager(ManagerBase):
             self.env_origins.copy_(self.tile_origins[self.terrain_levels, self.terrain_types])
             return
         lv = self.terrain_levels[env_ids] + delta
-        lv = torch.where(lv >= rows, self.env.schedule.integers(env_ids, 0, rows, stream="terrain_level"), lv.clamp(min=0))
+        random_level = self.env.schedule.integers(env_ids, 0, rows, stream="terrain_level")
+        lv = torch.where(lv >= rows, random_level, lv.clamp(min=0))
         self.terrain_levels[env_ids] = lv
         self.env_origins[env_ids] = self.tile_origins[lv, self.terrain_types[env_ids]]
 

@@ -45,5 +45,6 @@ def fixed_velocity(env, env_ids: torch.Tensor, values: list[list[float]]) -> tor
     [m/s], omega_z [rad/s]); with a resampling time beyond the episode, one command per episode."""
     table = torch.as_tensor(values, dtype=torch.float32, device=env.device)
     if table.shape != (env.num_envs, 3):
-        raise ValueError(f"fixed_velocity: values must be (num_envs, 3) = ({env.num_envs}, 3), got {tuple(table.shape)}")
+        raise ValueError(f"fixed_velocity: values must be (num_envs, 3) = ({env.num_envs}, 3), "
+                         f"got {tuple(table.shape)}")
     return table[env_ids]
