@@ -42,13 +42,8 @@ from tensordict import TensorDict
 
 from dls_quadruped.core.compile import FusedCache, compile_wanted, fused_method
 from dls_quadruped.core.state import RobotState
-from dls_quadruped.envs import episode_state
-from dls_quadruped.envs.config import (
-    TaskConfig,
-    dataclass_from_dict,
-    load_task,
-    save_resolved,
-)
+from dls_quadruped.envs import checkpoint_state
+from dls_quadruped.envs.config import TaskConfig, load_task, save_resolved
 from dls_quadruped.envs.episode_log import EpisodeLog
 from dls_quadruped.envs.managers.action import ActionManager
 from dls_quadruped.envs.managers.command import CommandManager
@@ -61,6 +56,7 @@ from dls_quadruped.envs.managers.termination import TerminationManager
 from dls_quadruped.envs.mdp import events as event_mdp
 from dls_quadruped.envs.mdp import observations as obs_mdp
 from dls_quadruped.envs.schedule import EpisodeSchedule
+from dls_quadruped.envs.value_checks import dataclass_from_dict
 
 
 @dataclass(frozen=True)
@@ -333,65 +329,24 @@ class LocomotionEnv(VecEnv):
         return log
 
     # ------------------------------------------------------------------ checkpoint state
-    _MANAGER_STATE = (("curriculum_state", "curriculum_manager", "state"),
-                      ("curriculum_values", "curriculum_manager", "values"),
-                      ("reward_weights", "reward_manager", "weights"), ("command_params", "command_manager", "params"),
-                      ("terrain_levels", "scene", "terrain_levels"))
-    """The managers' parts of :meth:`state_dict`: (its key, the manager, the key in the manager's ``state_dict()``)."""
-
     def state_dict(self) -> dict:
-        """What training needs to continue where it stopped (saved in every checkpoint).
-
-        Curriculum state and values, reward weights (the penalty switch), command ranges, terrain
-        levels, the step counter, the episode schedule's counters, the torch RNG state and, under
-        ``"episodes"``, the episodes in progress (``envs/episode_state.py``: the simulator's whole state
-        and every per-robot buffer), so that an env of the same task and number of robots continues
-        bit-identically.
-        """
-        parts = {m: getattr(self, m).state_dict() for m in dict.fromkeys(m for _, m, _ in self._MANAGER_STATE)}
-        state = {key: parts[m][k] for key, m, k in self._MANAGER_STATE}
-        state.update(common_step_counter=self.common_step_counter, schedule=self.schedule.state_dict(),
-                     rng_cpu=torch.get_rng_state(), episodes=episode_state.capture(self))
-        if self.device.type == "cuda":
-            state["rng_cuda"] = torch.cuda.get_rng_state(self.device)
-        return state
+        """What training needs to continue where it stopped, saved in every checkpoint: what outlives an episode
+        (curricula, reward weights, command ranges, terrain levels, the step counter, the schedule, the RNG) and the
+        episodes in progress (``envs/checkpoint_state.py``)."""
+        return checkpoint_state.env_state_dict(self)
 
     def load_state_dict(self, state: dict) -> None:
-        """Restore ``state_dict()`` output and the RNG last. With ``"episodes"`` saved from as many
-        robots, the episodes in progress go on where they stopped (bit-identically); otherwise (another
-        ``num_envs``, or an older checkpoint) every robot starts its next episode on its restored
-        terrain level (without running the curriculum).
+        """Restore :meth:`state_dict` output, the RNG last. The episodes in progress go on where they stopped
+        (bit-identically) when saved from as many robots; otherwise (another ``num_envs``, or an older checkpoint)
+        every robot starts its next episode on its restored terrain level (without running the curriculum).
 
         Raises:
             ValueError: the state does not fit this env (other terms, other number of envs).
         """
-        parts: dict[str, dict] = {}
-        for key, m, k in self._MANAGER_STATE:
-            parts.setdefault(m, {})[k] = state[key]
-        managers = [(getattr(self, m), parts[m]) for m in ("reward_manager", "command_manager", "curriculum_manager",
-                                                           "scene")]
-        for manager, part in managers:  # every part checked before anything is written
-            manager.check_state_dict(part)
-        episodes = state.get("episodes")
-        if episodes is not None and int(episodes["num_envs"]) != self.num_envs:
-            episodes = None  # another --num-envs: fresh episodes below
-        for manager, part in managers:  # scene: another --num-envs cycles over the saved terrain levels
-            manager.load_state_dict(part)
-        self.common_step_counter = int(state["common_step_counter"])
-        if "schedule" in state:  # checkpoints before the episode schedule have none
-            if tuple(state["schedule"]["episode"].shape) == (self.num_envs,):
-                self.schedule.load_state_dict(state["schedule"])
-            else:  # another --num-envs: a fresh schedule, advanced past the episodes already played
-                self.schedule.restart(int(state["schedule"]["seed"]))
-                self.schedule.episode[:] = int(state["schedule"]["episode"].max())
-        if episodes is not None:
-            episode_state.restore(self, episodes)
-        else:
+        if not checkpoint_state.load_env_state_dict(self, state):
             self._reset(self._every_env, curriculum=False)
             self.obs_buf = self.observation_manager.compute()
-        torch.set_rng_state(state["rng_cpu"])
-        if "rng_cuda" in state and self.device.type == "cuda":
-            torch.cuda.set_rng_state(state["rng_cuda"], self.device)
+        checkpoint_state.load_rng_state(state, self.device)
 
     def close(self) -> None:
         self.scene.close()

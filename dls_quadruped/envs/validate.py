@@ -10,7 +10,8 @@ directory, a simulator or a worker exists. Sections a file does not have (fragme
 
 from __future__ import annotations
 
-from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
+from dls_quadruped.envs.config import TaskConfig
+from dls_quadruped.envs.value_checks import dataclass_from_dict
 
 
 def validate_task(task: TaskConfig) -> None:

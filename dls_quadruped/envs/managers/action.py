@@ -29,8 +29,9 @@ from dls_quadruped.control.latent_action import (
 from dls_quadruped.core.compile import fused_method
 from dls_quadruped.core.rotations import yaw_from_quat
 from dls_quadruped.core.state import RobotState
-from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
+from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import ManagerBase, format_table
+from dls_quadruped.envs.value_checks import dataclass_from_dict
 from dls_quadruped.mpc import horizon as mpc_horizon
 
 if TYPE_CHECKING:

@@ -31,12 +31,8 @@ from typing import Any
 
 import torch
 
-from dls_quadruped.envs.config import (
-    TaskConfig,
-    interval_problem,
-    type_hints,
-    type_problem,
-)
+from dls_quadruped.envs.config import TaskConfig
+from dls_quadruped.envs.value_checks import interval_problem, type_hints, type_problem
 
 
 class ManagerBase:

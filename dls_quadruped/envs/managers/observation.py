@@ -15,7 +15,7 @@ import torch
 from tensordict import TensorDict
 
 from dls_quadruped.core.compile import fused_method
-from dls_quadruped.envs.config import TaskConfig, type_problem
+from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import (
     ManagerBase,
     Term,
@@ -23,6 +23,7 @@ from dls_quadruped.envs.managers.base import (
     resolve_terms,
 )
 from dls_quadruped.envs.mdp import observations as obs_mdp
+from dls_quadruped.envs.value_checks import type_problem
 
 GROUP_KEYS = ("noise_scale", "terms")
 

@@ -19,8 +19,9 @@ from typing import Any
 import mujoco
 import torch
 
-from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
+from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import ManagerBase
+from dls_quadruped.envs.value_checks import dataclass_from_dict
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.height_scan import HeightScanConfig, scan_pattern
 from dls_quadruped.sim.interface import LEG_DYNAMICS, SimBackend, SimConfig
