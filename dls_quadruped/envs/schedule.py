@@ -61,20 +61,21 @@ class EpisodeSchedule:
         num_envs: B.
         device: where the counters and draws live.
         episode_keys: (B,) long, the episode key of each env (default ``arange(B)``).
-        compile: whether a draw's hash chain runs as one compiled kernel (``core/compile.py``); the attribute is
-            read once, at the first draw.
+        compile: whether a draw's hash chain runs as one compiled kernel (``core/compile.py``); setting the
+            attribute later takes effect from the next draw (the env sets it once its scene is built, after the
+            terrain's first draws).
 
     Attributes:
         episode: (B,) long, episodes each env has started since the schedule began (-1 before the first).
     """
 
     _draw = fused_method("EpisodeSchedule draws", dynamic=True)(staticmethod(_draw_bits))
-    """:func:`_draw_bits`, compiled when ``compile`` holds at the first draw (its batch size dynamic)."""
+    """:func:`_draw_bits`, compiled when ``compile`` is True (its batch size dynamic)."""
 
     def __init__(self, seed: int, num_envs: int, device: torch.device | str = "cpu",
                  episode_keys: torch.Tensor | None = None, compile: bool = False):
         self.num_envs = int(num_envs)
-        self.compile = bool(compile)
+        self._compile = bool(compile)
         self.device = torch.device(device)
         self._hashes: dict[tuple, int | torch.Tensor] = {}
         self._advance: torch.Tensor | None = None  # see only()
@@ -83,6 +84,15 @@ class EpisodeSchedule:
         """hash32 of the seed, a 0-dim tensor: compiled draws read it as an input, so another seed is not a
         recompile."""
         self.restart(seed, episode_keys)
+
+    @property
+    def compile(self) -> bool:
+        return self._compile
+
+    @compile.setter
+    def compile(self, value: bool) -> None:
+        self._compile = bool(value)
+        EpisodeSchedule._draw.renew(self)  # the next draw makes it anew, compiled or not
 
     def restart(self, seed: int, episode_keys: torch.Tensor | None = None) -> None:
         """Start over: no episode started yet, keys ``episode_keys`` (B,) (default ``arange(B)``).
