@@ -147,7 +147,7 @@ class ActionManager(ManagerBase):
             self.decision_command[:] = self.env.command_manager.command
         return mpc_horizon.first_raw_action(self.raw_horizon, self.horizon)
 
-    @fused_method("ActionManager.process", enabled=lambda m: getattr(m.env, "compile", False))
+    @fused_method("ActionManager.process")
     def _convert(self, s) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """The raw action in ``raw_action`` to world references (f, d, p_td_w, F_w); violation and applied actions
         written (compiled with scene.compile)."""

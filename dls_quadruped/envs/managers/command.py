@@ -104,7 +104,7 @@ class CommandManager(ManagerBase):
         self.sync_ranges()
         self._compute(dt)
 
-    @fused_method("CommandManager.compute", enabled=lambda m: getattr(m.env, "compile", False))
+    @fused_method("CommandManager.compute")
     def _compute(self, dt: float) -> None:
         self.time_left -= dt
         self._resample_where(self.time_left <= 0.0)
@@ -126,7 +126,7 @@ class CommandManager(ManagerBase):
         omega dt, position by the base-frame velocity rotated by the mid-step heading."""
         self._integrate(dt)
 
-    @fused_method("CommandManager.integrate", enabled=lambda m: getattr(m.env, "compile", False))
+    @fused_method("CommandManager.integrate")
     def _integrate(self, dt: float) -> None:
         v, omega = self.command[:, :2], self.command[:, 2]
         mid = self.commanded_yaw + 0.5 * dt * omega

@@ -61,7 +61,7 @@ class ObservationManager(ManagerBase):
         out = self._groups() if self.dims else self._groups.fn()
         return TensorDict(out, batch_size=[self.env.num_envs], device=self.env.device)
 
-    @fused_method("ObservationManager.compute", enabled=lambda m: getattr(m.env, "compile", False))
+    @fused_method("ObservationManager.compute")
     def _groups(self) -> dict[str, torch.Tensor]:
         out = {}
         ids = torch.arange(self.env.num_envs, device=self.env.device)

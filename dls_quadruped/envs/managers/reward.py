@@ -114,7 +114,7 @@ class RewardManager(ManagerBase):
         return self._compute(dt)
 
     # compiled with scene.compile; the weights are a tensor it reads, so a curriculum switch does not recompile
-    @fused_method("RewardManager.compute", enabled=lambda m: getattr(m.env, "compile", False))
+    @fused_method("RewardManager.compute")
     def _compute(self, dt: float) -> torch.Tensor:
         total = torch.zeros(self.env.num_envs, device=self.env.device)
         w = self.weights.tensor

@@ -45,7 +45,7 @@ class TerminationManager(ManagerBase):
         """
         return self._compute(nonfinite_action)
 
-    @fused_method("TerminationManager.compute", enabled=lambda m: getattr(m.env, "compile", False))
+    @fused_method("TerminationManager.compute")
     def _compute(self, nonfinite_action: torch.Tensor | None = None) -> torch.Tensor:
         self.terminated[:] = False
         self.time_outs[:] = False
