@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import sys
 from collections.abc import Callable
 from typing import Any, NoReturn
@@ -124,12 +125,19 @@ SET_FORM = "KEY=VALUE, KEY a dotted path into the task file and VALUE YAML (e.g.
 """The allowed form of ``--set``, quoted by its errors."""
 
 
+EXPONENT_FLOAT = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+"""A float in exponent notation, which YAML 1.1 (PyYAML) reads as a float only with a dot and a signed exponent
+(``1.0e-3``) and otherwise as a string (``1e-3``, ``5E4``, ``1.0e3``)."""
+
+
 def set_pair(text: str) -> tuple[str, Any]:
     """argparse type of ``--set``: ``KEY=VALUE`` -> (dotted key, value parsed as YAML).
 
     ``agent.algorithm.entropy_coef=0.0`` -> ``("agent.algorithm.entropy_coef", 0.0)``; ``[0.5,1]`` is a list,
-    ``null`` deletes the key as it does in a task file. No ``=``, an empty key or key part (``a..b``), an
-    empty value and a value that is not YAML are refused, naming the pair and the allowed form.
+    ``null`` deletes the key as it does in a task file; an unquoted number in exponent notation is a float
+    (``1e-3``, which PyYAML alone reads as a string; quoted, ``'1e-3'`` stays a string). No ``=``, an empty key or
+    key part (``a..b``), an empty value and a value that is not YAML are refused, naming the pair and the allowed
+    form.
     """
     key, sep, value = text.partition("=")
     key = key.strip()
@@ -144,6 +152,8 @@ def set_pair(text: str) -> tuple[str, Any]:
     except yaml.YAMLError as err:
         problem = getattr(err, "problem", None) or str(err).splitlines()[0]
         raise argparse.ArgumentTypeError(f"{text!r}: the value is not YAML ({problem}); expected {SET_FORM}") from None
+    if isinstance(parsed, str) and EXPONENT_FLOAT.fullmatch(value.strip()):
+        parsed = float(parsed)
     return key, parsed
 
 

@@ -91,7 +91,8 @@ def main(argv: list[str] | None = None) -> dict:
     write_json(result, args.out)
     print(f"N = {args.num_envs}: env step {med['without']:.1f} ms without the term, {med['with']:.1f} ms with it "
           f"(+{100 * result['share_of_env_step']:.1f} %); the term's call {med['term']:.2f} ms "
-          f"({100 * result['term_call_share']:.1f} % of an env step), with the split every call {med['with_split']:.2f} "
+          f"({100 * result['term_call_share']:.1f} % of an env step), with the split every call "
+          f"{med['with_split']:.2f} "
           f"ms ({100 * result['split_call_share']:.1f} %); {args.out}")
     return result
 

@@ -5,7 +5,8 @@
 length in s, mean over the robots that reset in the iteration; ``mpc_trajectory_cost/<term>`` its split), so the
 curve shows what the cost term did. CSV + PNG (return; the trajectory cost by term; velocity tracking).
 
-    python -m experiments.mpc_cost_curve runs/base_mpc_cost/w0.1_s0 --csv docs/experiments/mpc_cost/learning_curve_w0.1_s0.csv
+    python -m experiments.mpc_cost_curve runs/base_mpc_cost/w0.1_s0 \\
+        --csv docs/experiments/mpc_cost/learning_curve_w0.1_s0.csv
     python -m experiments.mpc_cost_curve runs/base_mpc_cost/w0.05_s0_cont --append \
         --csv docs/experiments/mpc_cost/learning_curve_w0.05_s0.csv   # a resumed run's later iterations
 """

@@ -41,8 +41,14 @@ from experiments.warm_start_tables import finish, med, survival
 
 FIRST_SPLINE = {"encoding_p": "first", "encoding_F": "spline"}
 POLICIES = Path("docs/policies")  # relative to the repository root, where the scripts run
-WEIGHTS = {"w0.1": -0.1, "w0.05": -0.05, "w0": 0.0}
-"""Run-name prefix -> its trajectory-cost weight W (runs are ``<prefix>_s<seed>``)."""
+WEIGHTS = {"w0.1": -0.1, "w0.05": -0.05, "w0": 0.0, "scratch_w0.1": -0.1}
+"""Run-name prefix -> its trajectory-cost weight W (runs are ``<prefix>_s<seed>``; ``scratch_``: trained from
+scratch, not from the student, exploratory)."""
+
+
+def arm_label(prefix: str) -> str:
+    """The table's W column: the weight, "scratch" beside it for a run trained from scratch."""
+    return f"{WEIGHTS[prefix]:g}" + (" (scratch)" if prefix.startswith("scratch") else "")
 PRIMARY = "w0.1"
 
 
@@ -58,7 +64,8 @@ def cells(runs: list[str], policies: Path) -> list[Cell]:
                  row={"Controller": f"rl_warm_start, 5.3 policy {r}"}) for r in runs]
     out += [Cell("alone_student", "student", FIRST_SPLINE, student=str(STUDENT),
                  row={"Controller": "DAgger student alone"}),
-            Cell("alone_rl_baseline", "rl_baseline", policy=str(POLICIES / "base_recipe_actor.pt2"), row={"Controller": "base_recipe_actor.pt2 alone"})]
+            Cell("alone_rl_baseline", "rl_baseline", policy=str(POLICIES / "base_recipe_actor.pt2"),
+                 row={"Controller": "base_recipe_actor.pt2 alone"})]
     out += [Cell(f"alone_{r}", "student", FIRST_SPLINE, student=str(policy_file(policies, r)),
                  row={"Controller": f"5.3 policy {r} alone"}) for r in runs]
     return out
@@ -97,19 +104,21 @@ def contrasts(results: dict, weights: list[str]) -> list[dict]:
                            (f"alone_{w}", "alone_student", "5.3 alone - student alone")):
             for key in keys:
                 if (c := contrast(results, a, b, key)) is not None:
-                    out.append({"weight": WEIGHTS[w], "contrast": what, **c})
-        if w != "w0" and (c := contrast(results, f"rl_warm_start_{w}", "rl_warm_start_w0", "initial_cost")):
-            out.append({"weight": WEIGHTS[w], "contrast": "dose: W - (W = 0), warm start", **c})
+                    out.append({"weight": WEIGHTS[w], "arm": w, "contrast": what, **c})
+        dose = w not in ("w0", "scratch_w0.1")  # the scratch run has no W = 0 twin from scratch
+        if dose and (c := contrast(results, f"rl_warm_start_{w}", "rl_warm_start_w0", "initial_cost")):
+            out.append({"weight": WEIGHTS[w], "arm": w, "contrast": "dose: W - (W = 0), warm start", **c})
     for a, b, what in (("rl_warm_start_student", "naive_warm_start", "student warm start - naive"),):
         for key in keys:
             if (c := contrast(results, a, b, key)) is not None:
-                out.append({"weight": None, "contrast": what, **c})
+                out.append({"weight": None, "arm": None, "contrast": what, **c})
     for w in weights:  # by term, medians of the paired differences (cost_gap.md's statistic)
         for b in ("naive_warm_start", "rl_warm_start_student"):
             for prefix in ("initial_term_", "rollout_term_"):
                 for t in STATE_TERMS:
                     if (c := contrast(results, f"rl_warm_start_{w}", b, prefix + t)) is not None:
-                        out.append({"weight": WEIGHTS[w], "contrast": f"by term, 5.3 warm start - {b}", **c})
+                        out.append({"weight": WEIGHTS[w], "arm": w, "contrast": f"by term, 5.3 warm start - {b}",
+                                    **c})
     return out
 
 
@@ -148,7 +157,7 @@ def manipulation_rows(man: dict, weights: list[str], runs: list[str]) -> list[di
         if not mine:
             continue
         d = paired_difference(np.stack(mine), student[None])
-        rows.append({"weight": WEIGHTS[w], "policies": len(mine), "c (5.3 alone)": float(np.mean(mine)),
+        rows.append({"weight": WEIGHTS[w], "arm": w, "policies": len(mine), "c (5.3 alone)": float(np.mean(mine)),
                      "c (student alone)": float(student.mean()), "5.3 - student": d["mean"], "ci95": d["ci95"]})
     return rows
 
@@ -194,10 +203,10 @@ def main() -> None:
     man = manipulation(args.runs, args.policies, args)
     man_rows = manipulation_rows(man, weights, args.runs)
     write_json({"contrasts": rows, "manipulation": man_rows, **provenance()}, args.out / "contrasts.json", indent=1)
-    table = [{"W": "-" if r["weight"] is None else f"{r['weight']:g}", "contrast": r["contrast"], "quantity": r["key"],
+    table = [{"W": "-" if r["arm"] is None else arm_label(r["arm"]), "contrast": r["contrast"], "quantity": r["key"],
               "mean [95 % CI]": fmt(r, 3 if r["key"] in ("rl_reward", "survived") else 1),
               "median of differences": f"{r['median']:+.2f}"} for r in rows]
-    table += [{"W": f"{r['weight']:g}", "contrast": "manipulation: c alone, 5.3 - student", "quantity": "c",
+    table += [{"W": arm_label(r["arm"]), "contrast": "manipulation: c alone, 5.3 - student", "quantity": "c",
                "mean [95 % CI]": fmt({"mean": r["5.3 - student"], "ci95": r["ci95"]}, 2),
                "median of differences": "-"} for r in man_rows]
     write_table(table, ["W", "contrast", "quantity", "mean [95 % CI]", "median of differences"],

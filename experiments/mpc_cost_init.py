@@ -1,4 +1,5 @@
-"""Networks for ``train --init-from`` from a distilled student: PPO in the MPC's horizon space starts where DAgger ended.
+"""Networks for ``train --init-from`` from a distilled student: PPO in the MPC's horizon space starts where DAgger
+ended.
 
 A student (``learning.student``) is an observation normaliser and an MLP whose output, times ``output_scale`` (x10
 on the spline curvature parameters), is the encoded horizon in raw action units; rsl-rl's actor (``MLPModel``) is
@@ -109,7 +110,8 @@ def main(argv: list[str] | None = None) -> Path:
     tmp = args.out.with_name(args.out.name + ".tmp")
     torch.save(ckpt, tmp)
     os.replace(tmp, args.out)
-    print(f"wrote {args.out}: actor from {args.student} ({ckpt['num_actions']} outputs), critic from {args.critic_from}")
+    print(f"wrote {args.out}: actor from {args.student} ({ckpt['num_actions']} outputs), "
+          f"critic from {args.critic_from}")
     return args.out
 
 

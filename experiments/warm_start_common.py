@@ -35,7 +35,7 @@ from pathlib import Path
 import torch
 
 from dls_quadruped.cli import ArgumentParser
-from dls_quadruped.closed_loop.controllers import ControllerConfig
+from dls_quadruped.closed_loop.controller_config import NEEDS_STUDENT, ControllerConfig
 from dls_quadruped.closed_loop.episodes import commands, run_controllers
 from dls_quadruped.closed_loop.metrics import summarize
 from dls_quadruped.core.json_io import write_json
@@ -198,7 +198,7 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
                 out[cell.name] = {"skipped": why}
                 print(f"[{args.out.name}] {cell.name}: skipped ({why})", flush=True)
                 continue
-        elif cell.controller in ("rl_warm_start", "student"):
+        elif cell.controller in NEEDS_STUDENT:
             if cell.student:
                 student = Path(cell.student) if Path(cell.student).is_file() else None
                 why = f"no student {cell.student}"

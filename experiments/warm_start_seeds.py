@@ -13,11 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
+from dls_quadruped.closed_loop.controller_config import MPC_CONTROLLERS, NEEDS_STUDENT
 from dls_quadruped.mpc.config import SamplerConfig
 from experiments.warm_start_common import Cell
 
 SEED_STUDENTS = 3
 """Training seeds per setting under ``--seed-students`` (students as seeds)."""
+STUDENT_MPC = tuple(c for c in MPC_CONTROLLERS if c in NEEDS_STUDENT)
+"""The MPC controllers a student warm-starts: their cells run once per training seed's student."""
 
 
 def seed_student_path(students: Path, sampler: dict, k: int) -> Path:
@@ -30,15 +33,15 @@ def seed_student_path(students: Path, sampler: dict, k: int) -> Path:
 
 def seed_student_cells(cells: list[Cell], students: Path, only: list[str] | None = None,
                        seeds: int = SEED_STUDENTS) -> tuple[list[Cell], dict[str, list[str]]]:
-    """Students as seeds: every ``rl_warm_start`` cell of one student becomes one cell per training seed,
-    ``<name>_seed<k>`` (:func:`seed_student_path`), the others stay. Returns (cells to run, {row cell: its seeds'
-    cells}), to merge with :func:`merge_seed_rows` after :func:`run_cells`. The students of the cells selected
-    (``only``: those named; None: all) must exist."""
+    """Students as seeds: every cell of a student-warm-started MPC (:data:`STUDENT_MPC`) of one student becomes
+    one cell per training seed, ``<name>_seed<k>`` (:func:`seed_student_path`), the others stay. Returns (cells
+    to run, {row cell: its seeds' cells}), to merge with :func:`merge_seed_rows` after :func:`run_cells`. The
+    students of the cells selected (``only``: those named; None: all) must exist."""
     from dls_quadruped.cli import UserError
 
     out, rows, missing = [], {}, []
     for c in cells:
-        if c.controller != "rl_warm_start" or c.students or c.student:
+        if c.controller not in STUDENT_MPC or c.students or c.student:
             out.append(c)
             continue
         rows[c.name] = []

@@ -33,6 +33,13 @@ POLICY = REPO / "docs" / "policies" / "base_actor.pt"
     ("rewards.flat_orientation=null", "rewards.flat_orientation", None),
     ("scene.terrain_regions=false", "scene.terrain_regions", False),
     ("agent.run_name=a=b", "agent.run_name", "a=b"),  # the first '=' splits
+    # exponent notation is a float, as in Python (PyYAML alone reads 1e-3, 5E4 and 1.0e3 as strings)
+    ("agent.algorithm.learning_rate=1e-3", "agent.algorithm.learning_rate", 0.001),
+    ("agent.algorithm.learning_rate=1.0e-3", "agent.algorithm.learning_rate", 0.001),
+    ("agent.algorithm.learning_rate=-2.5E4", "agent.algorithm.learning_rate", -25000.0),
+    ("agent.algorithm.learning_rate=.5e+1", "agent.algorithm.learning_rate", 5.0),
+    ("agent.run_name='1e-3'", "agent.run_name", "1e-3"),  # quoted: a string
+    ("agent.run_name=1e-3x", "agent.run_name", "1e-3x"),
 ])
 def test_set_pair_parses_the_value_as_yaml(text, key, value):
     parsed = set_pair(text)

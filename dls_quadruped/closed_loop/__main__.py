@@ -171,7 +171,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--com-height", type=float, default=None,
                    help="CoM height reference above the ground [m] in [0.1, 0.6] of the MPC controllers and of every "
                         "controller's initial cost (default ~0.324, mpc.srbd.com_height_reference)")
-    p.add_argument("--kernel", default="cpp", choices=("cpp", "fast", "reference"))
+    p.add_argument("--kernel", default="cpp", choices=("cpp", "fast", "reference", "warp"),
+                   help="the MPC's cost kernel (cpp on a CUDA device runs warp: mpc.sampler.resolved_kernel)")
+    p.add_argument("--device", default="cpu", help="the env's torch device (cuda with --backend cuda)")
+    p.add_argument("--backend", default="cpu", choices=("cpu", "warp-cpu", "cuda"),
+                   help="the simulator (sim/registry.py): cpu (MuJoCo), warp-cpu (MuJoCo Warp on Warp's CPU "
+                        "device, the GPU code path), cuda (MuJoCo Warp on the GPU)")
     p.add_argument("--threads", type=positive_int, default=1, help="torch / MPC kernel threads")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--num-workers", type=int, default=0,
@@ -295,7 +300,8 @@ def main(argv: list[str] | None = None) -> dict:
     t0 = time.perf_counter()
     try:
         traces = run_controllers(configs, cmds, args.seconds, args.seed, args.num_workers, args.record_robots,
-                                 args.sampler_seeds, args.scenario, heights, overrides or None, args.push_speed)
+                                 args.sampler_seeds, args.scenario, heights, overrides or None, args.push_speed,
+                                 device=args.device, backend=args.backend)
     except (ValueError, FileNotFoundError) as err:  # student/MPC mismatch, wrong observation size, bad file
         raise UserError(str(err)) from None
     summaries, paired = summarize_all(traces)
@@ -308,6 +314,7 @@ def main(argv: list[str] | None = None) -> dict:
                      "push_speed": args.push_speed,
                      "samples": args.samples, "horizon": args.horizon, "dt": args.dt, "encoding": args.encoding,
                      "optimise": list(args.optimise), "naive_share": args.naive_share, "kernel": args.kernel,
+                     "device": args.device, "backend": args.backend,
                      "naive_gait": args.naive_gait, "com_height": args.com_height,
                      "sampler_seeds": args.sampler_seeds,
                      "threads": args.threads, "seed": args.seed, "policy": str(args.policy),

@@ -18,9 +18,9 @@ from dls_quadruped.envs.controller import EnvController
 
 @dataclass
 class SolveRecord:
-    """One batched MPC solve (B robots). step_costs, step_input_costs: (B, N); state_terms: (B, 9); the rest (B,).
-    best_cost is the full J of the chosen sample; input_cost its foothold-deviation part; state_terms its state
-    part by term (``MPCResult.state_terms``, NaN on a solve without ``record_step_costs``)."""
+    """One batched MPC solve (B robots), on the MPC's device. step_costs, step_input_costs: (B, N); state_terms:
+    (B, 9); the rest (B,). best_cost is the full J of the chosen sample; input_cost its foothold-deviation part;
+    state_terms its state part by term (``MPCResult.state_terms``, NaN on a solve without ``record_step_costs``)."""
 
     best_cost: torch.Tensor
     input_cost: torch.Tensor

@@ -18,11 +18,11 @@ from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.inputs import GROUNDS
 from dls_quadruped.mpc.warm_start import check_shares
 
-NEEDS_STUDENT = ("rl_warm_start", "student")
+NEEDS_STUDENT = ("rl_warm_start", "student", "rl_gait_naive_forces", "naive_gait_rl_forces")
 """The controllers that query a distilled student."""
 NEEDS_POLICY = ("rl_baseline",)
 """The controllers that query the RL expert."""
-MPC_CONTROLLERS = ("rl_warm_start", "naive_warm_start")
+MPC_CONTROLLERS = ("rl_warm_start", "naive_warm_start", "rl_gait_naive_forces", "naive_gait_rl_forces")
 """The controllers that run the sampling MPC (its settings and sampler seeds apply to them)."""
 
 

@@ -13,6 +13,9 @@ name                   class                                         command, ra
 ``student``            :class:`StudentPolicy`                        its horizon's first action, 50 Hz
 =====================  ============================================  =======================================
 
+Two more cross the RL and naive warm starts (``closed_loop/split_warm_start.py``): ``rl_gait_naive_forces`` and
+``naive_gait_rl_forces``, the student's gait and footholds with the naive forces and the other way round.
+
 * ``rl_warm_start``: the distilled student(s) warm-start the sampling MPC (``closed_loop/mpc_controllers.py``);
 * ``naive_warm_start``: the model-based baseline (``mpc.baseline``): periodic trot, heuristic footholds (eq.
   2.2.4), MPC warm-started by its previous solution only;
@@ -38,6 +41,7 @@ from dls_quadruped.closed_loop.mpc_controllers import (
     RLWarmStartMPC,
 )
 from dls_quadruped.closed_loop.registry import CONTROLLER_REGISTRY
+from dls_quadruped.closed_loop.split_warm_start import NaiveGaitStudentForcesMPC, StudentGaitNaiveForcesMPC
 from dls_quadruped.control.latent_action import ACTION_DIM
 
 __all__ = ["CONTROLLERS", "Controller", "ControllerConfig", "ExpertPolicy", "MPCController", "NaiveWarmStartMPC",
@@ -98,6 +102,10 @@ CONTROLLER_REGISTRY.register("naive_warm_start", NaiveWarmStartMPC,
                              "the model-based baseline: trot, heuristic footholds, MPC warm-started by its last plan")
 CONTROLLER_REGISTRY.register("rl_baseline", ExpertPolicy, "the RL expert alone")
 CONTROLLER_REGISTRY.register("student", StudentPolicy, "the student alone, the first action of its horizon")
+CONTROLLER_REGISTRY.register("rl_gait_naive_forces", StudentGaitNaiveForcesMPC,
+                             "the MPC warm-started by the student's gait and footholds and the naive forces")
+CONTROLLER_REGISTRY.register("naive_gait_rl_forces", NaiveGaitStudentForcesMPC,
+                             "the MPC warm-started by the naive trot and heuristic footholds and the student's forces")
 CONTROLLERS = CONTROLLER_REGISTRY.names()
 """Controller names (thesis 7.3.1 plus the student alone), in registration order."""
 

@@ -139,8 +139,10 @@ def terrain_of(env) -> dict:
 def run_controllers(configs: list[ControllerConfig], cmds: np.ndarray, seconds: float, seed: int,
                     num_workers: int, record_robots: int = 1, sampler_seeds: int = 1,
                     scenario: str = "simple", heights: tuple[float, ...] = STAIRS_HEIGHTS,
-                    overrides: dict | None = None, push_speed: float | None = None) -> dict[str, ClosedLoopTraces]:
-    """Each controller in a fresh env (same seed, scheduled episodes, ``scenario``); traces by name. MPC
+                    overrides: dict | None = None, push_speed: float | None = None, device: str = "cpu",
+                    backend: str = "cpu") -> dict[str, ClosedLoopTraces]:
+    """Each controller in a fresh env (same seed, scheduled episodes, ``scenario``; ``device`` and ``backend`` as in
+    :func:`make_env`); traces by name. MPC
     controllers play every episode with ``sampler_seeds`` noise streams (``ClosedLoopTraces.replicas``);
     on a terrain scenario the traces carry each robot's terrain (``.terrain``, :func:`terrain_of`), on
     ``stairs`` with ``terrain["stairs"]`` = {"heights", "steps"} (the summary's per-height success); ``overrides``:
@@ -148,8 +150,8 @@ def run_controllers(configs: list[ControllerConfig], cmds: np.ndarray, seconds: 
     out = {}
     for cfg in configs:
         replicas = sampler_seeds if cfg.uses_mpc else 1
-        env = make_env(cmds, seconds, seed, num_workers, replicas, scenario, heights, overrides=overrides,
-                       push_speed=push_speed)
+        env = make_env(cmds, seconds, seed, num_workers, replicas, scenario, heights, device=device, backend=backend,
+                       overrides=overrides, push_speed=push_speed)
         try:
             terrain = terrain_of(env) if scenario not in ("simple", "pushes") else None
             if scenario == "stairs":

@@ -150,34 +150,35 @@ def _solves(controller: Controller, name: str):
     return lambda env: torch.stack([getattr(r, name) for r in controller.step_records], dim=1)
 
 
-def _cpu(t: torch.Tensor) -> torch.Tensor:
-    return t.detach().cpu()
-
-
 def _height_under_base(env) -> torch.Tensor:
     """(E,) [m] terrain height under each base."""
-    return _cpu(env.scene.terrain.height_at(env.state.base_pos_w[:, 0], env.state.base_pos_w[:, 1]))
+    return env.scene.terrain.height_at(env.state.base_pos_w[:, 0], env.state.base_pos_w[:, 1])
 
 
 def _vel_error(env) -> torch.Tensor:
     """(E,) [m/s] |v_xy - cmd_xy|, base frame."""
-    return torch.linalg.vector_norm(_cpu(base_velocity(env))[:, :2] - _cpu(env.command_manager.command)[:, :2], dim=-1)
+    return torch.linalg.vector_norm(base_velocity(env)[:, :2] - env.command_manager.command[:, :2], dim=-1)
 
 
 def _qpos(robots: int):
     """A probe of the first ``robots`` robots' (R, 19) generalized positions (the video)."""
-    return lambda env: _cpu(torch.cat([env.state.base_pos_w[:robots], env.state.base_quat_w[:robots],
-                                       env.state.joint_pos[:robots]], dim=1))
+    return lambda env: torch.cat([env.state.base_pos_w[:robots], env.state.base_quat_w[:robots],
+                                  env.state.joint_pos[:robots]], dim=1)
 
 
 PROBES = {
-    "base_vel": lambda env: _cpu(base_velocity(env)),
+    "base_vel": base_velocity,
     "ground_z": _height_under_base,
     "vel_error": _vel_error,
-    "power": lambda env: _cpu(motor_power(env.state.joint_torque, env.state.joint_vel)),
-    "speed": lambda env: _cpu(torch.linalg.vector_norm(env.state.base_lin_vel_w[:, :2], dim=-1)),
+    "power": lambda env: motor_power(env.state.joint_torque, env.state.joint_vel),
+    "speed": lambda env: torch.linalg.vector_norm(env.state.base_lin_vel_w[:, :2], dim=-1),
 }
-"""What the loop reads after every step, (E, ...) per robot (kept where the state is the episode's)."""
+"""What the loop reads after every step, (E, ...) per robot on the env's device (kept where the state is the
+episode's; the recorder reads them back once)."""
+
+SYNC_EVERY = 25
+"""Env steps (0.5 s) between the closed loop's reads of whether every episode has ended, on a device backend (every
+step on the ``cpu`` backend: ``envs.recorder.record``'s ``sync_every``)."""
 
 
 SOLVE_FIELDS = ("best_cost", "input_cost", "initial_cost", "step_costs", "step_input_costs", "state_terms",
@@ -204,7 +205,9 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     Every metric is masked (NaN) after a robot's episode ended, so once every robot's episode has ended
     the remaining steps could change nothing but the video's frames: with ``stop_when_all_ended`` the
     loop stops there (a survival cell whose robots all fell early no longer simulates the rest of the
-    15 s); the traces keep their ``num_steps`` rows (NaN as before) and the video's last frame is held.
+    15 s); the traces keep their ``num_steps`` rows (NaN as before) and the video's last frame is held. On a
+    device backend (not ``cpu``) the loop looks every ``SYNC_EVERY`` steps (so it may stop up to 24 steps later,
+    masked ones): nothing else is read back before the recorder's one read-back at the end.
 
     ``timing``: ``wall`` (the loop), ``kernel`` (MPC cost kernel), ``solve`` (whole MPC solves incl.
     the kernel, warm starts, decode), ``policy`` (network queries), ``probe`` (initial-cost metric), and
@@ -220,7 +223,7 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
 
     def initial_cost_terms(env) -> torch.Tensor:
         tic = time.perf_counter()
-        terms = probe.terms(env.state, env.command_manager.command.detach().cpu()).detach().cpu()
+        terms = probe.terms(env.state, env.command_manager.command)
         t_probe[0] += time.perf_counter() - tic
         return terms
 
@@ -228,8 +231,9 @@ def run_closed_loop(env, controller: Controller, num_steps: int | None = None, r
     if controller.cfg.uses_mpc:
         after.update({f"solve.{name}": _solves(controller, name) for name in SOLVE_FIELDS})
     policy0 = controller.prepare_seconds
+    sync_every = 1 if env.scene.cfg.backend == "cpu" else SYNC_EVERY
     rec = record(env, controller, after, num_steps, before={"initial_cost_terms": initial_cost_terms},
-                 stop_when_all_ended=stop_when_all_ended, desc=f"{controller.name}, {n} robots")
+                 stop_when_all_ended=stop_when_all_ended, desc=f"{controller.name}, {n} robots", sync_every=sync_every)
     terms = rec.before["initial_cost_terms"]
     qpos = rec.after["qpos"].astype(np.float32, copy=False)
     qpos[rec.steps:] = qpos[rec.steps - 1]  # the video holds its last frame

@@ -21,8 +21,8 @@ manager applies: the MPC's latent-action configuration is the env's, ``Controlle
 through the env's action path (``env.apply_action``), so the observation's last action, the action rewards and
 the terrain height of the touch-down targets see what was applied; with ``references=True`` the solve's world
 references (``MPCResult.foot_target_w``, ``force_w``) go straight to the backend instead. The MPC runs where its
-kernel runs (``cpp``: the CPU; the torch kernels: the env's device, unless ``device`` says otherwise); inputs are
-moved there.
+kernel runs (``cpp``: the CPU, or Warp's kernel on the env's device when that is CUDA, ``sampler.resolved_kernel``;
+the torch and Warp kernels: the env's device, unless ``device`` says otherwise); inputs are moved there.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ from dls_quadruped.mpc import warm_start
 from dls_quadruped.mpc.baseline import ModelBasedBaseline, optimised
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.inputs import ground_inputs, heuristic_footholds_h, mpc_inputs
-from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC
+from dls_quadruped.mpc.sampler import MPCResult, SamplingMPC, resolved_kernel
 
 
 def mpc_physics_steps(cfg: ControllerConfig, env) -> int:
@@ -75,6 +75,10 @@ class MPCController(Controller):
             action (``env.apply_action``).
         device: where the MPC computes; None: the CPU for the ``cpp`` kernel, else the env's device.
 
+    Every solve's record (``SolveRecord``) stays where the MPC computes: nothing is read back to the host per solve
+    (the episode recorder reads the records once, when its loop ends); the first action is finite by construction
+    (``MPCResult.fallback``), so the env does not read it back to check it (``finite_commands``).
+
     Attributes:
         solves_per_step: solves per env step; mpc_decimation: physics steps each is held for.
         result: the last solve's ``MPCResult``.
@@ -82,6 +86,7 @@ class MPCController(Controller):
 
     mpc: SamplingMPC
     sampler_cfg: SamplerConfig
+    finite_commands = True
 
     def __init__(self, cfg: ControllerConfig, env, *, references: bool = False, device: str | None = None):
         super().__init__(cfg, env, physics_steps=mpc_physics_steps(cfg, env))
@@ -89,8 +94,9 @@ class MPCController(Controller):
         self.solves_per_step = self.commands_per_step
         self.references = references
         self.baseline_cfg = self.cfg.baseline_config()
-        if device is None:  # the C++ kernel computes on the CPU; the torch kernels where the env's tensors are
-            device = "cpu" if self.cfg.sampler.kernel == "cpp" else env.device
+        if device is None:  # the C++ kernel computes on the CPU; the others (Warp's for cpp on CUDA) on the env's
+            kernel = resolved_kernel(self.cfg.sampler.kernel, torch.device(env.device))
+            device = "cpu" if kernel == "cpp" else env.device
         self.device = torch.device(device)
         self.height_fn = env.scene.terrain.height_at if self.cfg.ground == "terrain" else None
         self.result: MPCResult | None = None
@@ -102,6 +108,10 @@ class MPCController(Controller):
 
     def reset(self, env_ids: torch.Tensor) -> None:
         self.mpc.reset(env_ids.to(self.device))
+
+    def reset_where(self, env_mask: torch.Tensor) -> None:
+        """:meth:`reset` of the robots of a (B,) bool mask by masked updates (``SamplingMPC.reset``): no host read."""
+        self.mpc.reset(env_mask.to(self.device))
 
     def prepare(self, obs: TensorDict) -> None:
         self.step_records = []
@@ -117,8 +127,8 @@ class MPCController(Controller):
         keywords (``ground_inputs``), for command ``substep`` of the env step."""
 
     def act(self, obs: TensorDict, substep: int) -> Command:
-        """One solve (its step costs recorded every ``horizon_cost_every``-th), recorded in ``step_records``;
-        returns its first action as a raw action, or its world references."""
+        """One solve (its step costs recorded every ``horizon_cost_every``-th), recorded in ``step_records`` (on the
+        MPC's device); returns its first action as a raw action, or its world references."""
         self.mpc.record_step_costs = self._solves % self.cfg.horizon_cost_every == 0
         self._solves += 1
         tic = time.perf_counter()
@@ -128,11 +138,10 @@ class MPCController(Controller):
         self.solve_seconds += time.perf_counter() - tic
         self.result = result
         self.step_records.append(SolveRecord(
-            best_cost=result.best_cost.cpu(), input_cost=result.best_input_cost.cpu(),
-            initial_cost=result.initial_cost.cpu(), step_costs=result.step_costs.cpu(),
-            step_input_costs=result.step_input_costs.cpu(), state_terms=result.state_terms.cpu(),
-            warm_start_index=result.warm_start_index.cpu(),
-            fallback=result.fallback.cpu(), student_fallback=~torch.stack(self._student_ok).all(dim=0).cpu()))
+            best_cost=result.best_cost, input_cost=result.best_input_cost, initial_cost=result.initial_cost,
+            step_costs=result.step_costs, step_input_costs=result.step_input_costs, state_terms=result.state_terms,
+            warm_start_index=result.warm_start_index, fallback=result.fallback,
+            student_fallback=~torch.stack(self._student_ok).all(dim=0)))
         if self.references:
             return References(result.f, result.d, result.foot_target_w, result.force_w)
         action = LatentAction(result.f, result.d, result.p_h, result.F_h)
@@ -191,7 +200,8 @@ class RLWarmStartMPC(MPCController):
 
     def _student_warm_start(self, substep: int, k: int = 0) -> torch.Tensor:
         """Student k's horizon shifted by ``substep`` MPC periods (as the naive warm start is shifted);
-        robots whose student output was not finite get the naive warm start (or the nominal trot)."""
+        robots whose student output was not finite get the naive warm start (or the nominal trot), chosen by
+        ``torch.where`` on every solve (no host read of the flags)."""
         ws = self._student_ws[k]
         if substep:
             enc = self.sampler_cfg.encoding
@@ -199,10 +209,8 @@ class RLWarmStartMPC(MPCController):
             _, contact = gait.contact_sequence(self._query_phase, f, d, self.sampler_cfg.dt, enc.horizon)
             for _ in range(substep):
                 ws = warm_start.naive(ws, self.sampler_cfg, contact)
-        if not bool(self._student_ok[k].all()):
-            naive = self.mpc.naive_warm_start(self.default)
-            ws = torch.where(self._student_ok[k][:, None], ws, naive)
-        return ws
+        naive = self.mpc.naive_warm_start(self.default)
+        return torch.where(self._student_ok[k][:, None], ws, naive)
 
     def solve(self, state: RobotState, cmd: torch.Tensor, ground: dict, substep: int) -> MPCResult:
         if self._student_ws is None:

@@ -24,3 +24,11 @@ def constant_cache(fn):
             return fn(*args, **kwargs)
 
     return build
+
+
+@constant_cache
+def constant_tensor(values: tuple, dtype: torch.dtype, device: torch.device | str) -> torch.Tensor:
+    """``torch.tensor(values, dtype=dtype, device=device)`` built once per arguments (``values`` a tuple, nested
+    for more dimensions): a read-only constant that a function called every step would otherwise upload from the
+    host every call (``core/sync_probe.py``)."""
+    return torch.tensor(values, dtype=dtype, device=device)

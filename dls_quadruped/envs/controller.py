@@ -7,7 +7,10 @@ A controller maps the env's observation and robot state to a command at its own 
 * ``prepare(obs)``: once per env step, before its commands (a network query on the observation);
 * ``act(obs, substep) -> Command``: command ``substep`` of the env step, from the env's state at that moment:
   a raw action (B, A) for the action manager, or world :class:`References` straight to the backend;
-* ``reset(env_ids)``: the env restarted these robots' episodes (drop their memory).
+* ``reset(env_ids)``: the env restarted these robots' episodes (drop their memory); ``reset_where(env_mask)``:
+  the same for a (B,) bool mask, what the episode recorder calls after every step (a controller whose memory is
+  on the device overrides it to read nothing back; the default reads the mask and calls ``reset``, and reads
+  nothing at all when ``reset`` is not overridden).
 
 :func:`step` is the one env step under a controller (``envs/recorder.record`` calls it every step):
 
@@ -15,7 +18,9 @@ A controller maps the env's observation and robot state to a command at its own 
   finite is zeroed and its robot terminated as ``nonfinite_action``), as for any policy;
 * otherwise ``env.step_controlled(physics)``, ``physics`` sending the commands one after the other, each held for
   ``physics_steps`` physics steps: a raw action through ``env.apply_action`` (``replan`` after the first, so the
-  action terms see the env step's change), references through ``env.apply_references``.
+  action terms see the env step's change; ``finite`` when the controller's ``finite_commands`` says its actions
+  are finite by construction, so the env does not read them back to check), references through
+  ``env.apply_references``.
 
 Implemented by the eval suite's policies (:class:`PolicyController`), the closed loop's controllers
 (``closed_loop/controllers.py``: the RL expert, the student, the RL-warm-started and the naive-warm-started MPC;
@@ -63,12 +68,15 @@ class EnvController(ABC):
 
     Attributes:
         prepare_seconds, act_seconds: [s] spent in :meth:`prepare` and :meth:`act` under :func:`step`.
+        finite_commands: its raw actions are finite by construction (the sampling MPC's), so ``env.apply_action``
+            does not check them (a host read); False: checked, a non-finite entry raises.
 
     Raises:
         ValueError: ``physics_steps`` is not a positive int dividing ``env.decimation``.
     """
 
     name = "controller"
+    finite_commands = False
 
     def __init__(self, env, physics_steps: int | None = None):
         if physics_steps is not None and (isinstance(physics_steps, bool) or not isinstance(physics_steps, int)
@@ -93,6 +101,16 @@ class EnvController(ABC):
     def reset(self, env_ids: torch.Tensor) -> None:
         """The env restarted the episodes of these (n,) robots: forget what the controller kept of them."""
 
+    def reset_where(self, env_mask: torch.Tensor) -> None:
+        """:meth:`reset` of the robots of the (B,) bool ``env_mask`` (none may be set). Here: nothing when the
+        subclass keeps no memory (``reset`` not overridden), else one host read of the mask and ``reset`` of its
+        robots if any; a controller whose memory is on the device overrides this with masked updates."""
+        if type(self).reset is EnvController.reset:
+            return
+        ids = torch.nonzero(env_mask.detach().cpu()).flatten()
+        if ids.numel():
+            self.reset(ids)
+
     def prepare(self, obs: TensorDict) -> None:
         """Once per env step, before its commands: what the step's commands need from the observation."""
 
@@ -106,11 +124,11 @@ class EnvController(ABC):
         return step(self, obs)
 
 
-def _send(env, command: Command, num_physics_steps: int, replan: bool) -> None:
+def _send(env, command: Command, num_physics_steps: int, replan: bool, finite: bool = False) -> None:
     if isinstance(command, References):
         env.apply_references(command.freq, command.duty, command.p_td_w, command.F_w, num_physics_steps)
     elif isinstance(command, torch.Tensor):
-        env.apply_action(command, num_physics_steps, replan=replan)
+        env.apply_action(command, num_physics_steps, replan=replan, finite=finite)
     else:
         raise TypeError(f"a controller's act must return a raw action tensor or References, got "
                         f"{type(command).__name__}")
@@ -138,7 +156,7 @@ def step(controller: EnvController, obs: TensorDict) -> tuple[TensorDict, torch.
 
     def physics() -> None:
         for j in range(controller.commands_per_step):
-            _send(env, act(j), controller.physics_steps, replan=j > 0)
+            _send(env, act(j), controller.physics_steps, replan=j > 0, finite=controller.finite_commands)
 
     return env.step_controlled(physics)
 

@@ -200,15 +200,15 @@ class LocomotionEnv(VecEnv):
         self.scene.sim.step(self.decimation)
         return self._finish_step(nonfinite)
 
-    def apply_action(self, raw: torch.Tensor, num_physics_steps: int, replan: bool = False) -> RobotState:
+    def apply_action(self, raw: torch.Tensor, num_physics_steps: int, replan: bool = False, finite: bool = False):
         """Inside :meth:`step_controlled`: send a (B, 28) raw action through the action manager, run
-        ``num_physics_steps`` physics steps and refresh :attr:`state`; returns it. A controller that re-plans
-        several times per policy step (the closed-loop MPC at 100 Hz) calls this once per plan, ``replan=True``
+        ``num_physics_steps`` physics steps and refresh :attr:`state`; returns it (``RobotState``). A controller that
+        re-plans several times per policy step (the closed-loop MPC at 100 Hz) calls this once per plan, ``replan=True``
         after the first, so that the action manager's previous action stays the one before the policy step (the
-        action-rate terms see the step's change, as for a policy). Raises ``RuntimeError`` outside
-        ``step_controlled`` or past the policy step's physics steps."""
+        action-rate terms see the step's change, as for a policy). ``finite``: the caller guarantees a finite action
+        (not read back to check). Raises ``RuntimeError`` outside ``step_controlled`` or past its physics steps."""
         return self._advance("apply_action", num_physics_steps, lambda: self.action_manager.process(
-            raw.to(self.device), replan=replan, num_physics_steps=num_physics_steps))
+            raw.to(self.device), replan=replan, finite=finite, num_physics_steps=num_physics_steps))
 
     def apply_references(self, freq: torch.Tensor, duty: torch.Tensor, p_td_w: torch.Tensor, F_w: torch.Tensor,
                          num_physics_steps: int) -> RobotState:

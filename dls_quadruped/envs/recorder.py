@@ -18,6 +18,11 @@ step, and keeps, per step k and env e:
 * ``fell[e]``: the episode ended by a termination other than a time-out; ``length[e]``: its steps;
   ``episode_return[e]``: the env's raw reward summed in float64 over the episode's steps (the ending one too).
 
+All of it is kept in (T, E, ...) buffers where the values are (the env's device) and read back once, when the
+loop ends: a step reads nothing back to the host but, every ``sync_every``-th step, whether every episode has
+ended, and the ended robots' ids when ``on_reset`` is given. A policy's captured inputs and actions go to the host
+every step (a data set can outgrow the device).
+
 Given a ``policy`` function instead of a controller, the loop applies ``env.step(policy(obs[obs_group]))`` and can
 keep the policy's input and action of some envs every step (``capture``): what distillation records of the
 expert. ``until`` ends the loop once a step's action is chosen and before it is applied (the data collection
@@ -102,19 +107,25 @@ class EpisodeRecord:
         return np.where(keep, values, fill).astype(values.dtype, copy=False)
 
 
-def _store(out: dict[str, np.ndarray], name: str, k: int, steps: int, value: torch.Tensor) -> None:
-    """``out[name][k] = value`` (on the host), allocating (steps, *value.shape) zeros of its dtype at first."""
-    value = value.detach().cpu().numpy()
+def _store(out: dict[str, torch.Tensor], name: str, k: int, steps: int, value: torch.Tensor) -> None:
+    """``out[name][k] = value`` where the value is (its device), allocating (steps, *value.shape) zeros of its dtype
+    there at first: no host read per step; :func:`_host` reads the buffers back once."""
+    value = value.detach()
     if name not in out:
-        out[name] = np.zeros((steps, *value.shape), dtype=value.dtype)
-    out[name][k] = value
+        out[name] = torch.zeros((steps, *value.shape), dtype=value.dtype, device=value.device)
+    out[name][k].copy_(value)
+
+
+def _host(out: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
+    """The buffers of :func:`_store` on the host (one read each)."""
+    return {name: buf.cpu().numpy() for name, buf in out.items()}
 
 
 def record(env, controller: EnvController | None = None, after: dict[str, Probe] | None = None,
            num_steps: int | None = None, *, before: dict[str, Probe] | None = None, stop_when_all_ended: bool = False,
            on_reset: Callable[[torch.Tensor], None] | None = None, desc: str | None = None,
            policy: PolicyFn | None = None, obs_group: str | None = None, capture: bool | slice = False,
-           until: Callable[[], bool] | None = None, no_grad: bool = False) -> EpisodeRecord:
+           until: Callable[[], bool] | None = None, no_grad: bool = False, sync_every: int = 1) -> EpisodeRecord:
     """Run every env of ``env`` for ``num_steps`` steps (default: ``env.max_episode_length``) from its current
     state under ``controller`` (acting in ``env``; or ``policy``), reading the probes ``before`` and ``after``
     every step, in ``torch.inference_mode`` (``torch.no_grad`` with ``no_grad``).
@@ -123,10 +134,13 @@ def record(env, controller: EnvController | None = None, after: dict[str, Probe]
         env: exposes ``num_envs``, ``step_dt``, ``max_episode_length``, ``get_observations()`` and
             ``command_manager.command`` (E, 3); with ``policy``, ``step(actions)`` too.
         controller: a controller of ``env`` (``envs/controller.py``), one ``envs.controller.step`` per step and
-            its ``reset`` at every restart; exactly one of ``controller`` and ``policy``.
-        stop_when_all_ended: stop once every env's first episode has ended: the rest would be masked anyway.
-        on_reset: called, after ``controller.reset``, with the (n,) ids of the envs that ended at a step (the env
-            restarted them); neither is called after the step that ends the last episode when the loop stops.
+            its ``reset_where(done)`` after every step (masked: the robots that ended restart); exactly one of
+            ``controller`` and ``policy``.
+        stop_when_all_ended: stop once every env's first episode has ended: the rest would be masked anyway (seen
+            at the ``sync_every``-th steps).
+        on_reset: called, after ``controller.reset_where``, with the (n,) ids (on the host) of the envs that ended
+            at a step (the env restarted them): a host read every step; neither is called after the step that ends
+            the last episode when the loop stops.
         desc: the progress bar's label (default "E episodes").
         policy: (E, obs_dim) ``obs[obs_group]`` (the TensorDict without ``obs_group``) -> (E, act_dim) actions,
             applied with ``env.step``.
@@ -137,10 +151,14 @@ def record(env, controller: EnvController | None = None, after: dict[str, Probe]
         no_grad: ``torch.no_grad`` instead of ``torch.inference_mode``: for an env that goes on being used with
             autograd afterwards (an in-process simulator would keep inference tensors created at a reset,
             which later in-place updates refuse).
+        sync_every: read back whether every episode has ended (``stop_when_all_ended``, the progress bar) every
+            ``sync_every``-th step and at the last: 1 stops at the step where the last episode ended; more lets a
+            device loop run that many steps without a host read (the loop may then stop up to ``sync_every`` - 1
+            steps later, steps whose entries are masked anyway).
 
     Raises:
         ValueError: neither or both of ``controller`` and ``policy``; a controller of another env; ``capture``
-            without a policy and an ``obs_group``.
+            without a policy and an ``obs_group``; ``sync_every`` not an int >= 1.
     """
     if (controller is None) == (policy is None):
         raise ValueError("record needs exactly one of controller (envs/controller.py) and policy (obs -> actions)")
@@ -150,17 +168,15 @@ def record(env, controller: EnvController | None = None, after: dict[str, Probe]
         raise ValueError("capture keeps a policy's observations and actions: give policy and obs_group with it")
     n = env.num_envs
     steps = int(num_steps or env.max_episode_length)
+    if not isinstance(sync_every, int) or isinstance(sync_every, bool) or sync_every < 1:
+        raise ValueError(f"record: sync_every must be an int >= 1 (steps between reads of the episodes' ends), "
+                         f"got {sync_every!r}")
     command = env.command_manager.command.detach().cpu().numpy().copy()
-    active = np.zeros((steps, n), dtype=bool)
-    valid = np.zeros((steps, n), dtype=bool)
-    reward = np.zeros((steps, n), dtype=np.float32)
-    read_before: dict[str, np.ndarray] = {}
-    read_after: dict[str, np.ndarray] = {}
-    captured: dict[str, np.ndarray] = {}
-    alive = torch.ones(n, dtype=torch.bool)
-    fell = torch.zeros(n, dtype=torch.bool)
-    length = torch.full((n,), steps, dtype=torch.long)
-    episode_return = torch.zeros(n, dtype=torch.float64)
+    read_before: dict[str, torch.Tensor] = {}
+    read_after: dict[str, torch.Tensor] = {}
+    captured: dict[str, torch.Tensor] = {}
+    books: dict[str, torch.Tensor] = {}  # (T, E) active, valid and reward, on the env's device
+    alive = fell = length = episode_return = None  # (E,) on the env's device, made at the first step
     kept = slice(None) if capture is True else (capture or None)
     simulated = 0
     obs = env.get_observations()
@@ -173,37 +189,51 @@ def record(env, controller: EnvController | None = None, after: dict[str, Probe]
             if policy is not None:
                 obs_in = obs if obs_group is None else obs[obs_group]
                 action = policy(obs_in)
-                if kept is not None:
-                    _store(captured, "obs", k, steps, obs_in[kept])
-                    _store(captured, "actions", k, steps, action[kept])
+                if kept is not None:  # on the host: a data set can outgrow the device
+                    _store(captured, "obs", k, steps, obs_in[kept].cpu())
+                    _store(captured, "actions", k, steps, action[kept].cpu())
             if until is not None and until():
                 break
-            active[k] = alive.numpy()
             obs, rew, dones, extras = env.step(action) if policy is not None else controller_step(controller, obs)
-            done = dones.detach().cpu().bool()
-            time_out = extras["time_outs"].detach().cpu().bool()
-            rew = rew.detach().cpu()
-            reward[k] = (rew / env.step_dt).numpy()
+            done = dones.detach().bool()
+            time_out = extras["time_outs"].detach().bool()
+            rew = rew.detach()
+            if alive is None:
+                alive = torch.ones(n, dtype=torch.bool, device=done.device)
+                fell = torch.zeros(n, dtype=torch.bool, device=done.device)
+                length = torch.full((n,), steps, dtype=torch.long, device=done.device)
+                episode_return = torch.zeros(n, dtype=torch.float64, device=done.device)
+            _store(books, "active", k, steps, alive)
+            _store(books, "reward", k, steps, (rew / env.step_dt).float())
             episode_return += torch.where(alive, rew.double(), 0.0)  # the ending step's reward counts
-            valid[k] = (alive & ~done).numpy()
+            _store(books, "valid", k, steps, alive & ~done)
             for name, probe in (after or {}).items():
                 _store(read_after, name, k, steps, probe(env))
             ended = alive & done
             fell |= ended & ~time_out
-            length[ended] = k + 1
+            length = torch.where(ended, k + 1, length)
             alive &= ~done
             simulated = k + 1
-            bar.set_postfix_str(f"{100.0 * float(alive.float().mean()):.0f} % still up", refresh=False)
             bar.update(1)
-            if stop_when_all_ended and not bool(alive.any()):
-                break
-            if bool(done.any()) and (controller is not None or on_reset is not None):
-                ids = torch.nonzero(done).flatten()
-                if controller is not None:
-                    controller.reset(ids)
-                if on_reset is not None:
-                    on_reset(ids)
-    return EpisodeRecord(command=command, active=active, valid=valid, reward=reward, fell=fell.numpy(),
-                         length=length.numpy(), episode_return=episode_return.numpy(), step_dt=float(env.step_dt),
-                         steps=simulated, before=read_before, after=read_after, obs=captured.get("obs"),
+            if (k + 1) % sync_every == 0 or k + 1 == steps:  # the one host read of the loop's own books
+                up = alive.float().mean().item()
+                bar.set_postfix_str(f"{100.0 * up:.0f} % still up", refresh=False)
+                if stop_when_all_ended and up == 0.0:
+                    break
+            if controller is not None:
+                controller.reset_where(done)  # masked: no host read (``EnvController.reset_where``)
+            if on_reset is not None and bool(done.any()):
+                on_reset(torch.nonzero(done.cpu()).flatten())
+    host = _host(books)
+    blank = {"active": np.zeros((steps, n), dtype=bool), "valid": np.zeros((steps, n), dtype=bool),
+             "reward": np.zeros((steps, n), dtype=np.float32)}
+    host = {key: host.get(key, blank[key]) for key in blank}  # nothing simulated: no step stored
+    if alive is None:
+        fell, length = torch.zeros(n, dtype=torch.bool), torch.full((n,), steps, dtype=torch.long)
+        episode_return = torch.zeros(n, dtype=torch.float64)
+    captured = _host(captured)
+    return EpisodeRecord(command=command, active=host["active"], valid=host["valid"], reward=host["reward"],
+                         fell=fell.cpu().numpy(), length=length.cpu().numpy(),
+                         episode_return=episode_return.cpu().numpy(), step_dt=float(env.step_dt), steps=simulated,
+                         before=_host(read_before), after=_host(read_after), obs=captured.get("obs"),
                          actions=captured.get("actions"), wall_s=time.perf_counter() - wall0)

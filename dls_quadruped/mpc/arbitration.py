@@ -52,7 +52,11 @@ class Memory:
                    torch.full((b, g), float("nan"), dtype=torch.float64, device=device))
 
     def forget(self, robots: torch.Tensor) -> None:
-        """Clear the rows of ``robots`` ((K,) indices or (B,) bool)."""
+        """Clear the rows of ``robots`` ((K,) indices or (B,) bool; a mask by ``masked_fill_``, no host read)."""
+        if robots.dtype == torch.bool:
+            self.winner.masked_fill_(robots, -1)
+            self.average.masked_fill_(robots[:, None], float("nan"))
+            return
         self.winner[robots] = -1
         self.average[robots] = float("nan")
 

@@ -100,6 +100,19 @@ def optimised(sampler: SamplerConfig, optimise: tuple[str, ...]) -> SamplerConfi
     return replace(sampler, **{f"sigma_{v}": 0.0 for v in OPTIMISABLE if v not in optimise})
 
 
+def held_footholds_block(p_h: torch.Tensor, sampler: SamplerConfig) -> torch.Tensor:
+    """The p block of ``sampler``'s encoding for footholds held over the whole horizon: (B, 4, 2) frame H [m] ->
+    (B, Dp) (``first``: the 8 values; ``discrete``: repeated at every step; ``spline``: the constrained fit of the
+    constant, exact at step 0)."""
+    kind, horizon = sampler.encoding.p, sampler.horizon
+    flat = p_h.reshape(p_h.shape[0], 8)
+    if kind == "first":
+        return flat
+    if kind == "discrete":
+        return flat.repeat(1, horizon)
+    return fit_spline(flat[:, None, :].expand(-1, horizon, 8), constrained=True).reshape(p_h.shape[0], -1)
+
+
 class ModelBasedBaseline:
     """Trot + heuristic footholds + force-only sampling MPC for B robots (see module docstring)."""
 
@@ -113,13 +126,7 @@ class ModelBasedBaseline:
 
     def _encode_p(self, p_h: torch.Tensor) -> torch.Tensor:
         """The p block of the encoding for footholds held over the horizon, (B, 4, 2) -> (B, Dp)."""
-        kind, horizon = self.sampler_cfg.encoding.p, self.sampler_cfg.horizon
-        flat = p_h.reshape(self.num_robots, 8)
-        if kind == "first":
-            return flat
-        if kind == "discrete":
-            return flat.repeat(1, horizon)
-        return fit_spline(flat[:, None, :].expand(-1, horizon, 8), constrained=True).reshape(self.num_robots, -1)
+        return held_footholds_block(p_h, self.sampler_cfg)
 
     def step(self, state: RobotState, cmd_vel_h: torch.Tensor, ground_z: torch.Tensor | None = None,
              height_fn: TerrainHeightFn | None = None) -> tuple[MPCResult, Refs]:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import torch
 
+from dls_quadruped.core.torch_cache import constant_tensor
 from dls_quadruped.mpc.config import CostWeights
 from dls_quadruped.mpc.srbd import NUM_LEGS, SRBDModel, rollout_reference
 
@@ -66,7 +67,7 @@ class Refs:
 
 
 def _diag(values: tuple[float, ...], like: torch.Tensor) -> torch.Tensor:
-    return torch.tensor(values, dtype=like.dtype, device=like.device)
+    return constant_tensor(tuple(values), like.dtype, like.device)
 
 
 def state_cost(x: torch.Tensor, x_ref: torch.Tensor, weights: CostWeights) -> torch.Tensor:

@@ -20,6 +20,7 @@ import torch
 from dls_quadruped.control.latent_action import TerrainHeightFn
 from dls_quadruped.core.rotations import quat_to_rotmat, rpy_from_rotmat
 from dls_quadruped.core.state import RobotState
+from dls_quadruped.core.torch_cache import constant_tensor
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.cost import Refs
 from dls_quadruped.mpc.srbd import srbd_state_from_base
@@ -82,7 +83,7 @@ def mpc_inputs(state: RobotState, cmd_vel_h: torch.Tensor, p_h: torch.Tensor, co
     c, s = torch.cos(yaw), torch.sin(yaw)
     cmd = cmd_vel_h.float()
     v_ref_w = torch.stack([c * cmd[:, 0] - s * cmd[:, 1], s * cmd[:, 0] + c * cmd[:, 1]], dim=-1)
-    nominal = torch.tensor(sampler.action.nominal_foothold_b, dtype=torch.float32) + p_h  # (B, 4, 2)
+    nominal = constant_tensor(tuple(map(tuple, sampler.action.nominal_foothold_b)), torch.float32, p_h.device) + p_h
     base_xy = state.base_pos_w[:, :2].float()
     foothold_w = torch.stack([
         base_xy[:, None, 0] + c[:, None] * nominal[..., 0] - s[:, None] * nominal[..., 1],
@@ -90,7 +91,7 @@ def mpc_inputs(state: RobotState, cmd_vel_h: torch.Tensor, p_h: torch.Tensor, co
         torch.full_like(nominal[..., 0], C.FOOT_RADIUS),
     ], dim=-1)
     frame = {"base_xy_w": base_xy, "base_yaw": yaw}
-    com_ref = torch.full((b,), float(com_height))
+    com_ref = torch.full((b,), float(com_height), device=base_xy.device)
     if ground_z is not None:
         z = ground_z.float()
         com_ref = com_ref + z

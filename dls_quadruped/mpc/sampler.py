@@ -124,17 +124,20 @@ class SamplingMPC:
         return torch.where(self._forgotten[:, None], default.expand_as(shifted), shifted)
 
     def reset(self, robots: torch.Tensor | None = None) -> None:
-        """Forget the previous solution of ``robots`` ((K,) indices; all if None): their next naive
-        warm start is the default (e.g. after the env restarted their episode), and their arbitration between
-        warm-start groups starts afresh (no previous winner, no running group cost)."""
+        """Forget the previous solution of ``robots`` ((K,) indices or a (B,) bool mask, none set allowed; all if
+        None): their next naive warm start is the default (e.g. after the env restarted their episode), and their
+        arbitration between warm-start groups starts afresh (no previous winner, no running group cost). A mask is
+        applied by masked updates (no host read)."""
         if robots is None or self.last_result is None:
             self.last_result, self._forgotten, self._arbitration = None, None, None
             return
+        robots = robots.to(self.device)
+        if robots.dtype != torch.bool:
+            b = self.last_result.best_encoded.shape[0]
+            robots = torch.zeros(b, dtype=torch.bool, device=self.device).index_fill_(0, robots, True)
         if self._arbitration is not None:
-            self._arbitration.forget(robots.to(self.device))
-        if self._forgotten is None:
-            self._forgotten = torch.zeros(self.last_result.best_encoded.shape[0], dtype=torch.bool, device=self.device)
-        self._forgotten[robots.to(self.device)] = True
+            self._arbitration.forget(robots)
+        self._forgotten = robots.clone() if self._forgotten is None else self._forgotten | robots
 
     # ------------------------------------------------------------------ solve
 
@@ -185,10 +188,9 @@ class SamplingMPC:
 
     def uses_device_solve(self, num_warm_starts: int) -> bool:
         """Whether a solve runs on the device path (:mod:`warp_solve`): the ``warp`` kernel (or ``cpp`` on CUDA with
-        Warp installed), ``fused`` on, no step-cost recording, no arbitration between several warm starts."""
+        Warp installed), ``fused`` on, no arbitration between several warm starts."""
         kernel = resolved_kernel(self.cfg.kernel, self.device)
-        return (kernel == "warp" and self.fused and not self.record_step_costs
-                and not (self.cfg.arbitrates and num_warm_starts > 1))
+        return kernel == "warp" and self.fused and not (self.cfg.arbitrates and num_warm_starts > 1)
 
     def validate_shapes(self, state: SRBDState, refs: Refs, warm_starts: Sequence[torch.Tensor],
                         proportions: Sequence[float] | None, phase: torch.Tensor,

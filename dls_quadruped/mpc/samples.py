@@ -26,6 +26,7 @@ import torch
 
 from dls_quadruped.control import gait
 from dls_quadruped.control.action_config import LatentActionConfig
+from dls_quadruped.core.torch_cache import constant_tensor
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.encodings import P_SCALARS, block_dim, decode_parts, encoded_dim
 from dls_quadruped.mpc.rng import normals
@@ -107,10 +108,10 @@ def sample_encoded(
     rows = torch.arange(b, device=device)[:, None]
     center = warm_starts[rows, group[sample_idx]]  # (B, K, D)
     counter0 = (rows * m_total + sample_idx) * (dim // 2)  # first noise-pair counter of each sample
-    sigma = torch.tensor(sigma_vector(cfg), dtype=dtype, device=device)
+    sigma = constant_tensor(tuple(sigma_vector(cfg)), dtype, device)
     noise = normals(seed, counter0, dim)
     samples = center + perturb[sample_idx][..., None] * sigma * noise
-    lo, hi = (torch.tensor(v, dtype=dtype, device=device) for v in encoded_bounds(cfg))
+    lo, hi = (constant_tensor(tuple(v), dtype, device) for v in encoded_bounds(cfg))
     return torch.minimum(torch.maximum(samples, lo), hi)
 
 
@@ -171,7 +172,7 @@ def horizontal_to_world(
     extra = p_h.dim() - 3  # dims between B and the leg dim
     shape = (-1,) + (1,) * extra
     c, s = torch.cos(base_yaw).view(*shape, 1), torch.sin(base_yaw).view(*shape, 1)
-    nominal = torch.tensor(act.nominal_foothold_b, dtype=p_h.dtype, device=p_h.device)
+    nominal = constant_tensor(tuple(map(tuple, act.nominal_foothold_b)), p_h.dtype, p_h.device)
     q = nominal + p_h
     x = base_xy_w[:, 0].view(*shape, 1) + c * q[..., 0] - s * q[..., 1]
     y = base_xy_w[:, 1].view(*shape, 1) + s * q[..., 0] + c * q[..., 1]

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from dls_quadruped.core.rotations import euler_from_quat
+from dls_quadruped.core.torch_cache import constant_tensor
 from dls_quadruped.robots.aliengo import constants as C
 
 STATE_DIM = 24
@@ -52,7 +53,7 @@ class SRBDModel:
 
     def inertia_tensor(self, dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> torch.Tensor:
         """(3, 3) inertia as a tensor."""
-        return torch.tensor(self.inertia_b, dtype=dtype, device=device)
+        return constant_tensor(tuple(map(tuple, self.inertia_b)), dtype, device)
 
 
 @functools.lru_cache(maxsize=1)
@@ -228,7 +229,7 @@ def srbd_state_from_base(
     dtype, device = base_pos_w.dtype, base_pos_w.device
     euler = euler_from_quat(base_quat_w)
     rot = rotation_from_euler(euler)  # (B, 3, 3) base -> world
-    c_b = torch.tensor(model.com_offset_b, dtype=dtype, device=device).expand_as(base_pos_w)
+    c_b = constant_tensor(tuple(model.com_offset_b), dtype, device).expand_as(base_pos_w)
     com_pos_w = base_pos_w + (rot @ c_b.unsqueeze(-1)).squeeze(-1)
     com_vel_w = base_lin_vel_w + (rot @ torch.cross(base_ang_vel_b, c_b, dim=-1).unsqueeze(-1)).squeeze(-1)
     return SRBDState(com_pos_w, com_vel_w, euler, base_ang_vel_b.clone(), foot_pos_w.clone())
@@ -268,7 +269,7 @@ def srbd_step(
     feet = x[..., 12:24].unflatten(-1, (NUM_LEGS, 3))
     c = contact.to(dtype).unsqueeze(-1)  # (..., 4, 1)
     inertia = model.inertia_tensor(dtype, device)
-    gravity = torch.tensor([0.0, 0.0, -model.gravity], dtype=dtype, device=device)
+    gravity = constant_tensor((0.0, 0.0, -model.gravity), dtype, device)
     f_c = c * force_w  # (..., 4, 3) forces of the stance legs
     acc = gravity + f_c.sum(-2) / model.mass
     torque_w = torch.cross(feet - p.unsqueeze(-2), f_c, dim=-1).sum(-2)  # (p_f - p_c) x F

@@ -24,6 +24,7 @@ import torch
 
 from dls_quadruped.control import gait
 from dls_quadruped.control.latent_action import scale_vector
+from dls_quadruped.core.torch_cache import constant_cache
 from dls_quadruped.mpc.config import SamplerConfig
 from dls_quadruped.mpc.encodings import (
     ACTION_DIM,
@@ -131,6 +132,7 @@ def check_student_encoding(meta: dict, cfg: SamplerConfig) -> None:
                            "or configure the MPC like the student")
 
 
+@constant_cache  # a constant per arguments (callers only read it): built once, not per env step
 def student_to_mpc_map(cfg: SamplerConfig, dtype: torch.dtype = torch.float32,
                        device: torch.device | str = "cpu") -> tuple[torch.Tensor, torch.Tensor]:
     """(scale, shift), each (D,): the MPC encoding = shift + scale * the student's encoded output.

@@ -12,24 +12,30 @@ read):
    ``warp_kernel.rollout_kernel``), the argmin's tree levels (``warp_argmin``: 1-3 launches for M up to 10^6) and
    ``decode_kernel`` (B threads: the argmin's last stage, the winner re-drawn and decoded, the last guard);
 3. torch clones the three output buffers (float32, int64, uint8) and the :class:`MPCResult` is made of views
-   of the clones.
+   of the clones;
+4. with ``record_step_costs``, torch rolls the winner out once more on the cleaned inputs (``decode_samples``,
+   ``cost.rollout_step_costs_and_terms``: the torch path's step costs and state terms of the same winner, +inf for
+   a fallback robot), eager and without a host read.
 
 What differs from the torch path (documented in docs/mpc.md "Warp kernel"): the noise seeds come from the device
 counter (not from ``SamplingMPC.generator``), a phase outside [0, 1] or a non-finite warm start sends its robot
 to the fallback instead of raising, the ``reason`` is empty (:meth:`DeviceSolve.fallback_report` reads the flags
 once, when asked), and ``kernel_seconds`` counts the launch (or replay) call's wall time. Arbitration between
-warm-start groups and ``record_step_costs`` take the torch path with the ``warp`` cost kernel.
+warm-start groups takes the torch path with the ``warp`` cost kernel.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import torch
 import warp as wp
 
 from dls_quadruped.mpc import warp_kernel
+from dls_quadruped.mpc.cost import Refs, rollout_step_costs_and_terms
 from dls_quadruped.mpc.encodings import encoded_dim
+from dls_quadruped.mpc.samples import decode_samples
 from dls_quadruped.mpc.solution import MPCResult, describe_bad
 from dls_quadruped.mpc.solve_glue import INPUT_WIDTHS
 from dls_quadruped.mpc.warp_argmin import ArgminTree
@@ -182,6 +188,20 @@ class DeviceSolve:
             fields[name] = fields[name].view(torch.bool)
         return MPCResult(**fields)
 
+    def step_costs(self, result: MPCResult) -> MPCResult:
+        """``result`` with the winner's step costs and state terms (``record_step_costs``): one reference rollout of
+        its decoded horizon from the cleaned inputs of this solve, as the torch path's ``decode_winners``; +inf
+        for a fallback robot (its inputs were not the solve's)."""
+        c, b = self.clean, self.b
+        refs = Refs(c["h_ref"][:, 0], c["vel_ref"], c["wz_ref"][:, 0], c["foothold"].view(b, 4, 3))
+        dec = decode_samples(result.best_encoded[:, None], c["phase"], c["base_xy"], c["base_yaw"][:, 0],
+                             c["terrain_z"], self.cfg)
+        steps, terms = rollout_step_costs_and_terms(c["x"], dec["contact"], dec["foot_target_w"], dec["force_w"],
+                                                    refs, self.model, self.cfg.weights, self.cfg.dt)
+        bad = result.fallback[:, None]
+        return dataclasses.replace(result, step_costs=torch.where(bad, float("inf"), steps[:, 0]),
+                                   state_terms=torch.where(bad, float("inf"), terms[:, 0]))
+
     def fallback_report(self) -> str:
         """The last solve's fallbacks in words ('state of robots [1] is not finite ...'): one host read."""
         flags = self.flags.to("cpu").bool()
@@ -221,4 +241,7 @@ class DeviceSolver:
         work.stage(state, phase, frame, refs, ws)
         t0 = time.perf_counter()
         result = work.run()
-        return result, work, time.perf_counter() - t0
+        seconds = time.perf_counter() - t0
+        if mpc.record_step_costs:
+            result = work.step_costs(result)
+        return result, work, seconds

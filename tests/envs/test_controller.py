@@ -45,7 +45,7 @@ class LoggingEnv:
         self._inside = None
         return self._out()
 
-    def apply_action(self, raw, num_physics_steps, replan=False):
+    def apply_action(self, raw, num_physics_steps, replan=False, finite=False):
         assert self._inside is not None
         self._inside += num_physics_steps
         self.calls.append(("apply_action", raw, num_physics_steps, replan))

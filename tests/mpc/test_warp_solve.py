@@ -160,12 +160,41 @@ def test_no_host_read_per_solve_after_warm_up(perturbed_standing):
     assert control.total > 0
 
 
-def test_arbitration_and_step_costs_take_the_torch_path():
+def test_arbitration_takes_the_torch_path():
     mpc = SamplingMPC(SamplerConfig(num_samples=100, kernel="warp", switching_cost=10.0))
     assert mpc.uses_device_solve(1) and not mpc.uses_device_solve(2)
     mpc.record_step_costs = True
-    assert not mpc.uses_device_solve(1)
+    assert mpc.uses_device_solve(1)  # the step costs are rolled out on the device path
     assert not SamplingMPC(SamplerConfig(num_samples=100)).uses_device_solve(1)  # cpp on the CPU
+
+
+def test_step_costs_on_the_device_path_are_the_torch_decodings(perturbed_standing):
+    """With ``record_step_costs`` the device solve's step costs and state terms are those the torch path's
+    ``decode_winners`` computes for the same winner (re-drawn from the seed and layout by torch), the fallback
+    robot's +inf; the solve reads nothing back to the host."""
+    cfg = SamplerConfig(num_samples=300, horizon=10, kernel="warp")
+    mpc, _ = _solves(perturbed_standing, cfg, 3, 2, nan_at=1)
+    mpc.record_step_costs = True
+    state, refs, phase = perturbed_standing(3, 3)
+    ws = [mpc.naive_warm_start(warm_start.nominal_trot(3, cfg)), warm_start.nominal_trot(3, cfg, freq=1.8)]
+    bad = dataclasses.replace(state, com_vel_w=state.com_vel_w.clone())
+    bad.com_vel_w[2, 1] = float("nan")
+    mpc.solve(bad, refs, ws, proportions=(0.7, 0.3), phase=phase)  # builds and launches this layout
+    with sync_probe() as report:
+        res = mpc.solve(bad, refs, ws, proportions=(0.7, 0.3), phase=phase)
+    assert report.total == 0, report.by_site()
+    assert res.fallback.tolist() == [False, False, True]
+    work = mpc.last_device_solve
+    c = work.clean
+    torch_refs = Refs(c["h_ref"][:, 0], c["vel_ref"], c["wz_ref"][:, 0], c["foothold"].view(3, 4, 3))
+    inp = KernelInputs(work.seed[0].clone(), c["warm"], work.group, work.perturb, c["x"], c["phase"], c["base_xy"],
+                       c["base_yaw"][:, 0], c["terrain_z"], torch_refs)
+    ref = mpc.decode_winners(inp, res.best_index.clamp_min(0), res.best_cost, res.initial_cost)
+    for name in ("step_costs", "state_terms"):
+        got, want = getattr(res, name), getattr(ref, name)
+        assert torch.isfinite(want[:2]).all() and torch.isposinf(got[2]).all(), name
+        torch.testing.assert_close(got[:2], want[:2], rtol=1e-4, atol=1e-3, msg=name)
+    torch.testing.assert_close(res.step_costs[:2].sum(-1), res.best_cost[:2], rtol=1e-4, atol=1e-3)
 
 
 def test_inference_mode_then_not(perturbed_standing):

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import torch
 
+from dls_quadruped.core.torch_cache import constant_tensor
+
 
 def _uniform(env, env_ids: torch.Tensor, rng: tuple[float, float] | torch.Tensor, width: int = 1) -> torch.Tensor:
     """(n, width) U[rng) from the env's episode schedule (one draw of stream "command" per env); ``rng`` two numbers
@@ -43,7 +45,8 @@ def omnidirectional_velocity(env, env_ids: torch.Tensor, max_speed: float, ang_v
 def fixed_velocity(env, env_ids: torch.Tensor, values: list[list[float]]) -> torch.Tensor:
     """Preset commands for evaluation: env i always gets row i of ``values`` ((num_envs, 3): v_x, v_y
     [m/s], omega_z [rad/s]); with a resampling time beyond the episode, one command per episode."""
-    table = torch.as_tensor(values, dtype=torch.float32, device=env.device)
+    rows = tuple(tuple(float(v) for v in row) for row in values)
+    table = constant_tensor(rows, torch.float32, env.device)  # built once, not at every resampling
     if table.shape != (env.num_envs, 3):
         raise ValueError(f"fixed_velocity: values must be (num_envs, 3) = ({env.num_envs}, 3), "
                          f"got {tuple(table.shape)}")
