@@ -24,7 +24,8 @@ from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.core.machine import cpu_model
 from dls_quadruped.core.progress import progress
-from dls_quadruped.envs.config import dataclass_from_dict, load_task
+from dls_quadruped.envs.config import load_task
+from dls_quadruped.envs.value_checks import dataclass_from_dict
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.terrain import TerrainConfig, build_scene
 

@@ -129,13 +129,16 @@ class fused_method:  # lower case: a decorator, named like the built-in ones (pr
         dynamic: ``Fused``'s (a batch size that changes from call to call).
         enabled: whether to compile, read from the instance once, on first access: a dotted attribute (``"compile"``,
             ``"env.compile"``) or a function of the instance (``lambda m: getattr(m.env, "compile", False)``).
+        eager_first: ``Fused``'s (default: ``dynamic``; True: the instance's first call runs eagerly).
 
     The decorated function may be a ``staticmethod``. On an instance, the attribute is its ``Fused`` (kept in the
     instance's ``__dict__``, so later accesses are plain attribute reads); ``.fn`` is the method itself, eager.
+    :meth:`renew` drops an instance's ``Fused``, so that the next access makes a new one.
     """
 
-    def __init__(self, name: str, dynamic: bool = False, enabled: str | Callable[[Any], bool] = "compile"):
-        self.name, self.dynamic = name, dynamic
+    def __init__(self, name: str, dynamic: bool = False, enabled: str | Callable[[Any], bool] = "compile",
+                 eager_first: bool | None = None):
+        self.name, self.dynamic, self.eager_first = name, dynamic, eager_first
         self._enabled = operator.attrgetter(enabled) if isinstance(enabled, str) else enabled
         self.fn: Any = None
         self.attr = ""
@@ -156,9 +159,15 @@ class fused_method:  # lower case: a decorator, named like the built-in ones (pr
         if not isinstance(enabled, bool):
             raise TypeError(f"fused_method({self.name!r}): {type(obj).__name__}'s enabled attribute must be a bool, "
                             f"got {enabled!r}")
-        fused = Fused(self.fn.__get__(obj, owner), enabled, self.name, dynamic=self.dynamic)
+        fused = Fused(self.fn.__get__(obj, owner), enabled, self.name, dynamic=self.dynamic,
+                      eager_first=self.eager_first)
         obj.__dict__[self.attr] = fused
         return fused
+
+    def renew(self, obj: Any) -> None:
+        """Drop ``obj``'s ``Fused`` (if made): the next access reads the setting again and makes a new one, first
+        call and compile-failure fallback included."""
+        obj.__dict__.pop(self.attr, None)
 
 
 def _is_compile_error(err: BaseException) -> bool:

@@ -26,7 +26,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from dls_quadruped.envs.config import TaskConfig, type_hints, type_problem
+from dls_quadruped.envs.config import TaskConfig
+from dls_quadruped.envs.value_checks import type_hints, type_problem
 
 PROJECT_KEYS: dict[str, Any] = {"max_iterations": int, "seed": int, "experiment_name": str}
 """Agent keys this project adds: PPO iterations of ``train``, the seed, a free-form name."""

@@ -3,7 +3,8 @@
 Step order (IsaacLab's ``ManagerBasedRLEnv.step``):
 
 1. action manager: raw (B, 28) -> world references -> the backend's ``set_references``;
-2. the simulator backend's ``step(decimation)`` (``sim/interface.py``): 4 physics steps at 200 Hz, low-level control at every one;
+2. the simulator backend's ``step(decimation)`` (``sim/interface.py``): 4 physics steps at 200 Hz, low-level control
+   at every one;
 3. episode counters += 1; termination manager -> dones (terminated | time_outs);
 4. reward manager -> reward (weights x dt);
 5. reset the done envs, by their (B,) mask: curriculum (reads their episode data) -> reset events (placement,
@@ -39,15 +40,10 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from dls_quadruped.core.compile import FusedCache, compile_wanted
+from dls_quadruped.core.compile import FusedCache, compile_wanted, fused_method
 from dls_quadruped.core.state import RobotState
-from dls_quadruped.envs import episode_state
-from dls_quadruped.envs.config import (
-    TaskConfig,
-    dataclass_from_dict,
-    load_task,
-    save_resolved,
-)
+from dls_quadruped.envs import checkpoint_state
+from dls_quadruped.envs.config import TaskConfig, load_task, save_resolved
 from dls_quadruped.envs.episode_log import EpisodeLog
 from dls_quadruped.envs.managers.action import ActionManager
 from dls_quadruped.envs.managers.command import CommandManager
@@ -60,6 +56,7 @@ from dls_quadruped.envs.managers.termination import TerminationManager
 from dls_quadruped.envs.mdp import events as event_mdp
 from dls_quadruped.envs.mdp import observations as obs_mdp
 from dls_quadruped.envs.schedule import EpisodeSchedule
+from dls_quadruped.envs.value_checks import dataclass_from_dict
 
 
 @dataclass(frozen=True)
@@ -89,7 +86,8 @@ class LocomotionEnv(VecEnv):
         self.env_cfg = dataclass_from_dict(EnvConfig, self.task.section("env"), self.task, "env")
         self.num_envs = self.env_cfg.num_envs if num_envs is None else num_envs
         if isinstance(self.num_envs, bool) or not isinstance(self.num_envs, int) or self.num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")  # 0 is refused, not read as the default
+            # 0 is refused, not read as the default
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         self.device = torch.device(device)
         self.seed = self.env_cfg.seed if seed is None else seed
         torch.manual_seed(self.seed)
@@ -109,7 +107,8 @@ class LocomotionEnv(VecEnv):
         self._every_env = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)  # a full reset's mask
         self.common_step_counter = 0
         self._controlled_steps: int | None = None  # physics steps of the step_controlled in progress
-        self._vel_err_sum = torch.zeros(self.num_envs, device=self.device)  # sum over the episode of |v_xy - cmd_xy| [m/s]
+        # sum over the episode of |v_xy - cmd_xy| [m/s]
+        self._vel_err_sum = torch.zeros(self.num_envs, device=self.device)
         self._state = self._to_device(self.scene.sim.state)
         self.command_manager = CommandManager(self.task, self)
         self.action_manager = ActionManager(self.task, self)
@@ -119,10 +118,11 @@ class LocomotionEnv(VecEnv):
         self.termination_manager = TerminationManager(self.task, self)
         self.event_manager = EventManager(self.task, self)
         self.fused = FusedCache(self.compile)  # torch work compiled where the scene compiles
-        self._reset_bookkeeping = self.fused(self._reset_bookkeeping_eager, "env reset bookkeeping", eager_first=True)
         self.episode_log = EpisodeLog(self.device)  # the steps' episode values, summed on the device
         self.curriculum_manager = CurriculumManager(self.task, self)
-        if not any(t.func in event_mdp.PLACEMENT_EVENTS and t.extra["mode"] == "reset" for t in self.event_manager.terms):
+        placements = [t for t in self.event_manager.terms
+                      if t.func in event_mdp.PLACEMENT_EVENTS and t.extra["mode"] == "reset"]
+        if not placements:
             raise self.task.error("events", "a 'reset' mode event with func reset_robot or reset_home is required "
                                             "(it places robots)")
         self.extras: dict = {"log": {}}
@@ -215,8 +215,10 @@ class LocomotionEnv(VecEnv):
         """Inside :meth:`step_controlled`: world-frame references (freq, duty (B, 4), p_td_w (B, 4, 3) [m], F_w
         (B, 4, 3) [N]) straight to the backend's ``set_references`` for ``num_physics_steps`` physics steps, for a
         controller that makes its own references (the balance controller, the model-based baseline); the action
-        manager, and so the action terms of observations and rewards, do not see them. Raises as :meth:`apply_action`."""
-        return self._advance("apply_references", num_physics_steps, lambda: self.scene.sim.set_references(freq, duty, p_td_w, F_w))
+        manager, and so the action terms of observations and rewards, do not see them. Raises as
+        :meth:`apply_action`."""
+        return self._advance("apply_references", num_physics_steps,
+                             lambda: self.scene.sim.set_references(freq, duty, p_td_w, F_w))
 
     def _advance(self, caller: str, num_physics_steps: int, send: Callable[[], None]) -> RobotState:
         """Check that ``num_physics_steps`` more fit the policy step, ``send()`` the references, step, refresh."""
@@ -314,7 +316,8 @@ class LocomotionEnv(VecEnv):
         log.update(self._reset_bookkeeping(env_mask))
         return log
 
-    def _reset_bookkeeping_eager(self, env_mask: torch.Tensor) -> dict[str, torch.Tensor]:
+    @fused_method("env reset bookkeeping", eager_first=True)
+    def _reset_bookkeeping(self, env_mask: torch.Tensor) -> dict[str, torch.Tensor]:
         """The managers' resets (logged episode sums, counts; commands resampled), the env's metric and counters."""
         log: dict[str, torch.Tensor] = {}
         for manager in (self.reward_manager, self.termination_manager, self.action_manager, self.command_manager):
@@ -326,65 +329,24 @@ class LocomotionEnv(VecEnv):
         return log
 
     # ------------------------------------------------------------------ checkpoint state
-    _MANAGER_STATE = (("curriculum_state", "curriculum_manager", "state"),
-                      ("curriculum_values", "curriculum_manager", "values"),
-                      ("reward_weights", "reward_manager", "weights"), ("command_params", "command_manager", "params"),
-                      ("terrain_levels", "scene", "terrain_levels"))
-    """The managers' parts of :meth:`state_dict`: (its key, the manager, the key in the manager's ``state_dict()``)."""
-
     def state_dict(self) -> dict:
-        """What training needs to continue where it stopped (saved in every checkpoint).
-
-        Curriculum state and values, reward weights (the penalty switch), command ranges, terrain
-        levels, the step counter, the episode schedule's counters, the torch RNG state and, under
-        ``"episodes"``, the episodes in progress (``envs/episode_state.py``: the simulator's whole state
-        and every per-robot buffer), so that an env of the same task and number of robots continues
-        bit-identically.
-        """
-        parts = {m: getattr(self, m).state_dict() for m in dict.fromkeys(m for _, m, _ in self._MANAGER_STATE)}
-        state = {key: parts[m][k] for key, m, k in self._MANAGER_STATE}
-        state.update(common_step_counter=self.common_step_counter, schedule=self.schedule.state_dict(),
-                     rng_cpu=torch.get_rng_state(), episodes=episode_state.capture(self))
-        if self.device.type == "cuda":
-            state["rng_cuda"] = torch.cuda.get_rng_state(self.device)
-        return state
+        """What training needs to continue where it stopped, saved in every checkpoint: what outlives an episode
+        (curricula, reward weights, command ranges, terrain levels, the step counter, the schedule, the RNG) and the
+        episodes in progress (``envs/checkpoint_state.py``)."""
+        return checkpoint_state.env_state_dict(self)
 
     def load_state_dict(self, state: dict) -> None:
-        """Restore ``state_dict()`` output and the RNG last. With ``"episodes"`` saved from as many
-        robots, the episodes in progress go on where they stopped (bit-identically); otherwise (another
-        ``num_envs``, or an older checkpoint) every robot starts its next episode on its restored
-        terrain level (without running the curriculum).
+        """Restore :meth:`state_dict` output, the RNG last. The episodes in progress go on where they stopped
+        (bit-identically) when saved from as many robots; otherwise (another ``num_envs``, or an older checkpoint)
+        every robot starts its next episode on its restored terrain level (without running the curriculum).
 
         Raises:
             ValueError: the state does not fit this env (other terms, other number of envs).
         """
-        parts: dict[str, dict] = {}
-        for key, m, k in self._MANAGER_STATE:
-            parts.setdefault(m, {})[k] = state[key]
-        managers = [(getattr(self, m), parts[m]) for m in ("reward_manager", "command_manager", "curriculum_manager",
-                                                           "scene")]
-        for manager, part in managers:  # every part checked before anything is written
-            manager.check_state_dict(part)
-        episodes = state.get("episodes")
-        if episodes is not None and int(episodes["num_envs"]) != self.num_envs:
-            episodes = None  # another --num-envs: fresh episodes below
-        for manager, part in managers:  # scene: another --num-envs cycles over the saved terrain levels
-            manager.load_state_dict(part)
-        self.common_step_counter = int(state["common_step_counter"])
-        if "schedule" in state:  # checkpoints before the episode schedule have none
-            if tuple(state["schedule"]["episode"].shape) == (self.num_envs,):
-                self.schedule.load_state_dict(state["schedule"])
-            else:  # another --num-envs: a fresh schedule, advanced past the episodes already played
-                self.schedule.restart(int(state["schedule"]["seed"]))
-                self.schedule.episode[:] = int(state["schedule"]["episode"].max())
-        if episodes is not None:
-            episode_state.restore(self, episodes)
-        else:
+        if not checkpoint_state.load_env_state_dict(self, state):
             self._reset(self._every_env, curriculum=False)
             self.obs_buf = self.observation_manager.compute()
-        torch.set_rng_state(state["rng_cpu"])
-        if "rng_cuda" in state and self.device.type == "cuda":
-            torch.cuda.set_rng_state(state["rng_cuda"], self.device)
+        checkpoint_state.load_rng_state(state, self.device)
 
     def close(self) -> None:
         self.scene.close()

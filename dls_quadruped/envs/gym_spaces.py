@@ -93,7 +93,8 @@ def group_bounds(env, group: str) -> Bounds:
         dim = manager.dims[group][term.name]
         bounds = TERM_BOUNDS.get(term.func)
         lo, hi = bounds(env) if bounds is not None else (-np.inf, np.inf)
-        lo, hi = np.broadcast_to(np.asarray(lo, np.float64), (dim,)), np.broadcast_to(np.asarray(hi, np.float64), (dim,))
+        lo = np.broadcast_to(np.asarray(lo, np.float64), (dim,))
+        hi = np.broadcast_to(np.asarray(hi, np.float64), (dim,))
         noise = term.extra["noise"] * manager.noise_scale[group]  # U(-noise, noise) added by the manager
         lows.append(lo - noise - FLOAT32_MARGIN * np.maximum(1.0, np.abs(lo)))
         highs.append(hi + noise + FLOAT32_MARGIN * np.maximum(1.0, np.abs(hi)))

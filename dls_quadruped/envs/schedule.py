@@ -28,7 +28,7 @@ from contextlib import contextmanager
 
 import torch
 
-from dls_quadruped.core.compile import Fused
+from dls_quadruped.core.compile import fused_method
 from dls_quadruped.core.hashing import hash32
 
 
@@ -53,17 +53,6 @@ def _draw_bits(seed_h: torch.Tensor, stream_h: int, keys: torch.Tensor, episode:
     return hash32(h[:, None] ^ element_h[None, :])
 
 
-_FUSED_DRAW: Fused | None = None
-
-
-def _fused_draw() -> Fused:
-    """:func:`_draw_bits` compiled (one per process; its batch size is dynamic)."""
-    global _FUSED_DRAW
-    if _FUSED_DRAW is None:
-        _FUSED_DRAW = Fused(_draw_bits, True, "EpisodeSchedule draws", dynamic=True)
-    return _FUSED_DRAW
-
-
 class EpisodeSchedule:
     """Per-env episode counters and per-stream draw counters of ``num_envs`` envs.
 
@@ -72,22 +61,38 @@ class EpisodeSchedule:
         num_envs: B.
         device: where the counters and draws live.
         episode_keys: (B,) long, the episode key of each env (default ``arange(B)``).
+        compile: whether a draw's hash chain runs as one compiled kernel (``core/compile.py``); setting the
+            attribute later takes effect from the next draw (the env sets it once its scene is built, after the
+            terrain's first draws).
 
     Attributes:
         episode: (B,) long, episodes each env has started since the schedule began (-1 before the first).
     """
 
+    _draw = fused_method("EpisodeSchedule draws", dynamic=True)(staticmethod(_draw_bits))
+    """:func:`_draw_bits`, compiled when ``compile`` is True (its batch size dynamic)."""
+
     def __init__(self, seed: int, num_envs: int, device: torch.device | str = "cpu",
                  episode_keys: torch.Tensor | None = None, compile: bool = False):
         self.num_envs = int(num_envs)
-        self.compile = bool(compile)  # the hash chain of a draw as one compiled kernel (core/compile.py)
+        self._compile = bool(compile)
         self.device = torch.device(device)
         self._hashes: dict[tuple, int | torch.Tensor] = {}
         self._advance: torch.Tensor | None = None  # see only()
         self._draws: dict[str, torch.Tensor] = {}  # per stream, the draws each env made in its episode
         self.seed_hash = torch.zeros((), dtype=torch.long, device=self.device)
-        """hash32 of the seed, a 0-dim tensor: compiled draws read it as an input, so another seed is not a recompile."""
+        """hash32 of the seed, a 0-dim tensor: compiled draws read it as an input, so another seed is not a
+        recompile."""
         self.restart(seed, episode_keys)
+
+    @property
+    def compile(self) -> bool:
+        return self._compile
+
+    @compile.setter
+    def compile(self, value: bool) -> None:
+        self._compile = bool(value)
+        EpisodeSchedule._draw.renew(self)  # the next draw makes it anew, compiled or not
 
     def restart(self, seed: int, episode_keys: torch.Tensor | None = None) -> None:
         """Start over: no episode started yet, keys ``episode_keys`` (B,) (default ``arange(B)``).
@@ -149,9 +154,8 @@ class EpisodeSchedule:
         for s in shape:
             size *= int(s)
         # the constant hashes (seed, stream id, element index) are cached
-        draw = _fused_draw() if self.compile else _draw_bits
-        bits = draw(self.seed_hash, self._constant_hash("stream", stream_id(stream)),
-                    self.keys, self.episode, count, env_ids, self._element_hash(size))
+        bits = self._draw(self.seed_hash, self._constant_hash("stream", stream_id(stream)),
+                          self.keys, self.episode, count, env_ids, self._element_hash(size))
         if self._advance is None:
             count[env_ids] += 1
         else:

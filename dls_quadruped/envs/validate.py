@@ -4,12 +4,14 @@
 managers use at build time run here (term functions, parameter names, types and ranges, manager keys),
 plus the dataclass sections (``env``, ``scene``, ``terrain``, ``actions.latent``) and the ``agent``
 section against rsl-rl. A bad value therefore fails with the file and dotted key before a run
-directory, a simulator or a worker exists. Sections a file does not have (fragments such as ``_base_rewards.yaml``) are skipped.
+directory, a simulator or a worker exists. Sections a file does not have (fragments such as
+``_base_rewards.yaml``) are skipped.
 """
 
 from __future__ import annotations
 
-from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
+from dls_quadruped.envs.config import TaskConfig
+from dls_quadruped.envs.value_checks import dataclass_from_dict
 
 
 def validate_task(task: TaskConfig) -> None:

@@ -27,8 +27,8 @@ from dls_quadruped.envs.config import (
     ConfigError,
     TaskConfig,
     _record,
-    dataclass_from_dict,
 )
+from dls_quadruped.envs.value_checks import dataclass_from_dict
 from dls_quadruped.mpc.config import ENCODING_KINDS, EncodingConfig
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "tasks" / "agents" / "distill.yaml"

@@ -90,7 +90,8 @@ def check_optimise(optimise: tuple[str, ...]) -> None:
     """Raise ``ValueError`` unless ``optimise`` is a non-empty tuple of distinct names from ``OPTIMISABLE``."""
     if (not isinstance(optimise, tuple) or not optimise or len(set(optimise)) != len(optimise)
             or any(v not in OPTIMISABLE for v in optimise)):
-        raise ValueError(f"optimise must be a non-empty tuple of distinct variables from {OPTIMISABLE}, got {optimise!r}")
+        raise ValueError(f"optimise must be a non-empty tuple of distinct variables from {OPTIMISABLE}, "
+                         f"got {optimise!r}")
 
 
 def optimised(sampler: SamplerConfig, optimise: tuple[str, ...]) -> SamplerConfig:

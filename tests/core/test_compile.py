@@ -148,3 +148,30 @@ def test_a_fused_method_falls_back_to_its_eager_method_and_refuses_a_non_boolean
         _ = _Scaled(None, 1.0)._offset  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="decorates one function"):
         fused_method("twice")(_branchy)(_branchy)
+
+
+class _Warmed:
+    """A fused method whose first call per instance runs eagerly (``eager_first``), as the env's reset bookkeeping."""
+
+    def __init__(self, compile: bool):
+        self.compile = compile
+
+    @fused_method("Warmed.branchy", eager_first=True)
+    def _branchy(self, x: torch.Tensor) -> torch.Tensor:
+        return _branchy(x)
+
+
+def test_a_fused_method_runs_eagerly_first_when_asked_and_is_made_anew_after_renew():
+    warmed = _Warmed(True)
+    f, x = warmed._branchy, torch.arange(3.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the first call is the method itself: no trace, no warning
+        assert torch.equal(f(x), x * 2.0)
+    with pytest.warns(RuntimeWarning, match="torch.compile of Warmed.branchy failed"):  # traced on the second call
+        assert torch.equal(f(-x - 1.0), -x - 2.0)
+    assert not f.compiled
+    _Warmed._branchy.renew(warmed)
+    warmed.compile = False  # the setting is read again by the new one
+    g = warmed._branchy
+    assert g is not f and not g.compiled and g.error is None and warmed._branchy is g
+    _Warmed._branchy.renew(_Warmed(True))  # an instance without one made: nothing to drop

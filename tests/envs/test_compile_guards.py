@@ -64,7 +64,7 @@ def test_compiled_managers_run_under_inference_mode():
                 resets += int(done.sum())
         assert resets > 0
         fused = (env.reward_manager._compute, env.observation_manager._groups, env.termination_manager._compute,
-                 env.action_manager._convert, env.fused(_placement))
+                 env.action_manager._convert, env.fused(_placement), env.schedule._draw)
         assert all(f.compiled for f in fused)
         # a curriculum switching a weight on, or widening a command range, writes into tensors the compiled code
         # reads: no recompile

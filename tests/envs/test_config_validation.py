@@ -13,8 +13,8 @@ from dls_quadruped.envs.config import (
     ConfigError,
     available_tasks,
     load_task,
-    type_problem,
 )
+from dls_quadruped.envs.value_checks import type_problem
 
 PUSH = {"func": "push_robot", "mode": "interval", "params": {"velocity_range": [-0.5, 0.5]}}
 

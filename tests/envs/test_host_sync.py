@@ -178,7 +178,7 @@ def test_compiled_step_reads_nothing_back_and_recompiles_nothing(backend):
         _, more_resets, _, graphs = _run(env, 10, warmup=0)  # first uses (a stream's first push) compiled above
         fused = [env.reward_manager._compute, env.observation_manager._groups, env.termination_manager._compute,
                  env.action_manager._convert, env.command_manager._compute, env.command_manager._integrate,
-                 env._reset_bookkeeping, env.fused(_placement)]
+                 env._reset_bookkeeping, env.fused(_placement), env.schedule._draw]
         if backend == "warp-cpu":
             rate = env.scene.sim.rate
             fused += [rate._control, rate._settle, rate._terms, rate._publish, rate._store, rate._reset]

@@ -92,6 +92,28 @@ def test_bad_episode_keys_are_refused():
         EpisodeSchedule(seed=0, num_envs=3, episode_keys=torch.tensor([0, -1, 2]))
 
 
+def test_compile_set_after_the_first_draws_applies_from_the_next_draw():
+    """The env sets ``compile`` once its scene is built, after the terrain has drawn: the draws made after that are
+    compiled (no trace here: a dynamic function's first call runs eagerly), and the numbers are the eager ones."""
+    s, eager = EpisodeSchedule(seed=2, num_envs=4), EpisodeSchedule(seed=2, num_envs=4)
+    ids = torch.arange(4)
+    for x in (s, eager):
+        x.start_episodes(ids)
+    assert torch.equal(s.uniform(ids, (2,), stream="x"), eager.uniform(ids, (2,), stream="x"))
+    first = s._draw
+    assert not first.compiled
+    s.compile = True
+    assert s._draw is not first and s._draw.compiled and s.compile
+    assert torch.equal(s.uniform(ids, (2,), stream="x"), eager.uniform(ids, (2,), stream="x"))
+    env = LocomotionEnv(load_task("base", overrides={"scene": {"backend": "cpu", "num_workers": 0,
+                                                               "compile": True}}),
+                        num_envs=2, seed=0, verbose=False)
+    try:  # built without compiling (every first call eager), its schedule's draws compiled from now on
+        assert env.schedule.compile and env.schedule._draw.compiled
+    finally:
+        env.close()
+
+
 # ---------------------------------------------------------------------------- the env end to end
 SMALL_ROUGH = {"scene": {"num_workers": 0},
                "terrain": { "num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0},

@@ -90,10 +90,9 @@ def test_each_compiled_compute_matches_its_eager_function_on_one_state():
             rm.episode_sums[k].copy_(v)
         assert torch.allclose(compiled, rm._compute.fn(env.step_dt), rtol=1e-5, atol=1e-6)
         assert torch.equal(tm._compute(None), tm._compute.fn(None))
-        # the reset placement: the same draws (schedule counters restored in between), the same poses
-        ids = torch.tensor([2, 0])
+        # the reset placement of every robot: the same draws (schedule counters restored in between), the same poses
         draws = {k: v.clone() for k, v in env.schedule._draws.items()}
-        args = (env, ids, (0.8, 1.2), (-3.0, 3.0), 0.5, 0.4)
+        args = (env, (0.8, 1.2), (-3.0, 3.0), 0.5, 0.4)
         placement = env.fused(_placement)
         placed = placement(*args)
         for k, v in draws.items():

@@ -26,11 +26,12 @@ from dls_quadruped.control.latent_action import (
     finite_entries,
     validate_raw,
 )
-from dls_quadruped.core.compile import Fused
+from dls_quadruped.core.compile import fused_method
 from dls_quadruped.core.rotations import yaw_from_quat
 from dls_quadruped.core.state import RobotState
-from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
+from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import ManagerBase, format_table
+from dls_quadruped.envs.value_checks import dataclass_from_dict
 from dls_quadruped.mpc import horizon as mpc_horizon
 
 if TYPE_CHECKING:
@@ -103,7 +104,6 @@ class ActionManager(ManagerBase):
         self.saturated = torch.zeros(n, ACTION_DIM, dtype=torch.bool, device=dev)
         self.stance_frac = torch.ones(n, 4, device=dev)
         self.record_diagnostics = True
-        self._convert = Fused(self._convert_eager, getattr(env, "compile", False), "ActionManager.process")
 
     def process(self, raw: torch.Tensor, replan: bool = False, finite: bool = False,
                 num_physics_steps: int | None = None) -> None:
@@ -147,7 +147,8 @@ class ActionManager(ManagerBase):
             self.decision_command[:] = self.env.command_manager.command
         return mpc_horizon.first_raw_action(self.raw_horizon, self.horizon)
 
-    def _convert_eager(self, s) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    @fused_method("ActionManager.process")
+    def _convert(self, s) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """The raw action in ``raw_action`` to world references (f, d, p_td_w, F_w); violation and applied actions
         written (compiled with scene.compile)."""
         num_stance = s.contact_cmd.sum(dim=-1)

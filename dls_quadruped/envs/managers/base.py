@@ -31,12 +31,8 @@ from typing import Any
 
 import torch
 
-from dls_quadruped.envs.config import (
-    TaskConfig,
-    interval_problem,
-    type_hints,
-    type_problem,
-)
+from dls_quadruped.envs.config import TaskConfig
+from dls_quadruped.envs.value_checks import interval_problem, type_hints, type_problem
 
 
 class ManagerBase:
@@ -53,12 +49,21 @@ class ManagerBase:
       per-robot buffers of the episodes in progress are not in here: ``envs/episode_state.py`` finds them;
     * ``summary()``: the table printed when the env starts.
 
+    A manager's torch work that runs every step is a method decorated with ``core.compile.fused_method``: compiled
+    when :attr:`compile` (the env's) says so, eager otherwise, written once.
+
     Args:
         env: the ``LocomotionEnv`` being built (its ``num_envs``, ``device``, ``schedule``, earlier managers).
     """
 
     def __init__(self, env) -> None:
         self.env = env
+
+    @property
+    def compile(self) -> bool:
+        """Whether the manager's ``fused_method`` functions run compiled: the env's ``compile`` (``scene.compile``
+        resolved for the env's device; False for a stand-in env without one)."""
+        return getattr(self.env, "compile", False)
 
     def reset(self, env_mask: torch.Tensor) -> dict[str, Any]:
         """Episode logs (0-dim tensors) of the envs of ``env_mask`` (B,) bool, whose episodes ended; their per-episode

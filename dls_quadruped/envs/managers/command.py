@@ -22,7 +22,7 @@ from typing import Any
 
 import torch
 
-from dls_quadruped.core.compile import Fused
+from dls_quadruped.core.compile import fused_method
 from dls_quadruped.core.rotations import yaw_from_quat
 from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import (
@@ -67,9 +67,6 @@ class CommandManager(ManagerBase):
         self._ranges = {k: torch.tensor([float(x) for x in v], dtype=torch.float64, device=env.device)
                         for k, v in self.params.items() if _is_range(v)}
         self._range_values = {k: tuple(float(x) for x in self.params[k]) for k in self._ranges}
-        compile_ = getattr(env, "compile", False)
-        self._compute = Fused(self._compute_eager, compile_, "CommandManager.compute")
-        self._integrate = Fused(self._integrate_eager, compile_, "CommandManager.integrate")
 
     def sync_ranges(self) -> None:
         """Copy ranges changed in ``params`` (by a curriculum, a checkpoint) into their device tensors: compares
@@ -107,7 +104,8 @@ class CommandManager(ManagerBase):
         self.sync_ranges()
         self._compute(dt)
 
-    def _compute_eager(self, dt: float) -> None:
+    @fused_method("CommandManager.compute")
+    def _compute(self, dt: float) -> None:
         self.time_left -= dt
         self._resample_where(self.time_left <= 0.0)
 
@@ -128,7 +126,8 @@ class CommandManager(ManagerBase):
         omega dt, position by the base-frame velocity rotated by the mid-step heading."""
         self._integrate(dt)
 
-    def _integrate_eager(self, dt: float) -> None:
+    @fused_method("CommandManager.integrate")
+    def _integrate(self, dt: float) -> None:
         v, omega = self.command[:, :2], self.command[:, 2]
         mid = self.commanded_yaw + 0.5 * dt * omega
         c, s = torch.cos(mid), torch.sin(mid)

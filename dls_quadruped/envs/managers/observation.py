@@ -14,8 +14,8 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
-from dls_quadruped.core.compile import Fused
-from dls_quadruped.envs.config import TaskConfig, type_problem
+from dls_quadruped.core.compile import fused_method
+from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import (
     ManagerBase,
     Term,
@@ -23,6 +23,7 @@ from dls_quadruped.envs.managers.base import (
     resolve_terms,
 )
 from dls_quadruped.envs.mdp import observations as obs_mdp
+from dls_quadruped.envs.value_checks import type_problem
 
 GROUP_KEYS = ("noise_scale", "terms")
 
@@ -52,16 +53,16 @@ class ObservationManager(ManagerBase):
         super().__init__(env)
         self.groups, self.noise_scale = resolve_groups(task)
         self.dims: dict[str, dict[str, int]] = {}
-        self._groups = Fused(self._groups_eager, getattr(env, "compile", False), "ObservationManager.compute")
 
     def compute(self) -> TensorDict:
         """Evaluate every group: concatenation of its terms plus U(-noise, noise) x noise_scale."""
         # the first call (the env's constructor) runs eagerly and records the terms' sizes; later ones are compiled
         # with scene.compile
-        out = self._groups() if self.dims else self._groups_eager()
+        out = self._groups() if self.dims else self._groups.fn()
         return TensorDict(out, batch_size=[self.env.num_envs], device=self.env.device)
 
-    def _groups_eager(self) -> dict[str, torch.Tensor]:
+    @fused_method("ObservationManager.compute")
+    def _groups(self) -> dict[str, torch.Tensor]:
         out = {}
         ids = torch.arange(self.env.num_envs, device=self.env.device)
         for group, terms in self.groups.items():
@@ -79,6 +80,7 @@ class ObservationManager(ManagerBase):
         return out
 
     def summary(self) -> str:
-        rows = [(g, t.name, t.func.__name__, self.dims.get(g, {}).get(t.name, "?"), t.extra["noise"] * self.noise_scale[g])
+        rows = [(g, t.name, t.func.__name__, self.dims.get(g, {}).get(t.name, "?"),
+                 t.extra["noise"] * self.noise_scale[g])
                 for g, terms in self.groups.items() for t in terms]
         return format_table("observations", ("group", "term", "function", "dim", "noise"), rows)

@@ -15,7 +15,7 @@ from typing import Any
 
 import torch
 
-from dls_quadruped.core.compile import Fused
+from dls_quadruped.core.compile import fused_method
 from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import (
     ManagerBase,
@@ -99,22 +99,23 @@ class RewardManager(ManagerBase):
         super().__init__(env)
         self.terms = resolve_rewards(task)
         self.weights = Weights([t.name for t in self.terms], [float(t.extra["weight"]) for t in self.terms],
-                               env.device, self._build_compute)
+                               env.device, self._renew_compute)
         self.episode_sums = {t.name: torch.zeros(env.num_envs, device=env.device) for t in self.terms}
         self.part_sums: dict[str, torch.Tensor] = {}
         """``<term>/<part>`` -> (B,) episode sums of the parts of the terms that split their value (``parts``)."""
         self.step_reward = torch.zeros(env.num_envs, len(self.terms), device=env.device)
-        self._build_compute()
 
-    def _build_compute(self) -> None:
-        # compiled with scene.compile; the weights are a tensor it reads, so a curriculum switch does not recompile
-        self._compute = Fused(self._compute_eager, getattr(self.env, "compile", False), "RewardManager.compute")
+    def _renew_compute(self) -> None:
+        """A term was activated: the compute is made anew (it reads which terms are active as Python values)."""
+        RewardManager._compute.renew(self)
 
     def compute(self, dt: float) -> torch.Tensor:
         """(B,) total reward of this policy step; non-finite term values count as 0 (and are logged)."""
         return self._compute(dt)
 
-    def _compute_eager(self, dt: float) -> torch.Tensor:
+    # compiled with scene.compile; the weights are a tensor it reads, so a curriculum switch does not recompile
+    @fused_method("RewardManager.compute")
+    def _compute(self, dt: float) -> torch.Tensor:
         total = torch.zeros(self.env.num_envs, device=self.env.device)
         w = self.weights.tensor
         active = self.weights.active

@@ -19,8 +19,9 @@ from typing import Any
 import mujoco
 import torch
 
-from dls_quadruped.envs.config import TaskConfig, dataclass_from_dict
+from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import ManagerBase
+from dls_quadruped.envs.value_checks import dataclass_from_dict
 from dls_quadruped.robots.aliengo import constants as C
 from dls_quadruped.sim.height_scan import HeightScanConfig, scan_pattern
 from dls_quadruped.sim.interface import LEG_DYNAMICS, SimBackend, SimConfig
@@ -115,7 +116,8 @@ class SceneManager(ManagerBase):
             self.env_origins.copy_(self.tile_origins[self.terrain_levels, self.terrain_types])
             return
         lv = self.terrain_levels[env_ids] + delta
-        lv = torch.where(lv >= rows, self.env.schedule.integers(env_ids, 0, rows, stream="terrain_level"), lv.clamp(min=0))
+        random_level = self.env.schedule.integers(env_ids, 0, rows, stream="terrain_level")
+        lv = torch.where(lv >= rows, random_level, lv.clamp(min=0))
         self.terrain_levels[env_ids] = lv
         self.env_origins[env_ids] = self.tile_origins[lv, self.terrain_types[env_ids]]
 

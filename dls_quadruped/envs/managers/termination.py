@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from dls_quadruped.core.compile import Fused
+from dls_quadruped.core.compile import fused_method
 from dls_quadruped.envs.config import TaskConfig
 from dls_quadruped.envs.managers.base import (
     ManagerBase,
@@ -36,7 +36,6 @@ class TerminationManager(ManagerBase):
         self.time_outs = torch.zeros(n, dtype=torch.bool, device=env.device)
         self.term_dones = {t.name: torch.zeros(n, dtype=torch.bool, device=env.device) for t in self.terms}
         self.term_dones[NONFINITE_ACTION] = torch.zeros(n, dtype=torch.bool, device=env.device)
-        self._compute = Fused(self._compute_eager, getattr(env, "compile", False), "TerminationManager.compute")
 
     def compute(self, nonfinite_action: torch.Tensor | None = None) -> torch.Tensor:
         """(B,) bool dones = terminated | time_outs (a robot that fails on its last step is terminated).
@@ -46,7 +45,8 @@ class TerminationManager(ManagerBase):
         """
         return self._compute(nonfinite_action)
 
-    def _compute_eager(self, nonfinite_action: torch.Tensor | None = None) -> torch.Tensor:
+    @fused_method("TerminationManager.compute")
+    def _compute(self, nonfinite_action: torch.Tensor | None = None) -> torch.Tensor:
         self.terminated[:] = False
         self.time_outs[:] = False
         bad = self.term_dones[NONFINITE_ACTION]

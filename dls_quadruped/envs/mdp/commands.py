@@ -48,5 +48,6 @@ def fixed_velocity(env, env_ids: torch.Tensor, values: list[list[float]]) -> tor
     rows = tuple(tuple(float(v) for v in row) for row in values)
     table = constant_tensor(rows, torch.float32, env.device)  # built once, not at every resampling
     if table.shape != (env.num_envs, 3):
-        raise ValueError(f"fixed_velocity: values must be (num_envs, 3) = ({env.num_envs}, 3), got {tuple(table.shape)}")
+        raise ValueError(f"fixed_velocity: values must be (num_envs, 3) = ({env.num_envs}, 3), "
+                         f"got {tuple(table.shape)}")
     return table[env_ids]

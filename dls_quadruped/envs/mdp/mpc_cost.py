@@ -53,7 +53,8 @@ def check_params(reference_cost: float, com_height: float, clip: float, split_ev
         raise ValueError(f"mpc_trajectory_cost: com_height (the MPC's CoM height reference) must be in [0.1, 0.6] m, "
                          f"got {com_height!r}")
     if not 0 < clip < float("inf"):
-        raise ValueError(f"mpc_trajectory_cost: clip must be > 0 and finite (multiples of reference_cost), got {clip!r}")
+        raise ValueError(f"mpc_trajectory_cost: clip must be > 0 and finite (multiples of reference_cost), "
+                         f"got {clip!r}")
     if isinstance(split_every, bool) or not isinstance(split_every, int) or split_every < 1:
         raise ValueError(f"mpc_trajectory_cost: split_every must be an int >= 1 (1: the split by term on every call), "
                          f"got {split_every!r}")
