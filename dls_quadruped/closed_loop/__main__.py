@@ -83,7 +83,8 @@ def _names(text: str, allowed: tuple[str, ...], what: str) -> tuple[str, ...]:
     names = tuple(t.strip() for t in text.split(",") if t.strip())
     bad = [n for n in names if n not in allowed]
     if bad or not names or len(set(names)) != len(names):
-        raise argparse.ArgumentTypeError(f"{what} must be distinct names from {list(allowed)} separated by commas, got {text!r}")
+        raise argparse.ArgumentTypeError(f"{what} must be distinct names from {list(allowed)} separated by commas, "
+                                         f"got {text!r}")
     return names
 
 
@@ -125,7 +126,8 @@ def student_paths(names: tuple[str, ...], encoding: str, horizon: int, dt: float
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--controllers", type=lambda t: _names(t, CONTROLLERS, "--controllers"),
-                   default=("rl_warm_start", "naive_warm_start", "rl_baseline"), help=f"comma-separated from {list(CONTROLLERS)}")
+                   default=("rl_warm_start", "naive_warm_start", "rl_baseline"),
+                   help=f"comma-separated from {list(CONTROLLERS)}")
     p.add_argument("--policy", type=Path, default=DEFAULT_POLICY, help="RL expert (rl_baseline)")
     p.add_argument("--student", type=Path, default=DEFAULT_STUDENT, help="distilled student (rl_warm_start, student)")
     p.add_argument("--students", type=_list, default=None,
@@ -139,23 +141,25 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--group-cost-smoothing", type=float, default=0.0,
                    help="several warm starts: groups compete by a running average of their best cost, "
                         "A <- (1 - beta) J + beta A; beta in [0, 1) (default 0: off)")
-    p.add_argument("--episodes", type=positive_int, default=8, help="episodes (robots in parallel); even for the simple task")
+    p.add_argument("--episodes", type=positive_int, default=8,
+                   help="episodes (robots in parallel); even for the simple task")
     p.add_argument("--seconds", type=positive_float, default=15.0, help="episode length [s]")
     p.add_argument("--vx", type=float, default=None, help="fixed forward command [m/s] instead of the simple task")
     p.add_argument("--scenario", choices=SCENARIOS, default="simple",
-                   help="simple (flat, no disturbance), pushes (simple with pushes of --push-speed) or the eval suite's "
-                        "survival / survival_sweep (terrain, pushes, "
+                   help="simple (flat, no disturbance), pushes (simple with pushes of --push-speed) or the eval "
+                        "suite's survival / survival_sweep (terrain, pushes, "
                         "friction, wrench, noise) or stairs (one stairs_up row per --heights, no disturbance); the MPC "
                         "is terrain-blind unless --ground terrain")
     p.add_argument("--push-speed", type=positive_float, default=None,
                    help="pushes: the largest velocity change of a push [m/s] per horizontal axis (every 4-6 s)")
     p.add_argument("--heights", type=_heights, default=None,
-                   help="stairs: step heights [m], comma-separated, positive, ascending and evenly spaced (one terrain "
-                        f"row each; default {','.join(f'{h:g}' for h in STAIRS_HEIGHTS)}); --episodes is then per height")
+                   help="stairs: step heights [m], comma-separated, positive, ascending and evenly spaced (one "
+                        f"terrain row each; default {','.join(f'{h:g}' for h in STAIRS_HEIGHTS)}); --episodes is then "
+                        "per height")
     p.add_argument("--ground", choices=("auto", *GROUNDS), default="auto",
-                   help="ground the MPC plans on: auto = flat for simple, stance_feet (flat at its feet's height) else; "
-                        "terrain = the terrain map (CoM reference above the terrain under the base, touch-downs at "
-                        "the terrain height under the reference footholds)")
+                   help="ground the MPC plans on: auto = flat for simple, stance_feet (flat at its feet's height) "
+                        "else; terrain = the terrain map (CoM reference above the terrain under the base, "
+                        "touch-downs at the terrain height under the reference footholds)")
     p.add_argument("--samples", type=positive_int, default=10000, help="M, samples per robot")
     p.add_argument("--sampler-seeds", type=positive_int, default=1,
                    help="independent sampler noise streams per episode for the MPC controllers (robots in parallel)")
@@ -164,7 +168,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--encoding", default="first-spline", help=f"p-F, each from {list(ENCODING_KINDS)}")
     p.add_argument("--optimise", type=lambda t: _names(t, OPTIMISABLE, "--optimise"), default=("F",),
                    help=f"variables the MPC samples, from {list(OPTIMISABLE)}")
-    p.add_argument("--naive-share", type=float, default=0.0, help="rl_warm_start: share of samples around the naive warm start")
+    p.add_argument("--naive-share", type=float, default=0.0,
+                   help="rl_warm_start: share of samples around the naive warm start")
     p.add_argument("--naive-gait", type=float, nargs=2, metavar=("FREQ", "DUTY"), default=None,
                    help="naive_warm_start: its trot's frequency [Hz] in (0, 3] and duty cycle in (0, 1) "
                         "(default 1.5 0.6, mpc.baseline.BaselineConfig)")
@@ -181,18 +186,21 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--num-workers", type=int, default=0,
                    help="simulator worker processes (0, default: in-process: the MPC keeps the cores busy, so separate "
-                        "simulator processes only add IPC; measured in docs/benchmarks.md 'Closed loop'; -1: one per core)")
+                        "simulator processes only add IPC; measured in docs/benchmarks.md 'Closed loop'; -1: one per "
+                        "core)")
     p.add_argument("--video", action="store_true", help="render robot 0 of each controller side by side (GIF)")
     p.add_argument("--video-seconds", type=positive_float, default=4.0)
     p.add_argument("--record-robots", type=non_negative_int, default=1)
     p.add_argument("--out", type=Path, default=Path("results/closed_loop"))
-    add_set_argument(p, f"of the base task every scenario starts from, in its sections {', '.join(OVERRIDABLE_SECTIONS)}: "
+    add_set_argument(p, "of the base task every scenario starts from, in its sections "
+                        f"{', '.join(OVERRIDABLE_SECTIONS)}: "
                         f"the scenario sets {', '.join(FIXED_SECTIONS)} itself, so a key there is refused; recorded "
                         "in summary.json's settings")
     args = p.parse_args(argv)
     parts = args.encoding.split("-")
     if len(parts) != 2 or any(k not in ENCODING_KINDS for k in parts):
-        p.error(f"argument --encoding: must be p-F with each of {list(ENCODING_KINDS)}, e.g. first-spline; got {args.encoding!r}")
+        p.error(f"argument --encoding: must be p-F with each of {list(ENCODING_KINDS)}, e.g. first-spline; "
+                f"got {args.encoding!r}")
     if args.scenario == "stairs":
         if args.vx is not None:
             p.error(f"argument --vx: the stairs scenario draws its own forward commands (v_x ~ U[0.3, 0.5] m/s); "
@@ -250,16 +258,19 @@ def headline(summary: dict) -> str:
         lines.append(f"  medians over episodes [95 % CI]: RL reward {_metric(s, 'rl_reward', thesis)}; "
                      f"initial cost {_metric(s, 'initial_cost', thesis)}; state-only rollout cost "
                      f"{_metric(s, 'rollout_cost', thesis)}; full J {_metric(s, 'rollout_cost_full', {})}")
-        lines.append(f"  |v_xy - cmd| median {s['vel_error']['median']:.3f} m/s; CoT median {s['cost_of_transport']['median']:.2f}; "
+        lines.append(f"  |v_xy - cmd| median {s['vel_error']['median']:.3f} m/s; "
+                     f"CoT median {s['cost_of_transport']['median']:.2f}; "
                      f"{tm['robot_seconds_per_second']:.2f} robot-s/s, kernel {100 * tm['kernel_share']:.0f} % of "
                      f"{tm['wall']:.1f} s wall")
         for r in s.get("stairs", {}).get("per_height", []):
             top, sv, c = r["success"], r["survival"], r["climbed_fraction"]
             lines.append(f"  stairs h {100 * r['step_height']:4.1f} cm ({r['episodes']:g} episodes): top "
-                         f"{100 * top['rate']:.0f} % [{100 * top['ci95_episodes'][0]:.0f}, {100 * top['ci95_episodes'][1]:.0f}], "
+                         f"{100 * top['rate']:.0f} % [{100 * top['ci95_episodes'][0]:.0f}, "
+                         f"{100 * top['ci95_episodes'][1]:.0f}], "
                          f"survival {100 * sv['rate']:.0f} %, climbed {100 * c['mean']:.0f} % of the flight")
     for pair, diffs in summary.get("paired", {}).items():
-        parts = [f"{k} {_difference(diffs[k], 3 if k in ('rl_reward', 'vel_error', 'survived', 'reached_top', 'climbed_fraction') else 1)}"
+        fine = ("rl_reward", "vel_error", "survived", "reached_top", "climbed_fraction")  # 3 digits, the rest 1
+        parts = [f"{k} {_difference(diffs[k], 3 if k in fine else 1)}"
                  for k in ("rl_reward", "initial_cost", "rollout_cost", "survived", "reached_top", "climbed_fraction")
                  if k in diffs]
         lines.append(f"[closed_loop] paired, {pair} (mean over episodes [95 % CI]): " + "; ".join(parts))
@@ -281,13 +292,15 @@ def main(argv: list[str] | None = None) -> dict:
             flag = "--student" if name in NEEDS_STUDENT else "--policy"
             raise UserError(f"{flag} {path} not found (controller {name} needs it)")
     p_kind, f_kind = args.encoding.split("-")
-    ground = args.ground if args.ground != "auto" else "flat" if args.scenario in ("simple", "pushes") else "stance_feet"
+    auto_ground = "flat" if args.scenario in ("simple", "pushes") else "stance_feet"
+    ground = args.ground if args.ground != "auto" else auto_ground
     try:
         sampler = SamplerConfig(num_samples=args.samples, horizon=args.horizon, dt=args.dt, encoding_p=p_kind,
                                 encoding_F=f_kind, kernel=args.kernel, switching_cost=args.switching_cost,
                                 group_cost_smoothing=args.group_cost_smoothing)
         configs = [ControllerConfig(name, policy=args.policy, student=students or args.student, sampler=sampler,
-                                    optimise=args.optimise, naive_share=args.naive_share if name == "rl_warm_start" else 0.0,
+                                    optimise=args.optimise,
+                                    naive_share=args.naive_share if name == "rl_warm_start" else 0.0,
                                     shares=args.shares if name == "rl_warm_start" else None, ground=ground,
                                     seed=args.seed,
                                     naive_gait=tuple(args.naive_gait) if args.naive_gait and name == "naive_warm_start"

@@ -145,7 +145,8 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
                      "ci95_bootstrap": M.bootstrap_ci(units["survived"], np.nanmean),
                      # copies of one episode are not independent: Wilson's interval with the E episodes as
                      # the trials (conservative, and unlike the bootstrap not a point at 0 % or 100 %)
-                     "ci95_episodes": list(M.wilson_interval(survived / n * episodes, episodes)) if n else [np.nan] * 2},
+                     "ci95_episodes": (list(M.wilson_interval(survived / n * episodes, episodes)) if n
+                                       else [np.nan] * 2)},
         "rl_reward_episode_mean": M.mean_ci(np.nanmean(traces.reward, axis=0)),
         "per_episode": {k: v.tolist() for k, v in units.items()},
     }
@@ -169,7 +170,8 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
                              for k in range(horizon)],
             "horizon_cost_full": [M.episode_summary(_units(per_episode_median(traces.step_costs[..., k]), replicas))
                                   for k in range(horizon)],
-            "warm_start_won": {str(g): float((winners == g).mean()) for g in np.unique(winners)} if winners.size else {},
+            "warm_start_won": ({str(g): float((winners == g).mean()) for g in np.unique(winners)} if winners.size
+                               else {}),
             "mpc_fallbacks": traces.mpc_fallbacks,
             "student_fallbacks": traces.student_fallbacks,
         })
@@ -177,7 +179,7 @@ def summarize(traces: ClosedLoopTraces, settle_s: float = SETTLE_S, replicas: in
     out["initial_cost_terms"] = {name: M.episode_summary(_units(per_episode_median(traces.initial_cost_terms[..., i]),
                                                                  replicas))
                                  for i, name in enumerate(STATE_TERMS)}
-    if traces.terrain is not None:  # survival per terrain type and per row, Wilson's interval with the episodes as trials
+    if traces.terrain is not None:  # survival per terrain type and per row, Wilson's interval, the episodes as trials
         t = traces.terrain
         out["survival_per_type"] = _survival_by(survived_env, np.asarray(t["type"]), len(t["types"]), replicas,
                                                 labels=t["types"])
@@ -233,7 +235,8 @@ def _mean_bootstrap(units: np.ndarray) -> dict:
     units = np.asarray(units, dtype=float)
     if not np.isfinite(units).any():
         return {"mean": float("nan"), "ci95": [float("nan")] * 2, "episodes": int(units.shape[1])}
-    return {"mean": float(np.nanmean(units)), "ci95": M.bootstrap_ci(units, np.nanmean), "episodes": int(units.shape[1])}
+    return {"mean": float(np.nanmean(units)), "ci95": M.bootstrap_ci(units, np.nanmean),
+            "episodes": int(units.shape[1])}
 
 
 def _survival_by(survived: np.ndarray, group: np.ndarray, count: int, replicas: int,
