@@ -1,14 +1,14 @@
 """Choose a thesis-5.3 run's policy on validation episodes ([mpc_cost_plan.md](docs/experiments/mpc_cost_plan.md)).
 
-Every candidate -- the DAgger student the runs start from, the run's checkpoints at multiples of ``--every``
-iterations and its newest, and any ``--extra`` checkpoint -- drives ``base_mpc_cost`` alone (deterministic: the
-actor's mean) on the simple task's **validation** episodes (``--episodes``, 15 s, the eval's validation seed:
-disjoint from the test episodes every closed-loop cell plays), the env as the evaluation builds it (flat, no noise or
-perturbation, one fixed command per episode) with the run's own training objective as its reward: the Table-4
-reward plus ``W`` times the trajectory cost c (``mpc_trajectory_cost``, the task's parameters; no term when
-``W = 0``). The candidate with the highest mean over episodes of the per-episode reward per step is the run's
-policy; a tie goes to the later one. Also recorded per candidate: survival and the mean c per episode (the term's
-value whatever ``W``).
+Every candidate -- the DAgger student the runs start from (not for a run from scratch: ``--no-student``), the
+run's checkpoints at multiples of ``--every`` iterations and its newest, and any ``--extra`` checkpoint -- drives
+``base_mpc_cost`` alone (deterministic: the actor's mean) on the simple task's **validation** episodes
+(``--episodes``, 15 s, the eval's validation seed: disjoint from the test episodes every closed-loop cell plays),
+the env as the evaluation builds it (flat, no noise or perturbation, one fixed command per episode) with the run's
+own training objective as its reward: the Table-4 reward plus ``W`` times the trajectory cost c
+(``mpc_trajectory_cost``, the task's parameters; no term when ``W = 0``). The candidate with the highest mean over
+episodes of the per-episode reward per step is the run's policy; a tie goes to the later one. Also recorded per
+candidate: survival and the mean c per episode (the term's value whatever ``W``).
 
     python -m experiments.mpc_cost_select --weight -0.1 --run runs/base_mpc_cost/w0.1_s1 \\
         --out docs/experiments/mpc_cost/selection/w0.1_s1 --export runs/mpc_cost/w0.1_s1.pt2
@@ -119,6 +119,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--extra", type=Path, nargs="*", default=[],
                    help="more checkpoints (e.g. a committed resume copy), after the run's, in training order")
     p.add_argument("--student", type=Path, default=STUDENT, help="the DAgger student the runs started from")
+    p.add_argument("--no-student", action="store_true",
+                   help="a run trained from scratch: the student it did not start from is not a candidate")
     p.add_argument("--every", type=positive_int, default=50)
     p.add_argument("--episodes", type=positive_int, default=64, help="validation episodes (even)")
     p.add_argument("--seed", type=int, default=0, help="the evaluation seed whose validation split is played")
@@ -139,7 +141,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     torch.set_num_threads(1)
-    todo = [args.student]
+    todo = [] if args.no_student else [args.student]
     if args.run is not None:
         if not args.run.is_dir():
             raise UserError(f"--run {args.run}: not a directory")
