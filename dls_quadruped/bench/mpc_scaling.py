@@ -8,14 +8,15 @@ and the skips are :mod:`dls_quadruped.bench.mpc_warp`'s (:func:`~dls_quadruped.b
 solves, then at most ``--solves`` solves or ``--point-s`` seconds (at least 3); points in order of work B M.
 
 Per point: the median and quartiles of the solve time (the CPU: wall time of each solve; CUDA: CUDA-event time of
-back-to-back solves, :func:`~dls_quadruped.bench.mpc_warp.per_call_ms`), the time per sample rollout
-(median / (B M), ns), the calls per solve counted on one more solve (:func:`count_launches`), the 1-minute load
-average when the point ended and the thread count. A point with B M > ``--max-work`` (the CPU default 5 x 10^7:
-one solve of 4 x 10^7 sample rollouts already takes ~10 s on one core, and the next grid size, 2.6 x 10^8, would
-take minutes per solve) or whose predicted time exceeds what is left of ``--budget-s`` is a row with ``skipped`` =
-why. Writes ``DIR/mpc_scaling_<cpu|cuda>.json`` after every point and a plot ``DIR/mpc_scaling_<...>.png`` (solve
-time against M, a line per B; time per sample rollout against B M), and prints a markdown table. ``--render F.json
-[G.json ...]`` only redraws the plot and the table from saved runs (several: the CPU and the GPU run in one plot).
+back-to-back solves, :func:`~dls_quadruped.bench.mpc_warp.per_call_ms`), the time per sample rollout (median / (B M),
+ns), the calls per solve counted on one more solve (:func:`count_launches`), the 1-minute load average when the point
+ended and the thread count. A point with B M > ``--max-work`` (the CPU default 5 x 10^7: one solve of 4 x 10^7 sample
+rollouts takes ~7 s on one core of the 2-core VM, and the next grid size, 2.6 x 10^8, ~45 s a solve, 4-5 min a point
+with its warm-up, per thread count) or whose predicted time exceeds what is left of ``--budget-s`` is a row with
+``skipped`` = why. Writes ``DIR/mpc_scaling_<cpu|cuda>.json`` after every point and a plot
+``DIR/mpc_scaling_<...>.png`` (solve time against M, a line per B; time per sample rollout against B M), and prints a
+markdown table. ``--render F.json [G.json ...]`` only redraws the plot and the table from saved runs (several: the CPU
+and the GPU run in one plot).
 """
 
 from __future__ import annotations
@@ -102,12 +103,16 @@ def count_launches(mpc: SamplingMPC, solve: Callable[[], object]) -> dict:
     return {"launches": launches}
 
 
+def probe(mpc: SamplingMPC, solve: Callable[[], object]) -> dict:
+    """A timed point's extra entries: :func:`count_launches` and the 1-minute load average when its timing ended."""
+    return {**count_launches(mpc, solve), "load_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None}
+
+
 def with_derived(row: dict, threads: int) -> dict:
-    """``row`` with the thread count, the time per sample rollout [ns] and the load average now."""
+    """``row`` with the thread count and the time per sample rollout [ns]."""
     row = {**row, "threads": threads}
     if "solve_ms" in row:
         row["ns_per_rollout"] = row["solve_ms"] * 1e6 / (row["B"] * row["M"])
-        row["load_1min"] = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     return row
 
 
@@ -140,7 +145,7 @@ def run(args: argparse.Namespace) -> dict:
     try:
         for t in threads:
             torch.set_num_threads(t)
-            rows = sweep(args, args.robots, args.samples, [kernel], device, model, probe=count_launches,
+            rows = sweep(args, args.robots, args.samples, [kernel], device, model, probe=probe,
                          on_row=save, tag=f"mpc_scaling {t} thread{'s' if t > 1 else ''}")
             done += [with_derived(r, t) for r in rows]
     finally:

@@ -30,7 +30,7 @@ def test_tiny_grid_rows_skips_and_plot(tmp_path, capsys):
         for b, m in ((1, 64), (1, 128), (2, 64)):
             r = rows[(t, b, m)]
             assert 0 < r["solve_q1_ms"] <= r["solve_ms"] <= r["solve_q3_ms"] and r["solves"] >= 3
-            assert r["ns_per_rollout"] == pytest.approx(r["solve_ms"] * 1e6 / (b * m))
+            assert r["ns_per_rollout"] == pytest.approx(r["solve_ms"] * 1e6 / (b * m)) and r["load_1min"] >= 0
             calls = r["launches"]
             assert calls["kernel_calls"] == 1 and calls["cpp_by_function"]["mpc_solve"] == 1  # the fused solve
             assert calls["cpp_calls"] == sum(calls["cpp_by_function"].values()) > 1
