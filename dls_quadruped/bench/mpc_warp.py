@@ -5,8 +5,9 @@ first-spline, every variable sampled, two warm starts 50/50 (the naive one and a
 (B, M) taken in order of work B M until ``--budget-s`` is spent (the rest recorded as skipped). Per point, after a
 launched and a captured warm-up solve:
 
-* ``solve_ms``: back-to-back solves, on CUDA the CUDA-event time of the run divided by its solves (what one solve
-  costs in a loop that never waits for it), on the CPU the median wall time;
+* ``solve_ms``: back-to-back solves, on CUDA the CUDA-event time of a run divided by its solves (what one solve
+  costs in a loop that never waits for it; the median of five runs, ``solve_q1_ms`` and ``solve_q3_ms`` their
+  quartiles), on the CPU the median wall time (and its quartiles);
 * ``graph_ms``: the captured graph's replay alone (clean, rollout, argmin, decode; inputs already staged), same
   timing: the kernels' time;
 * ``latency_ms``: on CUDA, one solve then a synchronisation, median wall time (what a caller that reads the action
@@ -29,6 +30,7 @@ import platform
 import statistics
 import sys
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import torch
@@ -104,8 +106,9 @@ def predict_s(timed: list[dict], work: int) -> float:
 
 
 def time_point(b: int, m: int, n: int, kernel: str, device: torch.device, model: SRBDModel, solves: int,
-               point_s: float) -> dict:
-    """One grid point (module doc); at most ~``point_s`` seconds of timed solves after the warm-up."""
+               point_s: float, probe: Callable[[SamplingMPC, Callable], dict] | None = None) -> dict:
+    """One grid point (module doc); at most ~``point_s`` seconds of timed solves after the warm-up. ``probe(mpc,
+    solve)``, when given, runs after the timing and its entries join the row (e.g. launch counts)."""
     cfg = SamplerConfig(num_samples=m, horizon=n, kernel=kernel)
     mpc = SamplingMPC(cfg, model=model, device=device, seed=0)
     state, refs, phase = problem(b, device)
@@ -130,8 +133,8 @@ def time_point(b: int, m: int, n: int, kernel: str, device: torch.device, model:
            "first_call_s": first_s, "second_call_s": second_s}
     work = mpc.last_device_solve
     graph = None if work is None else work.execute
-    row["solve_ms"] = _per_call_ms(solve, count, device)
-    row["graph_ms"] = _per_call_ms(graph, count, device) if graph is not None else None
+    row["solve_ms"], row["solve_q1_ms"], row["solve_q3_ms"] = per_call_ms(solve, count, device)
+    row["graph_ms"] = per_call_ms(graph, count, device)[0] if graph is not None else None
     if cuda and b * m <= 1e8:  # big points: the back-to-back time is the latency already
         lat = []
         for _ in range(count):
@@ -142,26 +145,36 @@ def time_point(b: int, m: int, n: int, kernel: str, device: torch.device, model:
         row["latency_ms"] = statistics.median(lat)
     row["launches_per_solve"] = None if work is None else 3 + len(work.argmin.widths)
     row["captured"] = None if work is None else bool(work.graph.graph is not None)
+    if probe is not None:
+        row.update(probe(mpc, solve))
     return row
 
 
-def _per_call_ms(fn, count: int, device: torch.device) -> float:
-    """CUDA: event time of ``count`` back-to-back calls / count; CPU: median wall time of a call [ms]."""
+def per_call_ms(fn: Callable[[], object], count: int, device: torch.device) -> tuple[float, float, float]:
+    """(median, first quartile, third quartile) [ms] of one of ``count`` calls of ``fn``: on CUDA over five runs
+    of back-to-back calls (one run when ``count`` < 5), each its CUDA-event time / its calls; on the CPU over the
+    calls' wall times."""
+    times = []
     if device.type == "cuda":
+        runs = 5 if count >= 5 else 1
         start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
         torch.cuda.synchronize(device)
-        start.record()
+        for _ in range(runs):
+            start.record()
+            for _ in range(count // runs):
+                fn()
+            end.record()
+            end.synchronize()
+            times.append(start.elapsed_time(end) / (count // runs))
+    else:
         for _ in range(count):
+            tic = time.perf_counter()
             fn()
-        end.record()
-        end.synchronize()
-        return start.elapsed_time(end) / count
-    times = []
-    for _ in range(count):
-        tic = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - tic) * 1e3)
-    return statistics.median(times)
+            times.append((time.perf_counter() - tic) * 1e3)
+    if len(times) < 2:
+        return times[0], times[0], times[0]
+    q1, median, q3 = statistics.quantiles(times, n=4, method="inclusive")
+    return median, q1, q3
 
 
 def check(device: torch.device, model: SRBDModel) -> dict:
@@ -208,6 +221,45 @@ def check(device: torch.device, model: SRBDModel) -> dict:
         finally:
             torch.cuda.set_sync_debug_mode("default")
     return out
+
+
+def sweep(args: argparse.Namespace, robots: Sequence[int], samples: Sequence[int], kernels: Sequence[str],
+          device: torch.device, model: SRBDModel, probe: Callable[[SamplingMPC, Callable], dict] | None = None,
+          on_row: Callable[[list[dict]], None] | None = None, tag: str = "mpc_warp") -> list[dict]:
+    """Rows of :func:`time_point` over ``robots`` x ``samples`` x ``kernels``, in order of work B M; ``args`` holds
+    ``horizon``, ``solves``, ``point_s``, ``budget_s`` and ``max_work``. A point with B M > ``max_work``, or one
+    whose predicted time (:func:`predict_s`) exceeds what is left of ``budget_s`` seconds (the first point always
+    runs), or out of memory, is a row with ``skipped`` = why. ``on_row(rows)`` after every row (e.g. write the
+    JSON); progress lines on stdout start with ``[tag]``."""
+    points = sorted(((b, m) for b in robots for m in samples), key=lambda bm: (bm[0] * bm[1], bm[1]))
+    rows: list[dict] = []
+    start = time.perf_counter()
+    for b, m in points:
+        for kernel in kernels:
+            base = {"B": b, "M": m, "N": args.horizon, "kernel": kernel, "device": str(device)}
+            timed = [r for r in rows if "solve_ms" in r and r["kernel"] == kernel]
+            left = args.budget_s - (time.perf_counter() - start)
+            predicted = predict_s(timed, b * m)
+            if b * m > args.max_work:
+                rows.append({**base, "skipped": f"B M = {b * m:.3g} > --max-work {args.max_work:.3g}"})
+            elif any("solve_ms" in r for r in rows) and (left <= 0 or predicted > left):
+                rows.append({**base, "skipped": "over --budget-s" if left <= 0 else
+                             f"predicted {predicted:.0f} s > the {left:.0f} s left of --budget-s"})
+            else:
+                try:
+                    rows.append(time_point(b, m, args.horizon, kernel, device, model, args.solves, args.point_s,
+                                           probe))
+                except torch.cuda.OutOfMemoryError:
+                    rows.append({**base, "skipped": "out of memory"})
+                r = rows[-1]
+                graph = f", graph {r['graph_ms']:.3f} ms" if r.get("graph_ms") is not None else ""
+                print(f"[{tag}] {kernel} {device} B={b} M={m}: " + (r.get("skipped") or
+                      f"solve {r['solve_ms']:.3f} ms{graph}"), flush=True)
+            if on_row is not None:
+                on_row(rows)
+            if device.type == "cuda":
+                torch.cuda.empty_cache()
+    return rows
 
 
 def table(rows: list[dict]) -> str:
@@ -280,32 +332,14 @@ def main(argv: list[str] | None = None) -> int:
         info["check"] = check(device, model)
         print(f"[mpc_warp] check ({time.perf_counter() - tic:.1f} s, Warp compiles included): {info['check']}",
               flush=True)
-    points = sorted(((b, m) for b in bs for m in ms), key=lambda bm: (bm[0] * bm[1], bm[1]))
-    rows, start = [], time.perf_counter()
+    start = time.perf_counter()
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    for b, m in points:
-        for kernel in kernels:
-            base = {"B": b, "M": m, "N": args.horizon, "kernel": kernel, "device": str(device)}
-            timed = [r for r in rows if "solve_ms" in r and r["kernel"] == kernel]
-            left = args.budget_s - (time.perf_counter() - start)
-            predicted = predict_s(timed, b * m)
-            if b * m > args.max_work:
-                rows.append({**base, "skipped": f"B M > --max-work {args.max_work:.3g}"})
-            elif any("solve_ms" in r for r in rows) and (left <= 0 or predicted > left):
-                rows.append({**base, "skipped": "over --budget-s" if left <= 0 else
-                             f"predicted {predicted:.0f} s > the {left:.0f} s left of --budget-s"})
-            else:
-                try:
-                    rows.append(time_point(b, m, args.horizon, kernel, device, model, args.solves, args.point_s))
-                except torch.cuda.OutOfMemoryError:
-                    rows.append({**base, "skipped": "out of memory"})
-                r = rows[-1]
-                print(f"[mpc_warp] {kernel} {device} B={b} M={m}: " + (r.get("skipped") or
-                      f"solve {r['solve_ms']:.3f} ms, graph {r['graph_ms'] or float('nan'):.3f} ms"), flush=True)
-            info["wall_s"] = time.perf_counter() - start
-            write_json({"machine": info, "results": rows}, args.out)  # after every point: a crash keeps the rest
-            if cuda:
-                torch.cuda.empty_cache()
+
+    def save(rows: list[dict]) -> None:
+        info["wall_s"] = time.perf_counter() - start
+        write_json({"machine": info, "results": rows}, args.out)  # after every point: a crash keeps the rest
+
+    rows = sweep(args, bs, ms, kernels, device, model, on_row=save)
     print(f"\n{info.get('gpu', info['cpu'])}, torch {info['torch']}, warp {info['warp']}\n\n{table(rows)}\n\n"
           f"wrote {args.out}")
     return 0
