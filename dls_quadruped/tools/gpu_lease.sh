@@ -3,6 +3,7 @@
 # "A short GPU lease"): unpack the [gpu] wheels packed by `make gpu-pack` (and the caches of `make gpu-caches`, if
 # carried), then, each within its own time box and writing into $OUT:
 #   mpc    the sampling MPC's warp kernel over M and B (bench/mpc_warp.py)         MPC_S   (default 150 s)
+#   scaling  solve time against M x B, the cost-against-work grid (bench/mpc_scaling.py)  SCALING_S (default 150 s)
 #   check  `make gpu-check`'s env sections: syncs, launches, env, gpu_busy, rough  CHECK_S (default 0: skipped)
 #   train  base at 4 096 robots, continued from TRAIN_FROM, for TRAIN_S seconds     TRAIN_S (default: what is left)
 # and pack the compile caches it filled for the next node. LEASE_S (default 600) is the whole command's budget;
@@ -43,6 +44,11 @@ for section in $SECTIONS; do
         timeout $(( budget + 30 )) python -m dls_quadruped.bench.mpc_warp --device cuda --budget-s "$budget" \
             --out "$OUT/mpc_warp.json" 2>&1 | tail -40
         echo "mpc: rc ${PIPESTATUS[0]} after $(( $(date +%s) - T0 )) s" ;;
+    scaling)
+        budget=$(( ${SCALING_S:-150} < $(left) - 60 ? ${SCALING_S:-150} : $(left) - 60 ))
+        timeout $(( budget + 30 )) python -m dls_quadruped.bench.mpc_scaling --device cuda --budget-s "$budget" \
+            --out "$OUT" 2>&1 | tail -30
+        echo "scaling: rc ${PIPESTATUS[0]} after $(( $(date +%s) - T0 )) s" ;;
     check)
         budget=${CHECK_S:-0}
         [ "$budget" -gt 0 ] && timeout $(( budget + 60 )) python -m dls_quadruped.bench.gpu_check --out "$OUT/check" \
