@@ -34,7 +34,7 @@ import torch
 
 from dls_quadruped.bench.gpu_probes import count_torch_ops
 from dls_quadruped.bench.mpc_common import machine_info
-from dls_quadruped.bench.mpc_warp import ArgumentParser, run_cli, srbd_model, sweep
+from dls_quadruped.bench.mpc_warp import ArgumentParser, bench_device, run_cli, srbd_model, sweep
 from dls_quadruped.core.json_io import write_json
 from dls_quadruped.mpc import SamplingMPC
 
@@ -244,12 +244,7 @@ def main(argv: list[str] | None = None) -> int:
         print(table([r for data in runs for r in data["results"]]))
         plot(runs, args.out / "mpc_scaling.png")
         return 0
-    try:
-        device = torch.device(args.device)
-    except RuntimeError as err:
-        p.error(f"--device: {err}")
-    if device.type not in ("cpu", "cuda") or (device.type == "cuda" and not torch.cuda.is_available()):
-        p.error(f"--device must be cpu or an available cuda device, got {args.device!r}")
+    device = bench_device(p, args.device)
     if min(args.solves, args.horizon, *args.threads, *args.samples, *args.robots) < 1 or args.budget_s <= 0:
         p.error("--solves, --horizon, --threads, --samples and --robots must be >= 1 and --budget-s > 0")
     if args.max_work is None:

@@ -262,6 +262,17 @@ def sweep(args: argparse.Namespace, robots: Sequence[int], samples: Sequence[int
     return rows
 
 
+def bench_device(p: argparse.ArgumentParser, text: str) -> torch.device:
+    """``--device`` as a torch device: the CPU or an available CUDA device, else a one-line usage error."""
+    try:
+        device = torch.device(text)
+    except RuntimeError as err:
+        p.error(f"--device: {err}")
+    if device.type not in ("cpu", "cuda") or (device.type == "cuda" and not torch.cuda.is_available()):
+        p.error(f"--device must be cpu or an available cuda device, got {text!r}")
+    return device
+
+
 def table(rows: list[dict]) -> str:
     """Markdown: one line per (device, kernel, B, M)."""
     lines = ["| device | kernel | B | M | solve [ms] | graph [ms] | latency [ms] | samples/s | first call [s] |",
@@ -311,12 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (default: torch's choice)")
     p.add_argument("--out", type=Path, default=Path(os.environ.get("OUT", "results/bench")) / "mpc_warp.json")
     args = p.parse_args(argv)
-    try:
-        device = torch.device(args.device)
-    except RuntimeError as err:
-        p.error(f"--device: {err}")
-    if device.type not in ("cpu", "cuda") or (device.type == "cuda" and not torch.cuda.is_available()):
-        p.error(f"--device must be cpu or an available cuda device, got {args.device!r}")
+    device = bench_device(p, args.device)
     if min(args.solves, args.horizon) < 1 or args.budget_s <= 0:
         p.error("--solves and --horizon must be >= 1 and --budget-s > 0")
     if args.threads > 0:

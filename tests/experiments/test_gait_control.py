@@ -79,3 +79,19 @@ def test_a_missing_arm_gives_no_row() -> None:
     res = _results(np.full(3, 1.0), np.full(3, 1.0))
     del res["naive_gait_rl_forces_first-spline"]
     assert G.contrast_rows(res) == []
+
+
+def test_missing_students_are_refused_in_one_line_before_any_cell(tmp_path) -> None:
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "experiments.gait_control", "--seed-students", str(tmp_path / "none"),
+                          "--out", str(tmp_path / "out")], check=False, cwd=REPO, capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode != 0
+    assert "no student" in res.stderr and "first-spline_H10_dt0.02_seed0" in res.stderr
+    assert "Traceback" not in res.stderr
+    assert not (tmp_path / "out" / "cells").exists() or not any((tmp_path / "out" / "cells").iterdir())
+    bad = subprocess.run([sys.executable, "-m", "experiments.gait_control", "--scale", "huge"], check=False, cwd=REPO,
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--scale" in bad.stderr
