@@ -15,11 +15,11 @@ episodes (paired):
   and initial cost.
 * Fig. 34: which group won each solve of base + speed at the three speeds (robot 0 over time) and
   the winner switches per second (per episode, then across episodes).
-* Past the thesis (issue 27 item 5): base + speed with arbitration (``mpc/arbitration.py``): a
+* Past the thesis: base + speed with arbitration (``mpc/arbitration.py``): a
   switching cost s added to every sample outside the last winner's group, and the same with the
   groups compared by a running average of their best cost (smoothing beta), on the simple task, the
   survival task and the three speeds.
-* Past the thesis (issue 27 item 6): the terrain-blind MPC (``stance_feet``) vs the terrain-aware one
+* Past the thesis: the terrain-blind MPC (``stance_feet``) vs the terrain-aware one
   (``terrain``: it plans on the terrain map) on the eval suite's stairs (``--scenario stairs`` of the
   closed loop: a 6-step ``stairs_up`` flight per step height 5 / 10 / 15 / 20 cm, v_x ~ U[0.3, 0.5] m/s,
   ``--episodes`` per height, 15 s at every scale unless ``--seconds``: the top is 2.5 m away), with base's warm start
@@ -31,7 +31,7 @@ Students: ``docs/policies/<expert>_student_first_spline_h10.pt`` (``--policy-dir
 skips its cells with a note.
 
     python -m experiments.table18_multi_policy --scale small
-    python -m experiments.table18_multi_policy --scale small --stairs   # item 6: stairs, blind vs aware
+    python -m experiments.table18_multi_policy --scale small --stairs   # stairs, blind vs aware
 """
 
 from __future__ import annotations
@@ -264,7 +264,7 @@ def _flags(p) -> None:
     p.add_argument("--policy-dir", type=Path, default=REPO / "docs" / "policies",
                    help="folder of <expert>_actor.pt and <expert>_student_first_spline_h10.pt")
     p.add_argument("--stairs", action="store_true",
-                   help="run only the stairs cells (issue 27 item 6: blind vs terrain-aware MPC; --episodes per step "
+                   help="run only the stairs cells (blind vs terrain-aware MPC; --episodes per step "
                         "height, 15 s) and write stairs.md/.csv and stairs.png")
 
 
