@@ -9,6 +9,7 @@ tensors of the same names and shapes (``sim/warp_backend.py``). Both read the co
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import mujoco
@@ -63,6 +64,20 @@ def contact_sensor_layout(model: mujoco.MjModel) -> dict[str, slice]:
     return out
 
 
+def _views(specs: dict[str, tuple[int, ...]], num_robots: int, dtype: torch.dtype,
+           shared: bool) -> dict[str, torch.Tensor]:
+    """Zeroed (num_robots, *shape) tensors, one per spec, carved in order out of one block."""
+    sizes = {k: num_robots * math.prod(shape) for k, shape in specs.items()}
+    block = torch.zeros(sum(sizes.values()), dtype=dtype)
+    if shared:
+        block.share_memory_()
+    out, start = {}, 0
+    for k, shape in specs.items():
+        out[k] = block[start:start + sizes[k]].view(num_robots, *shape)
+        start += sizes[k]
+    return out
+
+
 @dataclass
 class SharedBuffers:
     """Named float tensors for all robots; shards use row slices of them."""
@@ -72,13 +87,13 @@ class SharedBuffers:
 
     @staticmethod
     def allocate(num_robots: int, shared: bool) -> SharedBuffers:
-        """Zeroed buffers; ``shared=True`` puts them in shared memory for worker processes."""
-        state = {k: torch.zeros((num_robots, *s), dtype=torch.float32) for k, s in STATE_SPECS.items()}
-        command = {k: torch.zeros((num_robots, *s), dtype=torch.float64) for k, s in COMMAND_SPECS.items()}
-        if shared:
-            for t in (*state.values(), *command.values()):
-                t.share_memory_()
-        return SharedBuffers(state, command)
+        """Zeroed buffers; ``shared=True`` puts them in shared memory for worker processes.
+
+        The state buffers are views of one float32 block and the commands of one float64 block, so a shared set
+        holds two shared-memory segments (two file descriptors under torch's default sharing strategy), not one
+        per buffer; each buffer is contiguous, rows first."""
+        return SharedBuffers(_views(STATE_SPECS, num_robots, torch.float32, shared),
+                             _views(COMMAND_SPECS, num_robots, torch.float64, shared))
 
     def rows(self, start: int, stop: int) -> SharedBuffers:
         """Views of rows [start, stop)."""

@@ -36,3 +36,16 @@ def test_contact_sensor_layout_covers_the_nine_sensors_without_overlap():
     for name, s in layout.items():
         sensor = model.sensor(name)
         assert (s.start, s.stop - s.start) == (int(sensor.adr[0]), int(sensor.dim[0]))
+
+
+def test_buffers_are_disjoint_contiguous_views_of_two_blocks():
+    buf = SharedBuffers.allocate(3, shared=True)
+    for group, dtype in ((buf.state, torch.float32), (buf.command, torch.float64)):
+        assert len({v.untyped_storage().data_ptr() for v in group.values()}) == 1  # one block (segment) each
+        assert all(v.is_contiguous() for v in group.values())
+        for v in group.values():  # each buffer written alone changes only its own elements of the block
+            v.fill_(1.0)
+            assert sum(float(w.sum()) for w in group.values()) == v.numel()
+            v.zero_()
+        assert sum(v.numel() for v in group.values()) * dtype.itemsize == group["freq" if dtype == torch.float64
+                                                                               else "time"].untyped_storage().nbytes()
