@@ -11,8 +11,12 @@ the mean exploration std of the actions (``Policy/mean_std``) and, where the tas
 terrain-level and forward-speed curricula (``Curriculum/terrain_levels``, ``Curriculum/speed``), then
 the training diagnostics (``learning/diagnostics.py``, docs/train.md "Diagnostics"): the learning rate, the KL
 per update, the action std, clip and |a| > 1 fractions per latent-action group (f, d, p, F) and the fractions
-of (step, leg) in which F and p were ignored. A run that lacks a scalar (older runs: every diagnostic) leaves
-its cells empty; columns are only ever appended, so older CSVs read the same way.
+of (step, leg) in which F and p were ignored. After those fixed columns come, named as their tags and sorted, every
+scalar under ``EXTRA_PREFIXES`` the run logged: PPO's losses (``Loss/value``, ``Loss/surrogate``, ...), each
+reward term's episode sum per second (``Episode_Reward/<term>``) and each termination's count
+(``Episode_Termination/<term>``), so a return that collapses can be traced to a term and a loss from the CSV alone.
+A run that lacks a scalar (older runs: every diagnostic) leaves its cells empty; fixed columns are only ever appended,
+so older CSVs read the same way.
 """
 
 from __future__ import annotations
@@ -48,16 +52,20 @@ COLUMNS = {
     "F_ignored_frac": "Diagnostics/F_ignored_frac",
     "p_ignored_frac": "Diagnostics/p_ignored_frac",
 }
+EXTRA_PREFIXES = ("Loss/", "Episode_Reward/", "Episode_Termination/")
+"""Tags kept as their own columns after ``COLUMNS`` (those ``COLUMNS`` already names are not repeated)."""
 
 
 def read_run(run_dir: Path) -> list[dict[str, float]]:
-    """Rows {iteration, <COLUMNS>} from every event file of ``run_dir`` (later files win on resume)."""
+    """Rows {iteration, <COLUMNS>, <extra tags>} from every event file of ``run_dir`` (later files win on resume)."""
     rows: dict[int, dict[str, float]] = {}
     for events in sorted(Path(run_dir).glob("events.out.tfevents.*")):
         acc = EventAccumulator(str(events), size_guidance={"scalars": 0})
         acc.Reload()
         tags = set(acc.Tags()["scalars"])
-        for col, tag in COLUMNS.items():
+        named = set(COLUMNS.values())
+        extra = {t: t for t in tags if t.startswith(EXTRA_PREFIXES) and t not in named}
+        for col, tag in {**COLUMNS, **extra}.items():
             if tag in tags:
                 for ev in acc.Scalars(tag):
                     rows.setdefault(ev.step, {"iteration": ev.step})[col] = ev.value
@@ -68,7 +76,8 @@ def read_run(run_dir: Path) -> list[dict[str, float]]:
 
 def write_csv(rows: list[dict[str, float]], path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    cols = ["iteration", *COLUMNS]
+    extra = sorted({c for r in rows for c in r} - set(COLUMNS) - {"iteration"})
+    cols = ["iteration", *COLUMNS, *extra]
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(cols)

@@ -162,3 +162,9 @@ def test_default_recipe_run_logs_every_diagnostic_and_its_std_does_not_grow(tmp_
         table = list(csv.DictReader(fh))
     assert float(table[1]["clip_frac_F"]) == pytest.approx(rows[1]["clip_frac_F"], rel=1e-4)
     assert table[0]["terrain_level"] == ""  # the base task has no terrain curriculum: the cell stays empty
+    # after the fixed columns: the losses and each reward term's episode sum, as the run logged them
+    header = list(table[0])
+    assert header[:len(COLUMNS) + 1] == ["iteration", *COLUMNS]
+    assert {"Loss/value", "Loss/surrogate", "Episode_Reward/track_lin_vel_xy"} <= set(header)
+    assert float(table[5]["Loss/value"]) == pytest.approx(
+        acc.Scalars("Loss/value")[5].value, rel=1e-4)
