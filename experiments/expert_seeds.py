@@ -12,7 +12,8 @@ runs, which are not committed):
 - ``D<s>_sel``: the default recipe, seed s, the checkpoint chosen on validation (seed 0: ``base_recipe_actor.pt2``);
 - ``D<s>_450``: the same run at iteration 450 (seed 0: ``base_recipe_s0_450``, the committed run continued from its
   iteration-380 resume point);
-- ``T<s>_450``: Table 6's recipe (``--task base_thesis``), seed s, iteration 450;
+- ``T<s>_450``: Table 6's recipe (``--task base_thesis``), seed s, 450 iterations (its last checkpoint,
+  ``model_449.pt``: the iterations are numbered from 0; one update fewer than ``model_450.pt`` of the D runs);
 - ``base_actor``: the committed ``base_actor.pt`` (Table 6, seed 0, 450 iterations, older code).
 
 ``report`` reads those JSONs and writes ``results.json`` and ``table.md``: every policy's outcomes, and the plan's
@@ -71,8 +72,9 @@ def policy_file(name: str, runs: Path, out: Path) -> Path:
         return POLICY_DIR / "base_recipe_actor.pt2"
     kind, seed, which = name[0], int(name[1]), name.split("_", 1)[1]
     if which == "450":
-        run = runs / ("base_recipe_s0_450" if name == "D0_450" else
-                      f"base_recipe_s{seed}" if kind == "D" else f"base_thesis_s{seed}")
+        if kind == "T":  # a 450-iteration run numbers its iterations 0-449: its last checkpoint, 450 updates
+            return runs / f"base_thesis_s{seed}" / "model_449.pt"
+        run = runs / ("base_recipe_s0_450" if name == "D0_450" else f"base_recipe_s{seed}")
         return run / "model_450.pt"
     selection = selection_dir(out, seed) / "selection.json"
     if not selection.is_file():

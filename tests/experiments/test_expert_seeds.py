@@ -122,7 +122,7 @@ def test_fig17_rows_pair_each_seed_with_the_committed_experts(tmp_path: Path) ->
 def test_policy_files(tmp_path: Path) -> None:
     assert X.policy_file("D0_sel", tmp_path, tmp_path).name == "base_recipe_actor.pt2"
     assert X.policy_file("D0_450", tmp_path, tmp_path) == tmp_path / "base_recipe_s0_450" / "model_450.pt"
-    assert X.policy_file("T2_450", tmp_path, tmp_path) == tmp_path / "base_thesis_s2" / "model_450.pt"
+    assert X.policy_file("T2_450", tmp_path, tmp_path) == tmp_path / "base_thesis_s2" / "model_449.pt"
     with pytest.raises(UserError, match="no checkpoint chosen yet"):
         X.policy_file("D1_sel", tmp_path, tmp_path)
     sel = X.selection_dir(tmp_path, 1)
