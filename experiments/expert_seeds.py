@@ -87,8 +87,8 @@ def select(runs: Path, out: Path, seed: int, num_workers: int) -> dict:
     from dls_quadruped.eval import select as eval_select
 
     run = runs / f"base_recipe_s{seed}"
-    if not (run / "model_1000.pt").is_file():
-        raise UserError(f"{run}: the run has not reached iteration 1000 (model_1000.pt missing)")
+    if not any((run / f"model_{it}.pt").is_file() for it in (999, 1000)):  # 1 000 iterations, numbered from 0
+        raise UserError(f"{run}: the run has not finished its 1 000 iterations (model_999.pt missing)")
     return eval_select.main([str(run), "--scenario", "simple", "--every", str(SELECT_EVERY), "--episodes",
                              str(SELECT_EPISODES), "--num-workers", str(num_workers), "--out",
                              str(selection_dir(out, seed))])

@@ -129,5 +129,5 @@ def test_policy_files(tmp_path: Path) -> None:
     sel.mkdir(parents=True)
     (sel / "selection.json").write_text(json.dumps({"chosen": {"checkpoint": "/elsewhere/model_800.pt"}}))
     assert X.policy_file("D1_sel", tmp_path / "runs", tmp_path) == tmp_path / "runs" / "base_recipe_s1" / "model_800.pt"
-    with pytest.raises(UserError, match="not reached iteration 1000"):
+    with pytest.raises(UserError, match="not finished its 1 000 iterations"):
         X.select(tmp_path / "runs", tmp_path, 1, 0)
