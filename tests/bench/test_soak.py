@@ -45,3 +45,13 @@ def test_a_leaking_child_is_not_flat_and_a_still_one_is(tmp_path):
                     limits={**LIMITS, "max_rss_mib_per_h": 1e4})  # a 3-s window: the fit of a few KiB is noisy
     assert res["flat"] is True and res["fd_change"] == 0
     assert (tmp_path / "still" / "soak.json").is_file()
+
+
+def test_help_and_a_bad_value():
+    import subprocess
+
+    cmd = [sys.executable, "-m", "dls_quadruped.bench.soak"]
+    ok = subprocess.run([*cmd, "--help"], capture_output=True, text=True, timeout=120, check=False)
+    assert ok.returncode == 0 and "--max-rss-mib-per-h" in ok.stdout
+    bad = subprocess.run([*cmd, "--minutes", "0"], capture_output=True, text=True, timeout=120, check=False)
+    assert bad.returncode == 2 and "--minutes" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1

@@ -131,3 +131,14 @@ def test_policy_files(tmp_path: Path) -> None:
     assert X.policy_file("D1_sel", tmp_path / "runs", tmp_path) == tmp_path / "runs" / "base_recipe_s1" / "model_800.pt"
     with pytest.raises(UserError, match="not finished its 1 000 iterations"):
         X.select(tmp_path / "runs", tmp_path, 1, 0)
+
+
+def test_help_and_a_bad_command():
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "experiments.expert_seeds"]
+    ok = subprocess.run([*cmd, "--help"], cwd=X.REPO, capture_output=True, text=True, timeout=120, check=False)
+    assert ok.returncode == 0 and "--runs" in ok.stdout and "--only" in ok.stdout
+    bad = subprocess.run([*cmd, "bogus"], cwd=X.REPO, capture_output=True, text=True, timeout=120, check=False)
+    assert bad.returncode == 2 and "invalid choice: 'bogus'" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
