@@ -35,6 +35,7 @@ from dls_quadruped.core.json_io import write_json
 from dls_quadruped.eval.compare import per_episode_values
 from dls_quadruped.eval.metrics import paired_difference
 from dls_quadruped.eval.provenance import provenance
+from experiments.gait_control import label
 
 REPO = Path(__file__).resolve().parents[1]
 POLICY_DIR = REPO / "docs" / "policies"
@@ -126,18 +127,6 @@ def load(out: Path) -> dict[str, dict[str, dict]]:
 def values(res: dict, name: str, key: str, set_name: str) -> np.ndarray | None:
     r = res.get(name, {}).get(set_name)
     return None if r is None else per_episode_values(r, key)
-
-
-def label(ci: list[float], margin: float) -> str:
-    """The plan's words for an interval: above or below 0, within the margin, or inconclusive."""
-    lo, hi = ci
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        return "-"
-    if lo > 0:
-        return "> 0"
-    if hi < 0:
-        return "< 0"
-    return f"within +-{margin:g}" if -margin < lo and hi < margin else "inconclusive"
 
 
 def contrast(res: dict, a: list[str], b: list[str], key: str, set_name: str, margin: float) -> dict | None:
