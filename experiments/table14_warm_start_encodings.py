@@ -4,6 +4,14 @@
 (mean over episodes of the per-episode difference, 95 % interval over episodes and sampler seeds).
 
     python -m experiments.table14_warm_start_encodings --scale small
+
+``--seed-students DIR``: every RL warm-start cell runs once per training seed's student
+(``<dir>/<p>-<F>_H10_dt0.02_seed<k>/exported/student.pt2``, k = 0, 1, 2) and its row merges them (intervals over
+students and episodes, ``experiments/warm_start_seeds.py``); e.g. the first-spline rows at the thesis's scale:
+
+    python -m experiments.table14_warm_start_encodings --scale thesis --seed 1 --sampler-seeds 1 \
+        --seed-students docs/policies/seed_students --out results/experiments/table14_thesis \
+        --only rl_warm_start_first-spline_seed{0,1,2} naive_warm_start_first-spline rl_baseline
 """
 
 from __future__ import annotations
@@ -12,6 +20,7 @@ from pathlib import Path
 
 from experiments.output import pyplot, save
 from experiments.warm_start_common import Cell, parse_args, run_cells
+from experiments.warm_start_seeds import merge_seed_rows, seed_student_cells
 from experiments.warm_start_tables import finish, med, paired, survival, tabulate
 
 ENCODINGS = [("discrete", "discrete"), ("discrete", "spline"), ("spline", "discrete"), ("spline", "spline"),
@@ -94,15 +103,25 @@ def thesis(c: Cell) -> dict:
     return {"thesis RL reward": th[0] or "-", "thesis initial": th[1] or "-", "thesis rollout": th[2] or "-"}
 
 
+def _flags(p) -> None:
+    p.add_argument("--seed-students", type=Path, default=None,
+                   help="students as seeds: every RL warm-start cell runs once per training seed k = 0, 1, 2 with "
+                        "<dir>/<p>-<F>_H10_dt0.02_seed<k>/exported/student.pt2 and its row merges them "
+                        "(default: one student per encoding, from --students)")
+
+
 def main() -> None:
-    args = parse_args(__doc__, "table14_warm_start")
-    todo = cells()
+    args = parse_args(__doc__, "table14_warm_start", _flags)
+    rows_of = cells()
+    todo, seeded = seed_student_cells(rows_of, args.seed_students, args.only) if args.seed_students else (rows_of, {})
     results = run_cells(todo, args)
+    merge_seed_rows(results, seeded)
     cols = ["Controller", "p", "F", "RL reward", "Initial cost", "Rollout cost (state)", "Rollout J (full)", "Survival",
             "|v_xy - cmd|", "Δ initial (paired)", "Δ rollout state (paired)", "Δ reward (paired)", "student won",
             "thesis RL reward", "thesis initial", "thesis rollout"]
-    finish(args, todo, results, tabulate(todo, results, columns_with(results), thesis), cols,
-           "Table 14 (M = 10 000, H = 10, dt = 0.02 s, F only)", figure, "fig26_27.png")
+    students = "; RL rows: 3 students x the sampler seeds" if seeded else ""
+    finish(args, todo, results, tabulate(rows_of, results, columns_with(results), thesis), cols,
+           f"Table 14 (M = 10 000, H = 10, dt = 0.02 s, F only{students})", figure, "fig26_27.png")
 
 
 if __name__ == "__main__":

@@ -338,12 +338,45 @@ def test_table16_students_as_seeds_merge_each_rl_row(tmp_path: Path, monkeypatch
     assert "3 students x the sampler seeds" in table and "+10.0 % [+10.0, +10.0]" in table
 
 
-@pytest.mark.parametrize("script", ["table16_samples", "table17_gait_optimisation"])
+def test_table14_students_as_seeds_merge_each_rl_row(tmp_path: Path, monkeypatch) -> None:
+    """table14_warm_start_encodings.py --seed-students on cached cells built by hand: every student's first-spline
+    cell costs exactly 12 more than the naive warm start on every episode (the same on each sampler seed), so the
+    merged RL row's Δ initial (paired) is +12.0 with a zero-width interval, and it merges the three students."""
+    from experiments import table14_warm_start_encodings as t14
+
+    rng = np.random.default_rng(2)
+    e, s = 4, 2
+    students, out = tmp_path / "students", tmp_path / "t14"
+    (out / "cells").mkdir(parents=True)
+
+    def write(name, controller, ic):
+        pe = {"rl_reward": np.full((s, e), 2.2), "initial_cost": ic, "rollout_cost": 10 * ic,
+              "vel_error": np.full((s, e), 0.1), "survived": np.ones((s, e))}
+        (out / "cells" / f"{name}.json").write_text(json.dumps(_cell_summary(controller, pe, s)))
+
+    naive = np.repeat(rng.uniform(15, 25, (1, e)), s, axis=0)  # equal across sampler seeds
+    write("naive_warm_start_first-spline", "naive_warm_start", naive)
+    write("rl_baseline", "rl_baseline", rng.uniform(60, 90, (s, e)))
+    for k in range(3):
+        f = students / f"first-spline_H10_dt0.02_seed{k}" / "exported" / "student.pt2"
+        f.parent.mkdir(parents=True)
+        f.write_bytes(b"")
+        write(f"rl_warm_start_first-spline_seed{k}", "rl_warm_start", naive + 12.0)
+    only = [f"rl_warm_start_first-spline_seed{k}" for k in range(3)] + ["naive_warm_start_first-spline", "rl_baseline"]
+    monkeypatch.setattr(sys, "argv", ["table14.py", "--seed-students", str(students), "--out", str(out),
+                                      "--episodes", str(e), "--sampler-seeds", str(s), "--only", *only])
+    t14.main()
+    results = json.loads((out / "results.json").read_text())
+    assert results["rl_warm_start_first-spline"]["training_seeds"] == 3
+    table = (out / "table.md").read_text()
+    assert "3 students x the sampler seeds" in table and "+12.0 [+12.0, +12.0]" in table
+
+
+@pytest.mark.parametrize("script", ["table14_warm_start_encodings", "table16_samples", "table17_gait_optimisation"])
 @pytest.mark.parametrize("argv, code, text", [(["--help"], 0, "--seed-students"),
                                               (["--seed-students"], 2, "expected one argument"),
                                               (["--seed-students", "nowhere"], 2,
-                                               ("error: --seed-students nowhere: no student "
-                                                "nowhere/first-spline_H10_dt0.02_seed0"))])
+                                               ("error: --seed-students nowhere: no student nowhere/"))])
 def test_table16_and_17_help_a_bad_flag_and_a_missing_student(monkeypatch, capsys, tmp_path, script, argv, code, text):
     import importlib
 
@@ -355,3 +388,6 @@ def test_table16_and_17_help_a_bad_flag_and_a_missing_student(monkeypatch, capsy
         run_cli(module.main)
     out = capsys.readouterr()
     assert err.value.code == code and text in (out.out + out.err) and "Traceback" not in out.err
+    if argv[-1] == "nowhere":  # the first missing student named in full (Table 14's list starts at discrete-discrete)
+        first = "discrete-discrete" if script.startswith("table14") else "first-spline"
+        assert f"nowhere/{first}_H10_dt0.02_seed0/exported/student.pt2" in out.err
