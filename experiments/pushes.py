@@ -10,6 +10,15 @@ Three stages, each resumable (every cell cached under ``<out>/``):
 (the preregistered size; without ``--episodes``/``--seconds`` the ``--scale`` sizes apply, ``small`` = 4 x 5 s,
 a pipeline check).
 
+``--seed-students DIR`` (run and report): the primary contrast with three students: base alone and base's MPC
+warm-started by each training seed's student (``<dir>/first-spline_H10_dt0.02_seed<k>/exported/student.pt2``,
+k = 0, 1, 2; cells ``base_warm_seed<k>``), merged into the ``base_warm`` row (intervals over episodes and
+students, ``experiments/warm_start_seeds.py``); the other arms are not run. The 100-episode run of
+``docs/experiments/primary_cells_plan.md``:
+
+    python -m experiments.pushes run --scale thesis --seed 1 --sampler-seeds 1 --push-speed 1.5 \
+        --seed-students docs/policies/seed_students --out results/experiments/pushes_thesis
+
 ``calibrate`` plays base alone (the RL expert) on ``--episodes`` (96) validation episodes (seed + 1 000 003,
 disjoint from the test episodes) for every push speed of ``GRID`` and picks the speed whose survival is
 closest to 50 % among those inside [30 %, 70 %]; if none is, it refines between the two grid speeds that
@@ -24,6 +33,7 @@ from __future__ import annotations
 
 import json
 from itertools import pairwise
+from pathlib import Path
 
 import numpy as np
 
@@ -32,6 +42,7 @@ from dls_quadruped.eval.metrics import paired_difference
 from dls_quadruped.eval.provenance import provenance
 from experiments.rl_common import student_file
 from experiments.warm_start_common import REPO, Cell, parse_args, run_cells
+from experiments.warm_start_seeds import merge_seed_rows
 from experiments.warm_start_tables import survival, write_config
 
 GRID = (0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0)
@@ -109,6 +120,15 @@ def arm_cells(push_speed: float, variant: str = "thesis") -> list[Cell]:
             Cell("student_alone", "student", student=base, **common)]
 
 
+def seed_arm_cells(push_speed: float, students) -> tuple[list[Cell], dict[str, list[str]]]:
+    """``--seed-students``: base alone and ``base_warm`` once per training seed's student (the rows to merge)."""
+    from experiments.warm_start_seeds import seed_student_cells
+
+    common = {"scenario": "pushes", "push_speed": push_speed}
+    return seed_student_cells([Cell("base_alone", "rl_baseline", **common),
+                               Cell("base_warm", "rl_warm_start", **common)], students)
+
+
 def push_speed_of(args) -> float:
     if args.push_speed is not None:
         return args.push_speed
@@ -138,24 +158,32 @@ def contrast(results: dict, a: str, b: str, key: str) -> dict:
 
 def report(args) -> dict:
     p = push_speed_of(args)
-    results = run_cells(arm_cells(p, args.variant), args)
-    missing = [a for a in ARMS if a not in results or "skipped" in results[a]]
+    cells, arms = (arm_cells(p, args.variant), ARMS)
+    if args.seed_students:
+        cells, seeded = seed_arm_cells(p, args.seed_students)
+        arms = PRIMARY[::-1]
+    results = run_cells(cells, args)
+    if args.seed_students:
+        merge_seed_rows(results, seeded)
+    missing = [a for a in arms if a not in results or "skipped" in results[a]]
     if missing:
         raise SystemExit(f"pushes: arms not run yet: {missing}; run `python -m experiments.pushes run` first")
     rows = {a: {"survival": survival(results[a]), "rate": results[a]["survival"]["rate"],
-                "return_per_episode_median": results[a]["rl_return"]["median"]} for a in ARMS}
-    pairs = [PRIMARY, *SECONDARY]
+                "return_per_episode_median": results[a]["rl_return"]["median"]} for a in arms}
+    pairs = [PRIMARY, *(SECONDARY if not args.seed_students else ())]
     diffs = {f"{a} - {b}": {"survived": contrast(results, a, b, "survived"),
                             "rl_return": contrast(results, a, b, "rl_return")} for a, b in pairs}
     primary = diffs[f"{PRIMARY[0]} - {PRIMARY[1]}"]["survived"]
+    students = len(seeded["base_warm"]) if args.seed_students else 1
     out = {"push_speed": p, "episodes": args.episodes, "sampler_seeds": args.sampler_seeds, "seed": args.seed,
+           "students": students,
            "draws": DRAWS, "arms": rows, "contrasts": diffs,
            "primary": {"contrast": f"{PRIMARY[0]} - {PRIMARY[1]}, survival", **primary,
                        "verdict": verdict(primary["ci95"])},
-           "wall_s": {a: results[a].get("seconds_wall") for a in ARMS}}
+           "wall_s": {c.name: results[c.name].get("seconds_wall") for c in cells if c.name in results}}
     write_json({**out, **provenance()}, args.out / "report.json", indent=1)
-    title = (f"# MPC survival under pushes ({args.episodes} test episodes x {args.sampler_seeds} sampler seeds, "
-             f"push speed {p:g} m/s)")
+    title = (f"# MPC survival under pushes ({args.episodes} test episodes x {args.sampler_seeds} sampler seeds"
+             f"{f' x {students} students' if students > 1 else ''}, push speed {p:g} m/s)")
     lines = [title, "", "| arm | survival [95 % CI] | return per episode (median) |", "|---|---|---|"]
     lines += [f"| {a} | {r['survival']} | {r['return_per_episode_median']:.1f} |" for a, r in rows.items()]
     lines += ["", "| contrast | survival difference [95 % CI] | return difference [95 % CI] |", "|---|---|---|"]
@@ -168,7 +196,7 @@ def report(args) -> dict:
                    "the verdict table of docs/experiments.md also tests the thesis's size).")]
     (args.out / "report.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
-    write_config(args, arm_cells(p, args.variant), {"results": results, "push_speed": p})
+    write_config(args, cells, {"results": results, "push_speed": p})
     return out
 
 
@@ -177,12 +205,16 @@ def main() -> None:
         parser.add_argument("stage", choices=("calibrate", "run", "report"))
         parser.add_argument("--push-speed", type=float, default=None,
                             help="run/report: this push speed [m/s] instead of the calibration's")
+        parser.add_argument("--seed-students", type=Path, default=None,
+                            help="run/report: the primary contrast only, base's MPC warm-started by each student "
+                                 "<dir>/first-spline_H10_dt0.02_seed<k>/exported/student.pt2 (k = 0, 1, 2), merged")
 
     args = parse_args(__doc__, "pushes", extra)
     if args.stage == "calibrate":
         calibrate(args)
     elif args.stage == "run":
-        run_cells(arm_cells(push_speed_of(args), args.variant), args)
+        p = push_speed_of(args)
+        run_cells(seed_arm_cells(p, args.seed_students)[0] if args.seed_students else arm_cells(p, args.variant), args)
     else:
         report(args)
 
