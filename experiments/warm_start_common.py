@@ -95,8 +95,10 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
     p = ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)  # one-line errors
     p.add_argument("--scale", choices=sorted(SCALES), default="small")
     p.add_argument("--out", type=Path, default=REPO / "results" / "experiments" / name)
-    p.add_argument("--students", type=Path, default=REPO / "results" / "experiments" / "students",
-                   help="folder of students <p>-<F>_H<H>_dt<dt>/exported/student.pt2")
+    p.add_argument("--students", type=Path, default=None,
+                   help="folder of students <p>-<F>_H<H>_dt<dt>/exported/student.pt2 (default: "
+                        "results/experiments/students); first-spline H = 10, dt = 0.02 s is the committed student "
+                        "unless this folder is given and holds one")
     p.add_argument("--policy", type=Path, default=None,
                    help=f"the expert of the rl_baseline cells (default: the variant's base expert, {POLICY.name})")
     p.add_argument("--variant", choices=sorted(VARIANTS), default="thesis",
@@ -125,6 +127,8 @@ def parse_args(description: str, name: str, extra=None) -> argparse.Namespace:
         extra(p)
     args = p.parse_args()
     args.seconds_given = args.seconds is not None  # an explicit --seconds overrides a cell's own length too
+    args.students_given = args.students is not None  # an explicit folder's first-spline student beats the committed
+    args.students = args.students or REPO / "results" / "experiments" / "students"
     args.episodes = args.episodes or SCALES[args.scale]["episodes"]
     args.seconds = args.seconds or SCALES[args.scale]["seconds"]
     if args.com_height is not None and not 0.1 <= args.com_height <= 0.6:
@@ -153,15 +157,17 @@ def cell_com_height(cell: Cell, args: argparse.Namespace) -> float | None:
 
 
 def student_path(students: Path, p: str, F: str, horizon: int, dt: float,
-                 committed: Path = COMMITTED_STUDENT) -> Path | None:
+                 committed: Path = COMMITTED_STUDENT, prefer_folder: bool = False) -> Path | None:
     """The student for an encoding, or None. The thesis's default configuration (first-spline, H = 10,
     dt = 0.02 s) uses the committed student (``docs/policies``, the demo's; ``committed``: the variant's), so
-    every table shares it."""
-    if (p, F, horizon, dt) == ("first", "spline", 10, 0.02) and committed.is_file():
-        return committed
+    every table shares it; with ``prefer_folder`` (``--students`` given) the folder's own student of that
+    configuration replaces it where there is one."""
     exported = students / f"{p}-{F}_H{horizon}_dt{dt:g}" / "exported"
     # student.pt: an older distillation run's TorchScript export
-    return next((path for path in (exported / "student.pt2", exported / "student.pt") if path.is_file()), None)
+    own = next((path for path in (exported / "student.pt2", exported / "student.pt") if path.is_file()), None)
+    if (p, F, horizon, dt) == ("first", "spline", 10, 0.02) and committed.is_file() and not (prefer_folder and own):
+        return committed
+    return own
 
 
 def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
@@ -204,7 +210,8 @@ def run_cells(cells: list[Cell], args: argparse.Namespace) -> dict[str, dict]:
                 why = f"no student {cell.student}"
             else:
                 student = student_path(args.students, sampler.encoding_p, sampler.encoding_F, sampler.horizon,
-                                       sampler.dt, getattr(args, "committed_student", COMMITTED_STUDENT))
+                                       sampler.dt, getattr(args, "committed_student", COMMITTED_STUDENT),
+                                       getattr(args, "students_given", False))
                 why = (f"no student {sampler.encoding_p}-{sampler.encoding_F}_H{sampler.horizon}_dt{sampler.dt:g} "
                        f"under {args.students}")
             if student is None:

@@ -391,3 +391,23 @@ def test_table16_and_17_help_a_bad_flag_and_a_missing_student(monkeypatch, capsy
     if argv[-1] == "nowhere":  # the first missing student named in full (Table 14's list starts at discrete-discrete)
         first = "discrete-discrete" if script.startswith("table14") else "first-spline"
         assert f"nowhere/{first}_H10_dt0.02_seed0/exported/student.pt2" in out.err
+
+
+def test_student_path_prefers_a_given_folders_first_spline_student(tmp_path: Path) -> None:
+    """first-spline H = 10 dt = 0.02 s is the committed student unless ``--students`` was given and holds its own
+    (the expert-seed runs pass each seed's student that way); other settings always come from the folder."""
+    from experiments.warm_start_common import student_path
+
+    committed = tmp_path / "committed.pt2"
+    committed.write_bytes(b"")
+    folder = tmp_path / "students"
+    own = folder / "first-spline_H10_dt0.02" / "exported" / "student.pt2"
+    other = folder / "spline-spline_H10_dt0.02" / "exported" / "student.pt2"
+    for f in (own, other):
+        f.parent.mkdir(parents=True)
+        f.write_bytes(b"")
+    assert student_path(folder, "first", "spline", 10, 0.02, committed) == committed
+    assert student_path(folder, "first", "spline", 10, 0.02, committed, prefer_folder=True) == own
+    assert student_path(tmp_path / "empty", "first", "spline", 10, 0.02, committed, prefer_folder=True) == committed
+    assert student_path(folder, "spline", "spline", 10, 0.02, committed) == other
+    assert student_path(folder, "discrete", "spline", 10, 0.02, committed, prefer_folder=True) is None
