@@ -251,3 +251,32 @@ def relative_gap_difference(folder: str, a: tuple[str, str], b: tuple[str, str],
     bs = 100 * (rel(*boot(*cells[:2], paired_seeds[0])) - rel(*boot(*cells[2:], paired_seeds[1])))
     lo, hi = np.percentile(bs[np.isfinite(bs)], [2.5, 97.5])
     return Interval(float(v), float(lo), float(hi), _fmt(float(v), float(lo), float(hi), 1, " points"))
+
+
+EXPERT_SEED_TABLE14 = {"expert seed 1": "expert_seeds/table14_T1", "expert seed 2": "expert_seeds/table14_T2"}
+"""Table 14's first-spline cells with the Table 6 experts of training seeds 1 and 2 and one student each
+(``docs/experiments/expert_seeds_plan.md`` part 2); seed 0 is the table's own run."""
+
+
+def _across_expert_seeds(folder: str, a: str, b: str, key: str, direction: int, digits: int) -> tuple[bool, str]:
+    """(whether every expert seed gives seed 0's verdict, the seeds' intervals as text)."""
+    own = verdict(gap(folder, a, b, key, digits=digits), direction)
+    parts, same = [], True
+    for name, f in EXPERT_SEED_TABLE14.items():
+        iv = gap(f, a, b, key, digits=digits)
+        v = verdict(iv, direction)
+        same &= v == own
+        parts.append(f"{name} {iv.text} ({v})")
+    return same, ", ".join(parts)
+
+
+def expert_seeds_why(folder: str, a: str, b: str, key: str, direction: int, digits: int = 1) -> str:
+    """A verdict row's reason when its label holds for expert seed 0 only (the plan's rule): "" when it holds."""
+    same, text = _across_expert_seeds(folder, a, b, key, direction, digits)
+    return "" if same else f"expert seed 0 only: {text}, one student each"
+
+
+def expert_seeds_note(folder: str, a: str, b: str, key: str, direction: int, digits: int = 1) -> str:
+    """A verdict row's caveat when its label holds across the three expert seeds: "" when it does not."""
+    same, text = _across_expert_seeds(folder, a, b, key, direction, digits)
+    return f"holds across three expert seeds ({text})" if same else ""

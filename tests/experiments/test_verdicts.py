@@ -123,6 +123,24 @@ def test_an_exploratory_row_carries_no_verdict_and_a_note_may_be_computed():
     assert row.verdict_text(row.ours()) == "**exploratory**: designed after looking; no verdict (rule 5); computed"
 
 
+def test_a_computed_reason_counts_only_when_it_says_something():
+    """``why`` computed (e.g. "expert seed 0 only" from the seeds' cells): "" leaves the rule's verdict."""
+    for why, word in ((lambda: "", "reproduced"), (lambda: "expert seed 0 only: ...", "inconclusive")):
+        row = Row("x", "claim", "t", "label", lambda: iv(0.1, 0.2), "p.md", +1, why=why)
+        assert row.word(row.ours()) == word
+        assert row.verdict_text(row.ours()).startswith(f"**{word}**")
+
+
+def test_table14_rows_are_checked_across_the_expert_seeds():
+    """The seeds' own intervals decide: the initial-cost row holds with all three, the two reward rows do not."""
+    from experiments.verdict_intervals import expert_seeds_note, expert_seeds_why
+    from experiments.verdicts import _T14_IC, _T14_RA, _T14_RN, T14
+
+    assert expert_seeds_why(T14, *_T14_IC) == "" and expert_seeds_note(T14, *_T14_IC).startswith("holds across")
+    for row in (_T14_RN, _T14_RA):
+        assert expert_seeds_why(T14, *row).startswith("expert seed 0 only") and expert_seeds_note(T14, *row) == ""
+
+
 def test_equivalence_needs_the_interval_inside_the_margin():
     from experiments.verdict_intervals import equivalence
 
