@@ -94,6 +94,12 @@ def test_joint_soft_limits_and_action_terms():
     env.action_manager = am
     assert float(R.action_rate(env)) == 28.0
     assert float(R.clipping_violation(env)) == 4.0
+    assert float(R.clipping_violation(env, max_violation=3.0)) == 4.0  # inside the bound: the same
+    am.violation[0, 5] = -50.0  # an action mean far out of range: 2500 unbounded, 3^2 bounded
+    assert float(R.clipping_violation(env)) == 2504.0
+    assert float(R.clipping_violation(env, max_violation=3.0)) == 13.0
+    with pytest.raises(ValueError, match="max_violation must be > 0"):
+        R.clipping_violation(env, max_violation=0.0)
     assert float(R.action_limit(env, "f", 1.0, 2.5)) == pytest.approx(1.0)
     with pytest.raises(ValueError, match="allowed"):
         R.action_limit(env, "q", 0.0, 1.0)

@@ -96,9 +96,18 @@ def joint_soft_limits(env, soft_ratio: float = 0.9) -> torch.Tensor:
     return kernels.l2(torch.clamp((q - mid).abs() - half, min=0.0))
 
 
-def clipping_violation(env) -> torch.Tensor:
-    """L2 of the clipping violation raw - normalise(clipped) (network units)."""
-    return kernels.l2(env.action_manager.violation)
+def clipping_violation(env, max_violation: float | None = None) -> torch.Tensor:
+    """L2 of the clipping violation raw - normalise(clipped) (network units). ``max_violation``: each entry's
+    magnitude counted up to this many units past the clip (None: unbounded, the thesis's term), so one robot whose
+    action means run far out of range for an episode cannot put a return of -10^4 into a PPO batch (the climb runs'
+    dips, docs/experts.md); exploration noise a few units past the clip is penalised as before."""
+    v = env.action_manager.violation
+    if max_violation is not None:
+        if not max_violation > 0:
+            raise ValueError(f"clipping_violation: max_violation must be > 0 (units past the clip) or null, "
+                             f"got {max_violation!r}")
+        v = v.clamp(-max_violation, max_violation)
+    return kernels.l2(v)
 
 
 def action_limit(env, component: str, low: float, high: float) -> torch.Tensor:
