@@ -258,6 +258,7 @@ EXPERT_SEED_TABLE14 = {"expert seed 1": "expert_seeds/table14_T1", "expert seed 
 (``docs/experiments/expert_seeds_plan.md`` part 2); seed 0 is the table's own run."""
 
 
+@cache  # the row's reason and its note both ask: the bootstraps run once
 def _across_expert_seeds(folder: str, a: str, b: str, key: str, direction: int, digits: int) -> tuple[bool, str]:
     """(whether every expert seed gives seed 0's verdict, the seeds' intervals as text)."""
     own = verdict(gap(folder, a, b, key, digits=digits), direction)
