@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from dls_quadruped.cli import run_cli
 from experiments.output import pyplot, save
 from experiments.warm_start_common import Cell, parse_args, run_cells
 from experiments.warm_start_seeds import merge_seed_rows, seed_student_cells
@@ -125,4 +126,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)

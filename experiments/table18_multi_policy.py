@@ -30,6 +30,15 @@ episodes (paired):
 Students: ``docs/policies/<expert>_student_first_spline_h10.pt`` (``--policy-dir``); a missing one
 skips its cells with a note.
 
+``--seed-students DIR``: Fig. 32's primary contrast only (base's warm start − base alone on the survival task),
+base's MPC warm-started once per training seed's student (``<dir>/first-spline_H10_dt0.02_seed<k>/exported/
+student.pt2``, k = 0, 1, 2; cells ``ws_base_survival_seed<k>``) and merged into one row (intervals over episodes
+and students, ``experiments/warm_start_seeds.py``); writes ``fig32_seeds.md/.csv``. The 100-episode run of
+``docs/experiments/primary_cells_plan.md``:
+
+    python -m experiments.table18_multi_policy --scale thesis --seed 1 --sampler-seeds 1 \
+        --seed-students docs/policies/seed_students --out docs/experiments/fig32_thesis
+
     python -m experiments.table18_multi_policy --scale small
     python -m experiments.table18_multi_policy --scale small --stairs   # stairs, blind vs aware
 """
@@ -40,6 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dls_quadruped.cli import UserError, run_cli
 from dls_quadruped.closed_loop.episodes import STAIRS_HEIGHTS
 from dls_quadruped.core.json_io import write_json
 from experiments.output import pyplot, save
@@ -102,6 +112,34 @@ def cells(policies: Policies) -> list[Cell]:
                 _ws_cell(("base", "speed"), policies, "_survival", tag, scenario="survival")]
         out += [_ws_cell(("base", "speed"), policies, f"_v{v:g}", tag, vx=v) for v in SPEEDS]
     return out + stairs_cells(policies)
+
+
+def fig32_seed_cells(policies: Policies, students: Path) -> tuple[list[Cell], dict[str, list[str]]]:
+    """``--seed-students``: base alone and base's warm start once per training seed's student, survival task."""
+    from experiments.warm_start_seeds import seed_student_cells
+
+    return seed_student_cells([_alone_cell("base", policies, "_survival", scenario="survival"),
+                               Cell("ws_base_survival", "rl_warm_start", scenario="survival",
+                                    row={"Warm start": "base"})], students)
+
+
+def fig32_seed_rows(results: dict, seeded: dict[str, list[str]]) -> list[dict]:
+    """The merged warm-start row (students pooled) beside base alone, and each student's own row."""
+    rows = []
+    for name in ("ws_base_survival", *seeded.get("ws_base_survival", [])):
+        s = results.get(name)
+        label = "base warm (3 students)" if name == "ws_base_survival" else f"base warm, student {name[-1]}"
+        if not s or "skipped" in s:
+            rows.append({"Warm start": label, "survival": "skipped" if s else "-"})
+            continue
+        rows.append({"Warm start": label, "survival": survival(s),
+                     "Δ survival (paired, fraction)": paired(results, name, "alone_base_survival", "survived",
+                                                             digits=3),
+                     "Δ return (paired)": paired(results, name, "alone_base_survival", "rl_return")})
+    s = results.get("alone_base_survival")
+    if s and "skipped" not in s:
+        rows.append({"Warm start": "base alone", "survival": survival(s)})
+    return rows
 
 
 def _deltas(results: dict, ws: tuple[str, ...], suffix: str, key: str, relative: bool, digits: int = 1,
@@ -263,6 +301,9 @@ def survival_rows(results: dict) -> list[dict]:
 def _flags(p) -> None:
     p.add_argument("--policy-dir", type=Path, default=REPO / "docs" / "policies",
                    help="folder of <expert>_actor.pt and <expert>_student_first_spline_h10.pt")
+    p.add_argument("--seed-students", type=Path, default=None,
+                   help="Fig. 32's primary contrast only: base alone and base's MPC warm-started by each student "
+                        "<dir>/first-spline_H10_dt0.02_seed<k>/exported/student.pt2 (k = 0, 1, 2), merged")
     p.add_argument("--stairs", action="store_true",
                    help="run only the stairs cells (blind vs terrain-aware MPC; --episodes per step "
                         "height, 15 s) and write stairs.md/.csv and stairs.png")
@@ -270,6 +311,8 @@ def _flags(p) -> None:
 
 def main() -> None:
     args = parse_args(__doc__, "table18_multi_policy", _flags)
+    if args.stairs and args.seed_students:
+        raise UserError("table18_multi_policy: --seed-students runs Fig. 32's contrast only, not with --stairs")
     if args.stairs:
         args.seconds = args.seconds if args.seconds_given else STAIRS_SECONDS  # what the cells run (config.json)
         todo = stairs_cells(Policies(args.policy_dir, args.variant))
@@ -280,10 +323,26 @@ def main() -> None:
                                   "step_heights": list(STAIRS_HEIGHTS)})
         print((args.out / "stairs.md").read_text())
         return
+    from experiments.output import write_table
+
+    if args.seed_students:
+        from experiments.warm_start_seeds import merge_seed_rows
+
+        todo, seeded = fig32_seed_cells(Policies(args.policy_dir, args.variant), args.seed_students)
+        results = run_cells(todo, args)
+        merge_seed_rows(results, seeded)
+        write_table(fig32_seed_rows(results, seeded),
+                    ["Warm start", "survival", "Δ survival (paired, fraction)", "Δ return (paired)"],
+                    args.out / "fig32_seeds", f"Fig. 32: survival task, base warm − base alone ({args.scale}: "
+                    f"{args.episodes} episodes x {args.seconds:g} s, {args.sampler_seeds} sampler seeds per MPC "
+                    f"episode, {len(seeded['ws_base_survival'])} students; the MPC terrain-blind)")
+        write_json(results, args.out / "results.json", indent=1)
+        write_config(args, todo, {"results": dict(results), "part": "fig32_seeds"})
+        print((args.out / "fig32_seeds.md").read_text())
+        return
     todo = cells(Policies(args.policy_dir, args.variant))
     results = run_cells(todo, args)
     write_stairs(args, results)
-    from experiments.output import write_table
 
     write_table(survival_rows(results), ["Warm start", "survival", "Δ survival (paired, fraction)", "switches / s"],
                 args.out / "fig32_survival", f"Fig. 32: survival task ({args.scale}: {args.episodes} episodes x "
@@ -299,4 +358,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)

@@ -372,7 +372,46 @@ def test_table14_students_as_seeds_merge_each_rl_row(tmp_path: Path, monkeypatch
     assert "3 students x the sampler seeds" in table and "+12.0 [+12.0, +12.0]" in table
 
 
-@pytest.mark.parametrize("script", ["table14_warm_start_encodings", "table16_samples", "table17_gait_optimisation"])
+def test_fig32_students_as_seeds_merge_the_warm_start_row(tmp_path: Path, monkeypatch) -> None:
+    """table18_multi_policy.py --seed-students on cached cells built by hand: base alone survives episodes 1 and 3
+    of 4; every student survives those and episode 0 too, so each student's and the merged row's paired survival
+    difference is +0.250 (1, 0, 0, 0 over the episodes); a resample without episode 0 has probability
+    (3/4)^4 = 32 % > 2.5 %, so the interval's lower end is 0 by hand; the merged row holds the three students."""
+    from experiments import table18_multi_policy as t18
+
+    e = 4
+    students, out = tmp_path / "students", tmp_path / "fig32"
+    (out / "cells").mkdir(parents=True)
+
+    def write(name, controller, survived):
+        pe = {"rl_reward": np.full((1, e), 2.0), "rl_return": 10 * np.asarray([survived], dtype=float),
+              "initial_cost": np.full((1, e), 50.0), "survived": np.asarray([survived], dtype=float)}
+        (out / "cells" / f"{name}.json").write_text(json.dumps(_cell_summary(controller, pe, 1)))
+
+    write("alone_base_survival", "rl_baseline", [0, 1, 0, 1])
+    for k in range(3):
+        f = students / f"first-spline_H10_dt0.02_seed{k}" / "exported" / "student.pt2"
+        f.parent.mkdir(parents=True)
+        f.write_bytes(b"")
+        write(f"ws_base_survival_seed{k}", "rl_warm_start", [1, 1, 0, 1])
+    monkeypatch.setattr(sys, "argv", ["t18.py", "--seed-students", str(students), "--out", str(out),
+                                      "--episodes", str(e), "--sampler-seeds", "1"])
+    t18.main()
+    results = json.loads((out / "results.json").read_text())
+    assert results["ws_base_survival"]["training_seeds"] == 3
+    table = (out / "fig32_seeds.md").read_text()
+    assert "3 students" in table and table.count("+0.250 [+0.000, +0.") == 4  # merged + each student
+    assert "| base alone | 50 % " in table
+    from dls_quadruped.cli import run_cli
+
+    monkeypatch.setattr(sys, "argv", ["t18.py", "--seed-students", str(students), "--stairs", "--out", str(out)])
+    with pytest.raises(SystemExit) as err:
+        run_cli(t18.main)
+    assert err.value.code == 2
+
+
+@pytest.mark.parametrize("script", ["table14_warm_start_encodings", "table16_samples", "table17_gait_optimisation",
+                                    "table18_multi_policy"])
 @pytest.mark.parametrize("argv, code, text", [(["--help"], 0, "--seed-students"),
                                               (["--seed-students"], 2, "expected one argument"),
                                               (["--seed-students", "nowhere"], 2,
