@@ -141,6 +141,9 @@ class LowLevelController:
         dtype = torch.float64
         dev = self.device
         self.phase = trot_phases(num_robots, device=dev, dtype=dtype)
+        # (1, 4) trot offsets for resets, a tensor attribute: compiled resets read it instead of building it from
+        # Python floats (symbolic inputs whose guards torch 2.11 evaluates on the host at every call)
+        self._trot = trot_phases(1, device=dev, dtype=dtype)
         self.p_lo_w = torch.zeros(num_robots, 4, 3, dtype=dtype, device=dev)
         self.contact = torch.ones(num_robots, 4, dtype=torch.bool, device=dev)
         self._kp = torch.tensor(cfg.kp_swing, dtype=dtype, device=dev)
@@ -169,15 +172,14 @@ class LowLevelController:
             phase: (n, 4) phases in [0, 1), or None for the trot offsets.
         """
         if ids.dtype == torch.bool:  # a mask (B,) with foot_pos_w and phase of every robot: the masked rows kept
-            new_phase = trot_phases(len(ids), device=self.device, dtype=self.phase.dtype) if phase is None else phase
+            new_phase = self._trot.expand(len(ids), 4) if phase is None else phase
             self.phase.copy_(torch.where(ids[:, None], new_phase.to(self.phase), self.phase))
             self.p_lo_w.copy_(torch.where(ids[:, None, None], foot_pos_w.to(self.p_lo_w), self.p_lo_w))
             self.contact.masked_fill_(ids[:, None], True)
             self._fresh.masked_fill_(ids, True)
             self.target_vel_xy_w.masked_fill_(ids[:, None, None], 0.0)
             return
-        self.phase[ids] = (trot_phases(len(ids), device=self.device, dtype=self.phase.dtype) if phase is None
-                           else phase.to(self.phase))
+        self.phase[ids] = self._trot.expand(len(ids), 4) if phase is None else phase.to(self.phase)
         self.p_lo_w[ids] = foot_pos_w.to(self.p_lo_w)
         self.contact.index_fill_(0, ids, True)  # scalar fills: x[ids] = v copies v from the host on CUDA
         self._fresh.index_fill_(0, ids, True)

@@ -93,6 +93,7 @@ class _Probe:
         self.reports: list[tuple[SyncReport, str, tuple[str, ...]]] = []
         self.saved: dict[tuple[object, str], object] = {}
         self.local = threading.local()
+        self.persistent = False  # keep_installed(): the wrappers stay when the last probe ends
 
     def record(self, kind: str) -> None:
         for report, root, exclude in self.reports:
@@ -171,7 +172,7 @@ def sync_probe(package: str | Path | None = None, exclude: Iterable[str] = ()) -
     report = SyncReport()
     entry = (report, root, tuple(exclude))
     with _PROBE.lock:
-        if not _PROBE.reports:
+        if not _PROBE.saved:
             _PROBE.install()
         _PROBE.reports.append(entry)
     try:
@@ -179,5 +180,22 @@ def sync_probe(package: str | Path | None = None, exclude: Iterable[str] = ()) -
     finally:
         with _PROBE.lock:
             _PROBE.reports.remove(entry)
-            if not _PROBE.reports:
+            if not _PROBE.reports and not _PROBE.persistent:
                 _PROBE.uninstall()
+
+
+def keep_installed(keep: bool = True) -> None:
+    """Install the probe's wrappers now and keep them for the rest of the process (they count only while a
+    :func:`sync_probe` is active); ``keep=False`` ends that (the wrappers go when no probe is active).
+
+    For probing compiled code: dynamo guards a compiled function on the identity of some torch functions it
+    traced (torch 2.11 on ``torch.tensor`` and ``torch.as_tensor``, e.g. in a cached constant's builder). Wrappers
+    installed only while a probe is active swap those objects, so every compiled function would recompile inside
+    the probe, and what the recompile runs would be counted as the step's. Call this before the functions are
+    compiled: they then guard on the wrappers, which stay."""
+    with _PROBE.lock:
+        _PROBE.persistent = keep
+        if keep and not _PROBE.saved:
+            _PROBE.install()
+        elif not keep and not _PROBE.reports:
+            _PROBE.uninstall()

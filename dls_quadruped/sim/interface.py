@@ -117,12 +117,14 @@ def is_mask(rows: Any, num_envs: int) -> bool:
     return isinstance(rows, torch.Tensor) and rows.dtype == torch.bool and tuple(rows.shape) == (num_envs,)
 
 
-def standing_references(command: dict[str, torch.Tensor], rows: slice | torch.Tensor, weight: float) -> None:
+def standing_references(command: dict[str, torch.Tensor], rows: slice | torch.Tensor,
+                        weight: float | torch.Tensor) -> None:
     """Write the standing references into ``command``'s ``rows`` (a slice, ids, or an (N,) bool mask): all four
     legs in stance (f = 0, d = 1),
     the weight shared equally, no foothold. Every backend gives these to a robot at construction and at
     its reset, until its first ``set_references`` (the state published at a reset reads the duty,
-    ``contact_cmd = phase < d``, so a robot must not start an episode with its previous episode's duty)."""
+    ``contact_cmd = phase < d``, so a robot must not start an episode with its previous episode's duty). ``weight``
+    [N]: a float, or a 0-d tensor on the command's device (what compiled code passes)."""
     for t, value in ((command["freq"], 0.0), (command["duty"], 1.0), (command["p_td_w"], 0.0), (command["F_w"], 0.0),
                      (command["F_w"][:, :, 2], weight / 4.0)):
         if isinstance(rows, torch.Tensor) and rows.dtype == torch.bool:

@@ -118,8 +118,18 @@ class PhysicsRate:
         cleared flags, wrench and torques, standing references and a fresh controller (phases ``phase`` or trot,
         lift-off at ``foot_pos_w``, (N, 4, 3) of every robot)."""
         s = self.sim
-        self._reset(ids, foot_pos_w, phase, s.total_weight(), s._contact_sensors, s._sensordata, s.diverged,
+        self._reset(ids, foot_pos_w, phase, self._weight(), s._contact_sensors, s._sensordata, s.diverged,
                     s.wrench_w, s.tau, s.command)
+
+    def _weight(self) -> torch.Tensor:
+        """(1,) m g, float64 on the device, uploaded once per value. Not a Python float (a symbolic input of the
+        compiled reset, whose guards torch 2.11 evaluates on the host at every call), nor a 0-d tensor (on the CPU
+        torch 2.11 treats one as a number and reads it back to guard against NaN)."""
+        w = self.sim.total_weight()
+        if getattr(self, "_weight_value", None) != w:
+            self._weight_value = w
+            self._weight_tensor = torch.tensor([w], dtype=torch.float64, device=self.sim.device)
+        return self._weight_tensor
 
     @fused_method("WarpSim reset rows", dynamic=True)  # a reset's robots vary
     def _reset(self, ids, foot_pos_w, phase, weight, contact_sensors, sensordata, diverged, wrench_w, tau,
@@ -128,14 +138,14 @@ class PhysicsRate:
             contact_sensors.copy_(torch.where(ids[:, None], sensordata, contact_sensors))
             diverged.logical_and_(~ids)
             wrench_w.masked_fill_(ids[:, None], 0.0)
-            standing_references(command, ids, weight)
+            standing_references(command, ids, weight[0])
             self.sim.controller.reset(ids, foot_pos_w, phase)
             tau.masked_fill_(ids[:, None], 0.0)
             return
         contact_sensors[ids] = sensordata[ids]
         diverged.index_fill_(0, ids, False)  # scalar fills: x[ids] = v copies v from the host on CUDA
         wrench_w.index_fill_(0, ids, 0.0)
-        standing_references(command, ids, weight)
+        standing_references(command, ids, weight[0])
         self.sim.controller.reset(ids, foot_pos_w[ids], phase)
         tau.index_fill_(0, ids, 0.0)
 

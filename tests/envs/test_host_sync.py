@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from dls_quadruped.core.sync_probe import sync_probe
+from dls_quadruped.core.sync_probe import keep_installed, sync_probe
 from dls_quadruped.envs.config import load_task
 from dls_quadruped.envs.env import LocomotionEnv
 
@@ -171,8 +171,10 @@ def test_compiled_step_reads_nothing_back_and_recompiles_nothing(backend):
     from dls_quadruped.core.compile import Fused
     from dls_quadruped.envs.mdp.events import _placement
 
-    env = _env(backend, EVENTFUL_AT_ONCE, compile=True)
+    keep_installed()  # compiled below with the probe's wrappers in place (torch 2.11 guards on them)
+    env = None
     try:
+        env = _env(backend, EVENTFUL_AT_ONCE, compile=True)
         steps = 20
         report, resets, pushes, _ = _run(env, steps, exclude=CPU_BACKEND_FILES if backend == "cpu" else (), warmup=3)
         _, more_resets, _, graphs = _run(env, 10, warmup=0)  # first uses (a stream's first push) compiled above
@@ -183,7 +185,9 @@ def test_compiled_step_reads_nothing_back_and_recompiles_nothing(backend):
             rate = env.scene.sim.rate
             fused += [rate._control, rate._settle, rate._terms, rate._publish, rate._store, rate._reset]
     finally:
-        env.close()
+        keep_installed(False)
+        if env is not None:
+            env.close()
     _check(report, steps, WARP_BACKEND if backend == "warp-cpu" else set())
     assert all(isinstance(f, Fused) and f.compiled for f in fused), [f.name for f in fused if not f.compiled]
     assert resets > 6 and pushes > 4 and more_resets > 2
@@ -238,3 +242,37 @@ def test_probe_lets_torch_compile_trace_through_it():
     assert out.tolist() == [1.0, 2.0]
     assert sorted((s.function, s.kind, n) for s, n in report.counts.items()) == [
         ("shifted", "upload", 1), ("test_probe_lets_torch_compile_trace_through_it", "upload", 1)]
+
+
+def test_kept_wrappers_count_only_inside_a_probe_and_spare_compiled_guards():
+    """``keep_installed``: a function compiled after it guards on the wrappers, so calling it inside a probe does
+    not compile it again (torch 2.11 guards on ``torch.tensor``'s identity; wrappers swapped in by the probe made
+    every compiled function recompile inside it); the wrappers count only while a probe is active, and
+    ``keep_installed(False)`` removes them."""
+    compiles = []
+
+    def counting(gm, example_inputs):
+        compiles.append(1)
+        return gm.forward
+
+    @torch.compile(backend=counting, fullgraph=True, dynamic=False)
+    def shifted(x):
+        return x + torch.tensor([1.0, 2.0])
+
+    plain = torch.tensor
+    keep_installed()
+    try:
+        wrapped = torch.tensor
+        assert wrapped is not plain
+        shifted(torch.zeros(2))  # compiled here, outside any probe
+        torch.as_tensor([3.0])  # no probe active: not counted anywhere
+        with sync_probe(package=Path(__file__).parent) as report:
+            out = shifted(torch.zeros(2))
+            torch.as_tensor([3.0])  # eager: counted
+        assert torch.tensor is wrapped  # kept after the probe
+    finally:
+        keep_installed(False)
+    assert torch.tensor is plain and out.tolist() == [1.0, 2.0] and len(compiles) == 1
+    assert [(s.function, s.kind, n) for s, n in report.counts.items()
+            if s.function != "shifted"] == [("test_kept_wrappers_count_only_inside_a_probe_and_spare_compiled_guards",
+                                              "upload", 1)]
