@@ -93,6 +93,7 @@ test: $(STAMP)
 # the code paths only a GPU runs, exercised on warp-cpu (MuJoCo Warp on Warp's CPU device, scene.compile on):
 # the [gpu] extra and every test of the Warp backends, the compiled env step and the GPU check, slow ones included
 # (~20-40 min on 2 cores, most of it compiling; not part of .ci/run)
+# Under another torch (docs/gpu.md): make VENV=.venv-torch211 TORCH_SPEC=torch==2.11.0 TORCH_INDEX= test-gpu-path
 GPU_PATH_TESTS ?= tests/sim/test_warp_backend.py tests/sim/test_warp_graph.py tests/sim/test_warp_collision.py \
 	tests/sim/test_warp_control.py tests/envs/test_host_sync.py tests/envs/test_compile_guards.py \
 	tests/bench/test_gpu_check.py tests/core/test_compile.py tests/mpc/test_warp_solve.py tests/closed_loop/test_device_loop.py \
