@@ -2,6 +2,7 @@
 
     python -m experiments.walking_height --variant recipe            # base, speed and rough, retrained
     python -m experiments.walking_height --variant thesis --tasks base
+    python -m experiments.walking_height --policy base_s1=docs/policies/expert_seeds/base_thesis_s1_it449.pt2
 
 The sampling MPC's cost pulls the CoM towards one height (``mpc.srbd.com_height_reference``, ~0.324 m: the RL
 task's base height target). The RL reward weighs height little (thesis 7.3.7), so an expert may walk elsewhere,
@@ -69,7 +70,17 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--settle", type=float, default=2.0, help="seconds left out at the start [s]")
     p.add_argument("--seed", type=int, default=0, help="the test seed; the validation episodes are its split")
     p.add_argument("--out", type=Path, default=REPO / "results" / "experiments" / "walking_height")
+    p.add_argument("--policy", nargs="*", default=None, metavar="NAME=FILE",
+                   help="these base-task experts (NAME=FILE each) instead of --variant's --tasks")
     args = p.parse_args(argv)
+    named = {}
+    for item in args.policy or ():
+        name, sep, file = item.partition("=")
+        if not sep or not name or not file:
+            p.error(f"--policy takes NAME=FILE, got {item!r}")
+        if not Path(file).is_file():
+            p.error(f"--policy {name}: no file {file}")
+        named[name] = Path(file)
     if not 0 <= args.settle < args.seconds:
         p.error(f"--settle must be in [0, --seconds = {args.seconds:g}), got {args.settle:g}")
     torch.set_num_threads(1)
@@ -78,8 +89,7 @@ def main(argv: list[str] | None = None) -> dict:
     out = {"variant": args.variant, "seed": args.seed, "validation_seed": seed, "robots": args.robots,
            "seconds": args.seconds, "settle_s": args.settle, "mpc_default_com_height_m": com_height_reference(),
            "experts": {}}
-    for task in args.tasks:
-        path = policies.expert(task)
+    for task, path in (named.items() if named else ((t, policies.expert(t)) for t in args.tasks)):
         if not path.is_file():
             print(f"[walking_height] {task}: {path} not found, skipped", flush=True)
             continue

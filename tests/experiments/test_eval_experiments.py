@@ -143,6 +143,13 @@ def test_walking_height_of_a_standing_policy(tmp_path, save_policy):
     assert json.loads((tmp_path / "out" / "walking_height.json").read_text())["experts"]["base"] == base
     with pytest.raises(SystemExit):
         walking_height.main(["--seconds", "1", "--settle", "1"])
+    # --policy NAME=FILE: that file under that name, the same episodes, so the same height as above
+    named = walking_height.main(["--policy", f"zero={tmp_path / 'base_recipe_actor.pt2'}", "--robots", "2",
+                                 "--seconds", "0.4", "--settle", "0.2", "--out", str(tmp_path / "out2")])
+    assert list(named["experts"]) == ["zero"] and named["experts"]["zero"]["com_height_m"] == base["com_height_m"]
+    for bad in (["--policy", "nofile"], ["--policy", f"x={tmp_path / 'missing.pt2'}"]):
+        with pytest.raises(SystemExit):
+            walking_height.main(bad)
 
 
 def test_walking_height_help_and_a_bad_variant():
