@@ -277,6 +277,16 @@ def expert_seeds_why(folder: str, a: str, b: str, key: str, direction: int, digi
     return "" if same else f"expert seed 0 only: {text}, one student each"
 
 
+def expert_seeds_at_height(a: str, b: str, key: str, direction: int, digits: int = 1) -> str:
+    """The same contrast in the plan amendment's cells, every reference at each seed's own walking height
+    (``expert_seeds/table14_T<k>_height``), as text with each seed's verdict."""
+    parts = []
+    for name, f in EXPERT_SEED_TABLE14.items():
+        iv = gap(f + "_height", a, b, key, digits=digits)
+        parts.append(f"{name} {iv.text} ({verdict(iv, direction)})")
+    return "at each seed's own walking height: " + ", ".join(parts)
+
+
 def expert_seeds_note(folder: str, a: str, b: str, key: str, direction: int, digits: int = 1) -> str:
     """A verdict row's caveat when its label holds across the three expert seeds: "" when it does not."""
     same, text = _across_expert_seeds(folder, a, b, key, direction, digits)

@@ -143,6 +143,21 @@ def test_table14_rows_are_checked_across_the_expert_seeds():
             assert expert_seeds_note(seed0, *row) == ""
 
 
+def test_table14_rows_at_each_seeds_own_height_read_the_height_cells():
+    """The plan amendment's cells (every reference at the seed's walking height) are another run than part 2's:
+    each seed's text is the interval of its ``_height`` folder, not of the default-height one, with its verdict."""
+    from experiments.verdict_intervals import EXPERT_SEED_TABLE14, expert_seeds_at_height, gap, verdict
+    from experiments.verdicts import _T14_IC, _T14_RA, _T14_RN
+
+    for row in (_T14_IC, _T14_RN, _T14_RA):
+        a, b, key, direction, digits = row
+        text = expert_seeds_at_height(*row)
+        for name, folder in EXPERT_SEED_TABLE14.items():
+            at, default = gap(folder + "_height", a, b, key, digits=digits), gap(folder, a, b, key, digits=digits)
+            assert f"{name} {at.text} ({verdict(at, direction)})" in text
+            assert at.text != default.text
+
+
 def test_equivalence_needs_the_interval_inside_the_margin():
     from experiments.verdict_intervals import equivalence
 
