@@ -128,7 +128,9 @@ def fig32_seed_rows(results: dict, seeded: dict[str, list[str]]) -> list[dict]:
     rows = []
     for name in ("ws_base_survival", *seeded.get("ws_base_survival", [])):
         s = results.get(name)
-        label = "base warm (3 students)" if name == "ws_base_survival" else f"base warm, student {name[-1]}"
+        merged = name == "ws_base_survival"
+        label = (f"base warm ({len(seeded[name])} students)" if merged
+                 else f"base warm, student {name.rsplit('_seed', 1)[1]}")
         if not s or "skipped" in s:
             rows.append({"Warm start": label, "survival": "skipped" if s else "-"})
             continue

@@ -262,13 +262,18 @@ EXPERT_SEED_TABLE14 = {"expert seed 1": "expert_seeds/table14_T1", "expert seed 
 def _across_expert_seeds(folder: str, a: str, b: str, key: str, direction: int, digits: int) -> tuple[bool, str]:
     """(whether every expert seed gives seed 0's verdict, the seeds' intervals as text)."""
     own = verdict(gap(folder, a, b, key, digits=digits), direction)
-    parts, same = [], True
+    seeds = _seed_verdicts("", a, b, key, direction, digits)
+    return all(v == own for _, v in seeds), ", ".join(text for text, _ in seeds)
+
+
+def _seed_verdicts(suffix: str, a: str, b: str, key: str, direction: int, digits: int) -> list[tuple[str, str]]:
+    """("<seed> <interval> (<verdict>)", verdict) of each expert seed's cells (``EXPERT_SEED_TABLE14`` + ``suffix``)."""
+    out = []
     for name, f in EXPERT_SEED_TABLE14.items():
-        iv = gap(f, a, b, key, digits=digits)
+        iv = gap(f + suffix, a, b, key, digits=digits)
         v = verdict(iv, direction)
-        same &= v == own
-        parts.append(f"{name} {iv.text} ({v})")
-    return same, ", ".join(parts)
+        out.append((f"{name} {iv.text} ({v})", v))
+    return out
 
 
 def expert_seeds_why(folder: str, a: str, b: str, key: str, direction: int, digits: int = 1) -> str:
@@ -280,11 +285,15 @@ def expert_seeds_why(folder: str, a: str, b: str, key: str, direction: int, digi
 def expert_seeds_at_height(a: str, b: str, key: str, direction: int, digits: int = 1) -> str:
     """The same contrast in the plan amendment's cells, every reference at each seed's own walking height
     (``expert_seeds/table14_T<k>_height``), as text with each seed's verdict."""
-    parts = []
-    for name, f in EXPERT_SEED_TABLE14.items():
-        iv = gap(f + "_height", a, b, key, digits=digits)
-        parts.append(f"{name} {iv.text} ({verdict(iv, direction)})")
-    return "at each seed's own walking height: " + ", ".join(parts)
+    seeds = _seed_verdicts("_height", a, b, key, direction, digits)
+    return "at each seed's own walking height: " + ", ".join(text for text, _ in seeds)
+
+
+def floor_why(folder: str, name: str, alone: str, warm: str) -> str:
+    """A survival row's reason when the task is at its floor: the policy alone's and the warm start's survival, as
+    the result table ``folder/name`` prints them (rows named in its "Warm start" column)."""
+    rows = {r["Warm start"]: r["survival"].split(" (n=")[0] for r in _csv(folder, name)}
+    return f"{alone} survives {rows[alone]}, the warm start {rows[warm]}: the task's floor, no room to rise"
 
 
 def expert_seeds_note(folder: str, a: str, b: str, key: str, direction: int, digits: int = 1) -> str:

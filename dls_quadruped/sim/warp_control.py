@@ -53,6 +53,8 @@ class PhysicsRate:
         self.sim = sim
         self.compile = compile_wanted(compile, sim.device)  # each fused_method below is compiled when True
         self.time_before = torch.zeros_like(sim._time)
+        self._weight_value: float | None = None  # m g the cached (1,) tensor below holds (_weight)
+        self._weight_tensor: torch.Tensor | None = None
         # the dynamics' constant tensors (chain parameters, index tables) are built on first use: build them here,
         # eagerly, so the compiled functions find them made (creating them from numpy inside a trace fails)
         self._terms.fn(sim._qpos, sim._qvel, sim._M, sim._qfrc_bias)
@@ -126,7 +128,7 @@ class PhysicsRate:
         compiled reset, whose guards torch 2.11 evaluates on the host at every call), nor a 0-d tensor (on the CPU
         torch 2.11 treats one as a number and reads it back to guard against NaN)."""
         w = self.sim.total_weight()
-        if getattr(self, "_weight_value", None) != w:
+        if self._weight_value != w:
             self._weight_value = w
             self._weight_tensor = torch.tensor([w], dtype=torch.float64, device=self.sim.device)
         return self._weight_tensor

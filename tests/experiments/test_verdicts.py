@@ -305,3 +305,15 @@ def test_the_committed_plan_headers_name_their_commits():
     except (OSError, subprocess.CalledProcessError):
         pytest.skip("no git history in this copy of the tree")
     assert errors == []
+
+
+def test_floor_reason_quotes_the_table_it_reads(tmp_path, monkeypatch):
+    """``floor_why`` prints the survival cells of the named rows, without their counts, from the result table."""
+    from experiments import verdict_intervals
+
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "t.csv").write_text('Warm start,survival\n"base alone","4 % [1, 10] (n=100)"\n'
+                                            '"base warm (2 students)","7 % [3, 14] (n=100x2)"\n')
+    monkeypatch.setattr(verdict_intervals, "RESULTS", tmp_path)
+    assert verdict_intervals.floor_why("run", "t.csv", "base alone", "base warm (2 students)") == (
+        "base alone survives 4 % [1, 10], the warm start 7 % [3, 14]: the task's floor, no room to rise")
