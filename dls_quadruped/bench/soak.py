@@ -11,6 +11,11 @@ imports, the env's build, the first allocations) it fits a line to each series o
 the memory grows by less than ``--max-rss-mib-per-h`` and the descriptors stay within ``--max-fd-change`` of their
 first post-warm-up value. Writes ``DIR/soak.json`` (the samples, the fits and the verdict; rewritten after every
 sample, so a run cut short keeps what it measured) and prints the verdict; Linux only (``/proc``).
+
+The judged window is the run itself, not its end: the default command's ``--time-limit`` lies
+:data:`CLOSE_SLACK_S` past ``--minutes``, so it is still training when the window ends. The soak then sends SIGTERM
+(the trainer finishes its iteration, saves and exports) and keeps sampling until the child exits, into
+``closing`` (its own samples, reported beside the verdict, not fitted), killing it :data:`CLOSE_WAIT_S` later.
 """
 
 from __future__ import annotations
@@ -30,6 +35,10 @@ from dls_quadruped.core.json_io import write_json
 DEFAULT_TRAIN = ("-m", "dls_quadruped.learning.train", "--task", "base", "--num-envs", "64", "--iterations", "1000000",
                  "--num-workers", "1", "--update-threads", "1", "--save-interval", "50")
 """The default soaked command (after the interpreter): base, 64 robots, one worker, checkpoints every 50 iterations."""
+CLOSE_SLACK_S = 600.0
+"""Seconds the default command's ``--time-limit`` lies past the window, so it does not start closing inside it."""
+CLOSE_WAIT_S = 120.0
+"""Seconds the closing (after SIGTERM) is sampled before the child is killed."""
 
 
 def descendants(pid: int) -> list[int]:
@@ -79,11 +88,13 @@ def flatness(samples: list[dict], warmup_frac: float, max_rss_mib_per_h: float, 
             "flat": bool(slope < max_rss_mib_per_h and change <= max_fd_change)}
 
 
-def soak(command: list[str], minutes: float, every_s: float, out: Path, limits: dict) -> dict:
-    """Run ``command`` for at most ``minutes`` (stopped with SIGTERM after it, killed 60 s later), sampling it."""
+def soak(command: list[str], minutes: float, every_s: float, out: Path, limits: dict,
+         close_wait_s: float = CLOSE_WAIT_S) -> dict:
+    """Run ``command`` for at most ``minutes``, sampling it; then SIGTERM, sampling its closing into ``closing``
+    until it exits (killed ``close_wait_s`` later). The verdict fits the samples before SIGTERM only."""
     out.mkdir(parents=True, exist_ok=True)
     res = {"command": command, "minutes": minutes, "every_s": every_s, **limits, "machine": machine_info(),
-           "samples": []}
+           "samples": [], "closing": []}
     child = subprocess.Popen(command, stdout=subprocess.DEVNULL)  # stderr: the run's own errors stay visible
     t0 = time.monotonic()
     try:
@@ -92,16 +103,22 @@ def soak(command: list[str], minutes: float, every_s: float, out: Path, limits: 
             res.update(flatness(res["samples"], **limits))
             write_json(res, out / "soak.json")
             time.sleep(every_s)
-    finally:
+        res["ended_by"] = "itself" if child.poll() is not None else "SIGTERM"
         if child.poll() is None:
             child.terminate()
-            try:
-                child.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                child.kill()
-                child.wait()
+            t_term = time.monotonic()
+            while child.poll() is None and time.monotonic() - t_term < close_wait_s:
+                res["closing"].append({"t_s": round(time.monotonic() - t0, 2), **usage(child.pid)})
+                time.sleep(min(every_s, 1.0))
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
     res["returncode"] = child.returncode
     res.update(flatness(res["samples"], **limits))
+    live = [c for c in res["closing"] if c["processes"]]
+    res["closing_fds_max"] = max((c["fds"] for c in live), default=None)
+    res["closing_rss_mib_max"] = max((c["rss_mib"] for c in live), default=None)
     write_json(res, out / "soak.json")
     return res
 
@@ -120,7 +137,7 @@ def main(argv: list[str] | None = None) -> dict:
         raise UserError("the soak reads /proc: Linux only")
     if args.minutes <= 0 or args.every_s <= 0 or not 0 <= args.warmup_frac < 1:
         raise UserError("--minutes and --every-s must be > 0 and --warmup-frac in [0, 1)")
-    command = args.command or [sys.executable, *DEFAULT_TRAIN, "--time-limit", str(60.0 * args.minutes),
+    command = args.command or [sys.executable, *DEFAULT_TRAIN, "--time-limit", str(60.0 * args.minutes + CLOSE_SLACK_S),
                                "--log-root", str(args.out / "soak_runs")]
     limits = {"warmup_frac": args.warmup_frac, "max_rss_mib_per_h": args.max_rss_mib_per_h,
               "max_fd_change": args.max_fd_change}
@@ -128,7 +145,9 @@ def main(argv: list[str] | None = None) -> dict:
     verdict = {None: "too short to judge", True: "flat", False: "NOT flat"}[res["flat"]]
     print(f"[soak] {len(res['samples'])} samples over {res['samples'][-1]['t_s'] if res['samples'] else 0:.0f} s: "
           f"memory {res.get('rss_mib_per_h', float('nan')):+.1f} MiB/h, descriptors "
-          f"{res.get('fds_min', '-')}-{res.get('fds_max', '-')}: {verdict} -> {args.out / 'soak' / 'soak.json'}")
+          f"{res.get('fds_min', '-')}-{res.get('fds_max', '-')}: {verdict}; closing (after {res['ended_by']}, "
+          f"{len(res['closing'])} samples, not judged): descriptors <= {res['closing_fds_max']}, exit status "
+          f"{res['returncode']} -> {args.out / 'soak' / 'soak.json'}")
     return res
 
 

@@ -45,6 +45,24 @@ def test_a_leaking_child_is_not_flat_and_a_still_one_is(tmp_path):
                     limits={**LIMITS, "max_rss_mib_per_h": 1e4})  # a 3-s window: the fit of a few KiB is noisy
     assert res["flat"] is True and res["fd_change"] == 0
     assert (tmp_path / "still" / "soak.json").is_file()
+    assert res["ended_by"] == "SIGTERM" and res["returncode"] == -15  # sleep(4) outlives the 3-s window
+
+
+def test_the_closing_is_sampled_apart_and_not_judged(tmp_path):
+    # still for the window; on SIGTERM it opens 20 files over 0.5 s (as a closing save and export might) and exits 0
+    closer = ("import signal, sys, time\n"
+              "def close(*_):\n"
+              "    keep = [open('/dev/null') for _ in range(20)]\n"
+              "    time.sleep(0.5)\n"
+              "    sys.exit(0)\n"
+              "signal.signal(signal.SIGTERM, close)\n"
+              "time.sleep(30)\n")
+    res = soak.soak([sys.executable, "-c", closer], minutes=2.0 / 60, every_s=0.25, out=tmp_path / "c",
+                    limits={**LIMITS, "max_rss_mib_per_h": 1e4}, close_wait_s=10.0)
+    assert res["ended_by"] == "SIGTERM" and res["returncode"] == 0
+    assert res["flat"] is True and res["fd_change"] == 0  # the window held still
+    assert len(res["closing"]) >= 1 and res["closing_fds_max"] >= res["fds_max"] + 20, res["closing"]
+    assert all(s["t_s"] < res["closing"][0]["t_s"] for s in res["samples"])
 
 
 def test_help_and_a_bad_value():
