@@ -17,6 +17,11 @@ reward term's episode sum per second (``Episode_Reward/<term>``) and each termin
 (``Episode_Termination/<term>``), so a return that collapses can be traced to a term and a loss from the CSV alone.
 A run that lacks a scalar (older runs: every diagnostic) leaves its cells empty; fixed columns are only ever appended,
 so older CSVs read the same way.
+
+``--trend LAST [BLOCK]`` also answers "is the return still rising?" (:func:`trend`): the mean return in
+BLOCK-iteration blocks (default 50) over the last LAST iterations, a least-squares line through the block means and
+its slope's 95 % interval (Student's t, blocks - 2 degrees of freedom): **rising** if the interval lies above 0,
+**falling** if below, else **flat**. The blocks are autocorrelated, so the interval is, if anything, too narrow.
 """
 
 from __future__ import annotations
@@ -25,13 +30,15 @@ import csv
 from pathlib import Path
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from dls_quadruped.cli import ArgumentParser, run_cli
+from dls_quadruped.cli import ArgumentParser, UserError, run_cli
 from dls_quadruped.control.latent_action import ACTION_GROUPS
+from dls_quadruped.core.stats import t_quantile
 
 COLUMNS = {
     "mean_reward": "Train/mean_reward",
@@ -113,6 +120,31 @@ def plot(rows: list[dict[str, float]], path: Path, title: str, marks: tuple[int,
     plt.close(fig)
 
 
+def trend(rows: list[dict[str, float]], last: int, block: int = 50, column: str = "mean_reward") -> dict:
+    """Slope of ``column`` over the last ``last`` iterations of ``rows``: block means of ``block`` consecutive
+    iterations (``last`` must be a multiple of it, at least three blocks), a least-squares line through them
+    (x: the block's mean iteration), the slope [per iteration] and per 100 iterations with the 95 % interval
+    (Student's t, blocks - 2 degrees of freedom), and the reading: ``rising``, ``falling`` or ``flat``."""
+    if block < 1 or last % block or last // block < 3:
+        raise ValueError(f"last ({last}) must be a multiple of block ({block}) with at least 3 blocks")
+    pts = [(r["iteration"], r[column]) for r in rows if column in r][-last:]
+    if len(pts) < last:
+        raise ValueError(f"the run has {len(pts)} iterations with {column}, the trend asks for the last {last}")
+    its = np.array([p[0] for p in pts], dtype=float).reshape(-1, block).mean(axis=1)
+    means = np.array([p[1] for p in pts], dtype=float).reshape(-1, block).mean(axis=1)
+    n = len(means)
+    xc = its - its.mean()
+    slope = float(xc @ (means - means.mean()) / (xc @ xc))
+    resid = means - means.mean() - slope * xc
+    se = float(np.sqrt(resid @ resid / (n - 2) / (xc @ xc)))
+    half = t_quantile(0.975, n - 2) * se
+    lo, hi = slope - half, slope + half
+    reading = "rising" if lo > 0 else "falling" if hi < 0 else "flat"
+    return {"column": column, "first_iteration": int(pts[0][0]), "last_iteration": int(pts[-1][0]), "block": block,
+            "block_means": [float(m) for m in means], "slope_per_100": 100 * slope,
+            "ci95_per_100": [100 * lo, 100 * hi], "reading": reading}
+
+
 def main(argv: list[str] | None = None) -> None:
     p = ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("run_dir", type=Path)
@@ -120,11 +152,24 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--png", type=Path, required=True)
     p.add_argument("--title", default=None)
     p.add_argument("--mark", type=int, nargs="*", default=[], help="iterations to mark (dotted), e.g. a resume")
+    p.add_argument("--trend", type=int, nargs="+", metavar=("LAST", "BLOCK"), default=None,
+                   help="also print the mean return's slope over the last LAST iterations in BLOCK-iteration blocks "
+                        "(default 50) with its 95 %% interval: rising, flat or falling")
     args = p.parse_args(argv)
+    if args.trend is not None and len(args.trend) > 2:
+        raise UserError(f"--trend takes LAST and optionally BLOCK, got {args.trend}")
     rows = read_run(args.run_dir)
     write_csv(rows, args.csv)
     plot(rows, args.png, args.title or f"{args.run_dir}", tuple(args.mark))
     print(f"[learning_curve] {len(rows)} iterations -> {args.csv}, {args.png}")
+    if args.trend is not None:
+        try:
+            t = trend(rows, *args.trend)
+        except ValueError as e:
+            raise UserError(f"--trend: {e}") from None
+        print(f"[learning_curve] {t['column']} over iterations {t['first_iteration']}-{t['last_iteration']} "
+              f"({len(t['block_means'])} blocks of {t['block']}): slope {t['slope_per_100']:+.3f} per 100 iterations "
+              f"[{t['ci95_per_100'][0]:+.3f}, {t['ci95_per_100'][1]:+.3f}] -> {t['reading']}")
 
 
 if __name__ == "__main__":
