@@ -120,13 +120,18 @@ def plot(rows: list[dict[str, float]], path: Path, title: str, marks: tuple[int,
     plt.close(fig)
 
 
+def check_window(last: int, block: int = 50) -> None:
+    """Raise ValueError unless ``last`` is a positive multiple of ``block`` with at least three blocks."""
+    if block < 1 or last % block or last // block < 3:
+        raise ValueError(f"last ({last}) must be a multiple of block ({block}) with at least 3 blocks")
+
+
 def trend(rows: list[dict[str, float]], last: int, block: int = 50, column: str = "mean_reward") -> dict:
     """Slope of ``column`` over the last ``last`` iterations of ``rows``: block means of ``block`` consecutive
     iterations (``last`` must be a multiple of it, at least three blocks), a least-squares line through them
     (x: the block's mean iteration), the slope [per iteration] and per 100 iterations with the 95 % interval
     (Student's t, blocks - 2 degrees of freedom), and the reading: ``rising``, ``falling`` or ``flat``."""
-    if block < 1 or last % block or last // block < 3:
-        raise ValueError(f"last ({last}) must be a multiple of block ({block}) with at least 3 blocks")
+    check_window(last, block)
     pts = [(r["iteration"], r[column]) for r in rows if column in r][-last:]
     if len(pts) < last:
         raise ValueError(f"the run has {len(pts)} iterations with {column}, the trend asks for the last {last}")
@@ -156,8 +161,13 @@ def main(argv: list[str] | None = None) -> None:
                    help="also print the mean return's slope over the last LAST iterations in BLOCK-iteration blocks "
                         "(default 50) with its 95 %% interval: rising, flat or falling")
     args = p.parse_args(argv)
-    if args.trend is not None and len(args.trend) > 2:
-        raise UserError(f"--trend takes LAST and optionally BLOCK, got {args.trend}")
+    if args.trend is not None:
+        if len(args.trend) > 2:
+            raise UserError(f"--trend takes LAST and optionally BLOCK, got {args.trend}")
+        try:
+            check_window(*args.trend)  # before anything is read or written
+        except ValueError as e:
+            raise UserError(f"--trend: {e}") from None
     rows = read_run(args.run_dir)
     write_csv(rows, args.csv)
     plot(rows, args.png, args.title or f"{args.run_dir}", tuple(args.mark))

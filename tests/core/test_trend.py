@@ -7,7 +7,9 @@ import math
 
 import numpy as np
 import pytest
+from torch.utils.tensorboard import SummaryWriter
 
+from dls_quadruped.cli import UserError
 from dls_quadruped.core.stats import t_cdf, t_quantile
 from dls_quadruped.viz.learning_curve import main, trend
 
@@ -67,3 +69,21 @@ def test_bad_windows_are_refused(tmp_path):
         trend(rows, last=150, block=50)
     with pytest.raises(SystemExit):  # argparse: a missing value
         main([str(tmp_path), "--csv", "a.csv", "--png", "a.png", "--trend"])
+    for bad, match in [(["1", "2", "3"], "takes LAST and optionally BLOCK"), (["120", "50"], "multiple of block")]:
+        with pytest.raises(UserError, match=match):
+            main([str(tmp_path), "--csv", str(tmp_path / "a.csv"), "--png", str(tmp_path / "a.png"), "--trend", *bad])
+    assert not (tmp_path / "a.csv").exists()  # refused before the run is read or anything written
+
+
+def test_the_command_prints_the_trend_of_a_logged_run(tmp_path, capsys):
+    with pytest.raises(SystemExit) as ex:
+        main(["--help"])
+    assert ex.value.code == 0 and "--trend LAST" in capsys.readouterr().out
+    w = SummaryWriter(log_dir=str(tmp_path / "run"))
+    for it in range(300):
+        w.add_scalar("Train/mean_reward", 2.0 - 0.03 * it, it)  # -3 per 100 iterations
+    w.close()
+    main([str(tmp_path / "run"), "--csv", str(tmp_path / "c.csv"), "--png", str(tmp_path / "c.png"),
+          "--trend", "200"])
+    out = capsys.readouterr().out
+    assert "iterations 100-299 (4 blocks of 50): slope -3.000 per 100 iterations" in out and "falling" in out
