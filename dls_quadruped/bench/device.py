@@ -64,16 +64,18 @@ steps (1.2 s) then includes pushes, and resets from the robots that random actio
 
 
 def env_steps(task: str, num_envs: int, device: torch.device, backend: str, steps: int, warmup: int,
-              capture: bool | None = None, compile: bool | None = None) -> dict:
+              capture: bool | None = None, compile: bool | None = None, cuda_graph: bool | None = None) -> dict:
     """Robot steps per second of ``task`` with ``num_envs`` robots (random actions, resets included);
     ``capture``: the Warp backends' graph replay on or off, ``compile``: ``scene.compile`` (None: the backend's
-    default for either)."""
+    default for either), ``cuda_graph``: ``scene.cuda_graph`` (the whole step replayed from one graph)."""
     from dls_quadruped.envs.config import load_task
     from dls_quadruped.envs.env import LocomotionEnv
 
     scene = {"backend": backend, "num_workers": 0 if backend != "cpu" else -1}
     if compile is not None:
         scene["compile"] = compile
+    if cuda_graph is not None:
+        scene["cuda_graph"] = cuda_graph
     cfg = load_task(task, overrides={"scene": scene, "events": {"push": BENCH_PUSH}})
     env = LocomotionEnv(cfg, num_envs=num_envs, device=str(device), seed=0, verbose=False)
     if capture is not None:
@@ -92,11 +94,14 @@ def env_steps(task: str, num_envs: int, device: torch.device, backend: str, step
         wall = time.perf_counter() - tic
         graphs = [getattr(env.scene.sim, k, None) for k in ("_step1", "_step2")]
         capture_errors = sorted({g.error for g in graphs if g is not None and g.error})
+        step_graph = None if env.graph is None else {"captures": env.graph.captures, "replays": env.graph.replays,
+                                                     "error": env.graph.error}
     finally:
         env.close()
     return {"task": task, "num_envs": num_envs, "steps": steps, "wall_s": wall, "steps_per_s": num_envs * steps / wall,
             "resets": int(resets), "capture": capture, "compile": compile,
-            **({"capture_errors": capture_errors} if capture_errors else {})}
+            **({"capture_errors": capture_errors} if capture_errors else {}),
+            **({"step_graph": step_graph} if step_graph else {})}
 
 
 def mpc_solve(samples: int, horizon: int, device: torch.device, kernel: str, solves: int) -> dict:

@@ -6,19 +6,23 @@ cut short still leaves what it measured, and gives each section a share of ``--b
 1. ``versions`` -- GPU, driver, CUDA, Warp, MuJoCo Warp, MuJoCo, torch, Python, CPU;
 2. ``compile`` -- seconds to build the first backend and run its first steps (Warp compiles MuJoCo Warp's
    kernels on a fresh machine), flat scene;
-3. ``trajectories`` -- the committed ``cpu``-backend reference runs (``bench/reference_runs.py``: standing, a trot,
+3. ``graph`` -- the env step replayed from one captured graph (``scene.cuda_graph``, ``envs/env_graph.py``):
+   its agreement with the eager step beside two eager runs' (``gpu_probes.graph_agreement``), then env steps/s at
+   4 096 robots with and without it and at 16 384 with it;
+4. ``trajectories`` -- the committed ``cpu``-backend reference runs (``bench/reference_runs.py``: standing, a trot,
    a push with mass/friction/force changes, robots on rough tiles) replayed on the backend, max deviations;
-4. ``syncs`` -- host synchronisations inside ``LocomotionEnv.step`` by call site (torch's CUDA sync debug mode,
+5. ``syncs`` -- host synchronisations inside ``LocomotionEnv.step`` by call site (torch's CUDA sync debug mode,
    plus Warp array reads), random actions so robots fall and reset, pushes every ~0.3 s;
-5. ``launches`` -- Warp launches and torch operators per env step, compiled and eager (4 robots);
-6. ``env`` -- env steps/s (robot steps per wall second) for base: 4 096 robots with the torch work compiled
-   (``scene.compile``, the CUDA default) and eager side by side, 16 384 compiled, 4 096 launched kernel by kernel
-   instead of replayed from captured graphs;
-7. ``gpu_busy`` -- the fraction of a few env steps' wall time in which the GPU ran kernels (torch profiler);
-8. ``mpc`` -- the sampling MPC's solve at M = 10 000 and 100 000 (``bench/device.py``);
-9. ``rough`` -- the rough scene: first build (the terrain-culling collision kernels compile here) and env
+6. ``launches`` -- Warp launches and torch operators per env step, compiled and eager (4 robots);
+7. ``faults`` -- NaN/inf actions, a 5 km/s push and a sunk robot: each reset and counted, the others unaffected;
+8. ``env`` -- env steps/s (robot steps per wall second) for base: 4 096 robots with the torch work compiled
+   (``scene.compile``, the CUDA default) and eager side by side, 16 384 and 65 536 compiled, 4 096 launched kernel
+   by kernel instead of replayed from captured graphs;
+9. ``gpu_busy`` -- the fraction of a few env steps' wall time in which the GPU ran kernels (torch profiler);
+10. ``mpc`` -- the sampling MPC's solve at M = 10 000 and 100 000 (``bench/device.py``);
+11. ``rough`` -- the rough scene: first build (the terrain-culling collision kernels compile here) and env
    steps/s at 4 096 robots; after the base rows because a fresh machine spends minutes compiling it;
-10. ``train`` -- PPO on base at ``--train-envs`` robots for the time left; the policy, checkpoint and learning
+12. ``train`` -- PPO on base at ``--train-envs`` robots for the time left; the policy, checkpoint and learning
    curve are copied into ``<out>``.
 
 Without CUDA the same script runs on ``warp-cpu`` at small sizes (what the tests do).
@@ -46,6 +50,7 @@ from dls_quadruped.bench.gpu_probes import (
     WARMUP_STEPS,
     faults,
     gpu_busy,
+    graph_agreement,
     launches,
     sync_device,
     syncs,
@@ -53,8 +58,8 @@ from dls_quadruped.bench.gpu_probes import (
 from dls_quadruped.cli import ArgumentParser, run_cli
 from dls_quadruped.core.json_io import write_json
 
-SECTIONS = ("versions", "compile", "trajectories", "syncs", "launches", "faults", "env", "gpu_busy", "mpc", "rough",
-            "train")
+SECTIONS = ("versions", "compile", "graph", "trajectories", "syncs", "launches", "faults", "env", "gpu_busy", "mpc",
+            "rough", "train")
 
 
 class Report:
@@ -150,20 +155,23 @@ def trajectories(backend: str) -> dict:
     return out
 
 
-def env_throughput(backend: str, device: torch.device, rows: list[tuple[str, int, bool, bool | None]], steps: int,
+def env_throughput(backend: str, device: torch.device, rows: list[tuple], steps: int,
                    report: Report, reserve_s: float, section: str = "env", warmup: int = 3) -> list[dict]:
-    """Env steps/s per (task, N, captured, compiled) row, in the order given (the most telling first); stops early
-    when the budget runs low. ``compiled`` None: ``scene.compile``'s default (on for CUDA)."""
+    """Env steps/s per (task, N, captured, compiled[, cuda_graph]) row, in the order given (the most telling first);
+    stops early when the budget runs low. ``compiled`` None: ``scene.compile``'s default (on for CUDA);
+    ``cuda_graph``: the whole step replayed from one graph (``scene.cuda_graph``, default off)."""
     from dls_quadruped.bench.device import _out_of_memory
 
     out = []
-    for task, n, captured, compiled in rows:
-        key = {"task": task, "num_envs": n, "captured": captured, "compiled": compiled}
+    for task, n, captured, compiled, *graph in rows:
+        cuda_graph = graph[0] if graph else None
+        key = {"task": task, "num_envs": n, "captured": captured, "compiled": compiled, "cuda_graph": cuda_graph}
         if report.left() < reserve_s:
             out.append({**key, "skipped": "budget"})
             continue
         try:
-            row = env_steps(task, n, device, backend, steps, warmup=warmup, capture=captured, compile=compiled)
+            row = env_steps(task, n, device, backend, steps, warmup=warmup, capture=captured, compile=compiled,
+                            cuda_graph=cuda_graph)
             out.append({**row, **key})
         except Exception as err:  # noqa: BLE001 - recorded in the row; the next size still runs
             out.append({**key, "error": "out of memory" if _out_of_memory(err)
@@ -267,6 +275,9 @@ def main(argv: list[str] | None = None) -> None:
     big = ([("base", 4096, True, None), ("base", 4096, True, False), ("base", 16384, True, None),
             ("base", 65536, True, None), ("base", 4096, False, None)] if gpu
            else [("base", 4, True, None), ("base", 4, True, False)])
+    graph_rows = ([("base", 4096, True, None, True), ("base", 4096, True, None, False),
+                   ("base", 16384, True, None, True)] if gpu
+                  else [("base", 4, True, None, True), ("base", 4, True, None, False)])
     rough_n = 4096 if gpu else 4
     steps = args.env_steps or (60 if gpu else 3)
     # a compiled step recompiles for the first few reset batch sizes (then marks them dynamic): enough warm-up
@@ -275,6 +286,10 @@ def main(argv: list[str] | None = None) -> None:
     plan = [
         ("versions", lambda: versions(device)),
         ("compile", lambda: compile_times(backend, device, ("flat",))),
+        # the step replayed from one graph (scene.cuda_graph): agreement first, then its rate beside the default's
+        ("graph", lambda: {"agreement": graph_agreement(backend, device, 256 if gpu else 4, 60 if gpu else 8),
+                           "rows": env_throughput(backend, device, graph_rows, steps, report,
+                                                  reserve_s=0.6 * args.budget_s, section="graph", warmup=warmup)}),
         ("trajectories", lambda: trajectories(backend)),
         ("syncs", lambda: syncs(backend, device, 256 if gpu else 4, 40 if gpu else 4, warmup)),
         ("launches", lambda: {"compiled": launches(backend, device, 4, 12, compile=True),

@@ -328,3 +328,45 @@ def _overflow_seen(sim) -> Iterator[list[torch.Tensor]]:
         yield seen
     finally:
         sim.rate.settle = settle
+
+
+def graph_agreement(backend: str, device: torch.device, num_envs: int, steps: int, warmup: int = 3) -> dict:
+    """The env step replayed from one captured graph (``scene.cuda_graph``, ``envs/env_graph.py``) against the eager
+    step: three envs of the same seed and actions (random, robots fall and reset, pushes every ~0.3 s), two eager and
+    one graphed. Per step the largest base-position difference and the number of differing episode ends, graphed
+    against eager beside eager against eager: on CUDA contact order comes from atomics, so two eager runs differ
+    too and the graph is judged against that; on ``warp-cpu`` (an emulated graph) both are 0."""
+    from dls_quadruped.envs.config import load_task
+    from dls_quadruped.envs.env import LocomotionEnv
+
+    def make(graph: bool) -> LocomotionEnv:
+        overrides = _base_with_pushes(backend)
+        overrides["scene"]["cuda_graph"] = graph
+        return LocomotionEnv(load_task("base", overrides=overrides), num_envs=num_envs, device=str(device), seed=0,
+                             verbose=False)
+
+    envs = [make(False), make(False), make(True)]
+    envs[2].graph.warmup = warmup
+    try:
+        g = torch.Generator(device=device).manual_seed(0)
+        pos, dones = [], []
+        for _ in range(steps):
+            act = torch.randn(num_envs, envs[0].num_actions, generator=g, device=device)
+            outs = [env.step(act) for env in envs]
+            p = [env.state.base_pos_w for env in envs]
+            pos.append(torch.stack([(p[1] - p[0]).abs().amax(), (p[2] - p[0]).abs().amax()]))
+            dones.append(torch.stack([(outs[1][2] != outs[0][2]).sum(), (outs[2][2] != outs[0][2]).sum()]))
+        pos_t, dones_t = torch.stack(pos).tolist(), torch.stack(dones).tolist()  # read once, at the end
+        graph = envs[2].graph
+        first = warmup  # the captured step's index
+        return {"num_envs": num_envs, "steps": steps, "warmup": warmup, "captures": graph.captures,
+                "replays": graph.replays, "error": graph.error,
+                "max_base_pos_diff_m": {"eager_vs_eager": max(r[0] for r in pos_t),
+                                        "graph_vs_eager": max(r[1] for r in pos_t),
+                                        "graph_vs_eager_first_10_replays": max(r[1] for r in pos_t[first:first + 10])},
+                "differing_dones": {"eager_vs_eager": sum(r[0] for r in dones_t),
+                                    "graph_vs_eager": sum(r[1] for r in dones_t)},
+                "per_step_base_pos_diff_m": [[round(a, 9), round(b, 9)] for a, b in pos_t]}
+    finally:
+        for env in envs:
+            env.close()

@@ -42,7 +42,7 @@ from tensordict import TensorDict
 
 from dls_quadruped.core.compile import FusedCache, compile_wanted, fused_method
 from dls_quadruped.core.state import RobotState
-from dls_quadruped.envs import checkpoint_state
+from dls_quadruped.envs import checkpoint_state, env_graph
 from dls_quadruped.envs.config import TaskConfig, load_task, save_resolved
 from dls_quadruped.envs.episode_log import EpisodeLog
 from dls_quadruped.envs.managers.action import ActionManager
@@ -106,6 +106,7 @@ class LocomotionEnv(VecEnv):
         self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
         self._every_env = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)  # a full reset's mask
         self.common_step_counter = 0
+        self._generation = 0  # graph_generation: bumped by reset and load_state_dict
         self._controlled_steps: int | None = None  # physics steps of the step_controlled in progress
         # sum over the episode of |v_xy - cmd_xy| [m/s]
         self._vel_err_sum = torch.zeros(self.num_envs, device=self.device)
@@ -131,6 +132,8 @@ class LocomotionEnv(VecEnv):
         # no curriculum here: it would judge robots that were never placed (and move their rows)
         self._reset(self._every_env, curriculum=False)
         self.obs_buf = self.observation_manager.compute()
+        self.graph = env_graph.make(self)
+        """The step's captured graph (``scene.cuda_graph``, ``envs/env_graph.py``), or None."""
         if run_dir is not None:
             save_resolved(self.task, Path(run_dir) / "task.yaml")
         if verbose:
@@ -175,6 +178,10 @@ class LocomotionEnv(VecEnv):
             TypeError: not a tensor/array of numbers.
             ValueError: wrong shape (no broadcasting: a (28,) or (1, 28) action for a batch of robots is an error).
         """
+        return self._zero_nonfinite(self._device_actions(actions))
+
+    def _device_actions(self, actions: torch.Tensor | np.ndarray) -> torch.Tensor:
+        """The host checks of :meth:`check_actions`; the actions as float32 on ``device``."""
         if isinstance(actions, np.ndarray):
             if not np.issubdtype(actions.dtype, np.number) or np.issubdtype(actions.dtype, np.complexfloating):
                 raise TypeError(f"actions must be real numbers, got a numpy array of {actions.dtype}")
@@ -186,7 +193,10 @@ class LocomotionEnv(VecEnv):
         want = (self.num_envs, self.num_actions)
         if tuple(actions.shape) != want:
             raise ValueError(f"actions must have shape {want} (num_envs, num_actions), got {tuple(actions.shape)}")
-        actions = actions.detach().to(device=self.device, dtype=torch.float32)
+        return actions.detach().to(device=self.device, dtype=torch.float32)
+
+    def _zero_nonfinite(self, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Non-finite rows replaced by zeros, and their (num_envs,) mask (:meth:`check_actions`)."""
         nonfinite = ~self.action_manager.finite_rows(actions)
         # unconditional (no `if nonfinite.any()`): a host read here would stall a GPU pipeline every step
         actions = torch.where(nonfinite[:, None], torch.zeros_like(actions), actions)
@@ -194,11 +204,26 @@ class LocomotionEnv(VecEnv):
 
     def step(self, actions: torch.Tensor | np.ndarray) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         """One policy step; see the module docstring. A robot whose action row is not finite gets a
-        zero action this step, is terminated (``Episode_Termination/nonfinite_action``) and reset."""
-        actions, nonfinite = self.check_actions(actions)
+        zero action this step, is terminated (``Episode_Termination/nonfinite_action``) and reset. With
+        ``scene.cuda_graph`` the step is replayed from one captured graph (``envs/env_graph.py``)."""
+        actions = self._device_actions(actions)
+        out = self.step_body(actions) if self.graph is None else self.graph.step(actions)
+        self.common_step_counter += 1
+        return out
+
+    def step_body(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        """The device work of :meth:`step` on checked ``actions`` (float32 on ``device``): what a captured graph
+        holds (no Python state changes, no host reads; ``envs/env_graph.py``)."""
+        actions, nonfinite = self._zero_nonfinite(actions)
         self.action_manager.process(actions, finite=True, num_physics_steps=self.decimation)
         self.scene.sim.step(self.decimation)
         return self._finish_step(nonfinite)
+
+    def graph_generation(self) -> tuple[int, int]:
+        """Changes when something a captured step reads may have been replaced (``envs/env_graph.py``): by
+        :meth:`reset`, :meth:`load_state_dict` or the backend (a model array made per-robot)."""
+        worlds = getattr(self.scene.sim, "worlds", None)  # the Warp backends' (WarpWorlds.generation)
+        return self._generation, 0 if worlds is None else worlds.generation
 
     def apply_action(self, raw: torch.Tensor, num_physics_steps: int, replan: bool = False, finite: bool = False):
         """Inside :meth:`step_controlled`: send a (B, 28) raw action through the action manager, run
@@ -260,13 +285,14 @@ class LocomotionEnv(VecEnv):
                                f"a policy step has {self.decimation} (env.decimation)")
         if nonfinite is None:
             nonfinite = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-        return self._finish_step(nonfinite.to(self.device))
+        out = self._finish_step(nonfinite.to(self.device))
+        self.common_step_counter += 1
+        return out
 
     def _finish_step(self, nonfinite: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         """Steps 3-7 of the module docstring, after the physics of a policy step."""
         self.refresh_state()
         self.episode_length_buf += 1
-        self.common_step_counter += 1
         self.command_manager.integrate(self.step_dt)
         self._vel_err_sum += torch.linalg.vector_norm(
             obs_mdp.base_lin_vel(self)[:, :2] - self.command_manager.command[:, :2], dim=-1)
@@ -300,6 +326,7 @@ class LocomotionEnv(VecEnv):
             self.event_manager.apply("startup")  # per-robot model values follow the key too
         elif episode_keys is not None:
             raise ValueError("episode_keys needs a seed: reset(seed=..., episode_keys=...)")
+        self._generation += 1
         self.extras = {"log": self._reset(self._every_env, curriculum=seed is None)}
         self.obs_buf = self.observation_manager.compute()
         return self.obs_buf, self.extras
@@ -343,6 +370,7 @@ class LocomotionEnv(VecEnv):
         Raises:
             ValueError: the state does not fit this env (other terms, other number of envs).
         """
+        self._generation += 1
         if not checkpoint_state.load_env_state_dict(self, state):
             self._reset(self._every_env, curriculum=False)
             self.obs_buf = self.observation_manager.compute()

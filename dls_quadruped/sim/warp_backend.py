@@ -25,18 +25,17 @@ Design:
   stopped and its torques zero, until it is reset (the CPU backend's semantics); its published contact forces are
   zero, so no NaN reaches the state.
 
-Differences from the CPU backend (``sim/cpu_backend.py``): MuJoCo Warp computes in float32 (the controller runs in
-float64 on the float32 state); its constraint solver is MuJoCo's algorithm, not its bits, and allocates ``nconmax``
-contacts and ``njmax`` constraint rows per world (``SimConfig``; a world that runs out is flagged ``diverged``); with
-terrain regions (``SimConfig.regions``) each world's robot is tested only against the terrain geoms near its base
-(``sim/warp_collision.py``), not a model per region; the controller's leg dynamics come from MuJoCo's mass matrix and
-bias forces (the CPU backend uses Pinocchio: the same quantities, ``tests/control/test_torch_dynamics.py``).
+Differences from the CPU backend (``sim/cpu_backend.py``): float32, MuJoCo Warp's own constraint solver and
+contact buffers (``nconmax``/``njmax``), terrain culling per world, leg dynamics from MuJoCo's ``M`` and bias forces
+instead of Pinocchio (docs/gpu.md "What differs from the CPU backend").
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import warnings
+from collections.abc import Iterator
 from contextlib import ExitStack
 from typing import Any, Self
 
@@ -116,6 +115,7 @@ class WarpSim:
         self.inputs = DeviceInputs(n, dev)
         self.check_every = CHECK_EVERY
         self._step_calls = 0
+        self._in_graph_body = False  # inside an outer capture (graph_body): the host reads wait for after_graph_step
         self.tau = torch.zeros(n, 12, dtype=f64, device=dev)
         self.buf = {k: torch.zeros((n, *s), dtype=torch.float32, device=dev)
                     for k, s in STATE_SPECS.items() if k not in _BOOL_FIELDS}
@@ -206,11 +206,31 @@ class WarpSim:
                 rate.settle()
                 self._step1(torch_stream)
             self._terms = rate.terms()
+        if not self._in_graph_body:
+            self.after_graph_step()
+        return self._publish()
+
+    def after_graph_step(self) -> None:
+        """Count a ``step`` call; every :attr:`check_every` calls the host reads (overflow, inputs). Inside
+        :meth:`graph_body` the caller calls it after each replay (a graph runs no Python)."""
         self._step_calls += 1
-        if self._step_calls % self.check_every == 0:  # the host reads of this call, once per check_every calls
+        if self._step_calls % self.check_every == 0:
             self._check_overflow()
             self.check_inputs()
-        return self._publish()
+
+    @contextlib.contextmanager
+    def graph_body(self, stream: Any = None) -> Iterator[None]:
+        """Code run inside is captured whole (``envs/env_graph.py``): MuJoCo Warp's phases launch their kernels on
+        ``stream`` (the ``wp.Stream`` of Warp's external capture; None on Warp's CPU device) instead of replaying
+        their own graphs, and ``step`` leaves its bookkeeping to :meth:`after_graph_step`."""
+        self._check_open()
+        self.worlds.launch_directly(stream)
+        self._in_graph_body = True
+        try:
+            yield
+        finally:
+            self._in_graph_body = False
+            self.worlds.end_direct()
 
     def _check_overflow(self) -> None:
         """Warn once when a world ran out of contact or constraint rows (one host read per ``step`` call until then);

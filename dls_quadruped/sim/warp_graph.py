@@ -46,6 +46,8 @@ class StepGraph:
         self.captures = 0
         self.error: str | None = None
         """Why capturing failed, if it did (``enabled`` is then False)."""
+        self.direct = False
+        """Launch the phase's kernels on every call, counting nothing (set inside an outer capture)."""
         self._stream = wp.Stream(self.device) if self.device.is_cuda else None
 
     def invalidate(self) -> None:
@@ -60,6 +62,9 @@ class StepGraph:
             torch_stream: on CUDA, the ``wp.Stream`` of torch's current stream (``wp.stream_from_torch``): the
                 graph starts after the work queued there and that stream's later work waits for the graph.
         """
+        if self.direct:
+            self.fn(self.m, self.d)
+            return
         self.calls += 1
         if not self.enabled or self.calls == 1:
             self.fn(self.m, self.d)

@@ -97,6 +97,8 @@ class WarpWorlds:
         self.num_envs = num_envs
         self.wp_device = wp_device
         self.device = torch.device(wp_device)
+        self.capture_stream: Any = None
+        """The ``wp.Stream`` an outer capture records on (:meth:`launch_directly`), else None."""
         with self.scope():
             self.m = mjw.put_model(model)
             self.d = mjw.make_data(model, nworld=num_envs, nconmax=cfg.nconmax, njmax=cfg.njmax)
@@ -122,6 +124,9 @@ class WarpWorlds:
         self.graphs = (self.step1, self.step2, self.forward, self.reset_data)
         self.batched: set[str] = set()
         """The model fields made per-world so far."""
+        self.generation = 0
+        """Bumped whenever an array a captured graph reads is replaced (an outer capture, ``envs/env_graph.py``,
+        captures again when it changed)."""
         v = wp.to_torch
         self.qpos, self.qvel, self.time = v(self.d.qpos), v(self.d.qvel), v(self.d.time)
         self.ctrl, self.xfrc = v(self.d.ctrl), v(self.d.xfrc_applied)
@@ -139,17 +144,36 @@ class WarpWorlds:
         for graph in self.graphs:
             graph.enabled = bool(enabled)
             graph.invalidate()
+        self.generation += 1
+
+    def launch_directly(self, stream: Any = None) -> None:
+        """Inside an outer capture (``stream``: the ``wp.Stream`` object Warp's capture was registered on, or None
+        on Warp's CPU device) every phase launches its kernels on that stream instead of replaying its own graph,
+        until :meth:`end_direct`."""
+        self.capture_stream = stream
+        for graph in self.graphs:
+            graph.direct = True
+
+    def end_direct(self) -> None:
+        """Back to replaying each phase's own graph (:meth:`launch_directly`)."""
+        self.capture_stream = None
+        for graph in self.graphs:
+            graph.direct = False
 
     def scope(self) -> ExitStack:
         """Warp's device, and on CUDA torch's current stream, for MuJoCo Warp calls."""
         stack = ExitStack()
         stack.enter_context(wp.ScopedDevice(self.wp_device))
-        if self.device.type == "cuda":
+        if self.capture_stream is not None:  # the very object Warp registered the capture on (it looks it up by it)
+            stack.enter_context(wp.ScopedStream(self.capture_stream))
+        elif self.device.type == "cuda":
             stack.enter_context(wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(self.device))))
         return stack
 
     def torch_stream(self) -> Any:
         """On CUDA, the ``wp.Stream`` of torch's current stream (what the step graphs order against); else None."""
+        if self.capture_stream is not None:
+            return self.capture_stream
         return wp.stream_from_torch(torch.cuda.current_stream(self.device)) if self.device.type == "cuda" else None
 
     def batched_field(self, name: str) -> torch.Tensor:
@@ -175,6 +199,7 @@ class WarpWorlds:
                 setattr(self.m, name, arr)
                 for graph in self.graphs:  # they hold the replaced array's address
                     graph.invalidate()
+                self.generation += 1
             self.batched.add(name)
         return wp.to_torch(arr)
 

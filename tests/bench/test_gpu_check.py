@@ -80,6 +80,15 @@ def test_the_check_runs_on_warp_cpu(tmp_path: Path):
     assert rep["syncs"]["warmup"] == 3
     assert rep["faults"]["all_reset"] and rep["faults"]["finite"] and rep["faults"]["others_reset"] == 0
     assert rep["faults"]["others_max_abs_diff"] <= 1e-5  # the worlds share MuJoCo Warp's contact buffer
+    # the step replayed from one graph (emulated on warp-cpu): as the eager step bit for bit, then timed beside it
+    agree = rep["graph"]["agreement"]
+    assert (agree["captures"], agree["replays"], agree["error"]) == (1, 8 - 1 - 3, None)
+    assert agree["max_base_pos_diff_m"] == {"eager_vs_eager": 0.0, "graph_vs_eager": 0.0,
+                                            "graph_vs_eager_first_10_replays": 0.0}
+    assert agree["differing_dones"] == {"eager_vs_eager": 0, "graph_vs_eager": 0}
+    graph_rows = rep["graph"]["rows"]
+    assert [r["cuda_graph"] for r in graph_rows] == [True, False] and all(r["steps_per_s"] > 0 for r in graph_rows)
+    assert graph_rows[0]["step_graph"] == {"captures": 1, "replays": 2, "error": None}
 
 
 def test_without_mujoco_warp_it_is_a_one_line_usage_error(tmp_path: Path, capsys, monkeypatch):

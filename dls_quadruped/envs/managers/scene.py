@@ -4,7 +4,7 @@ Task file::
 
     terrain: {types: [flat, rugged, ...], num_rows: 10, ...}   # TerrainConfig fields
     scene: {backend: cpu, num_workers: -1, max_init_level: 0, leg_dynamics: pinocchio, nconmax: 16, njmax: 64,
-           compile: null}  # nconmax/njmax/compile: Warp only
+           compile: null, cuda_graph: null}  # nconmax/njmax/compile/cuda_graph: Warp only
 
 Each env owns a terrain tile: row = level (difficulty), column = type (envs spread evenly over
 the columns by their episode key, ``envs/schedule.py``). Robots reset onto their tile origin; the
@@ -43,7 +43,9 @@ class SceneConfig:
     Warp's guess for the model); the task files set them from measured use (docs/gpu.md "Contact and constraint
     sizes");
     compile: Warp backends, the torch work of a physics step compiled into a few fused kernels (``SimConfig.compile``;
-    null: on for CUDA devices, off elsewhere; ``sim/warp_control.py``)."""
+    null: on for CUDA devices, off elsewhere; ``sim/warp_control.py``);
+    cuda_graph: Warp backends, each env step replayed from one captured graph (``envs/env_graph.py``; on warp-cpu
+    the replay is emulated, for tests); null: off (docs/gpu.md "One graph per env step")."""
 
     backend: str = "cpu"
     num_workers: int = field(default=-1, metadata={"min": -1})
@@ -53,6 +55,7 @@ class SceneConfig:
     nconmax: int | None = field(default=None, metadata={"min": 1})
     njmax: int | None = field(default=None, metadata={"min": 1})
     compile: bool | None = None
+    cuda_graph: bool | None = None
 
 
 class SceneManager(ManagerBase):

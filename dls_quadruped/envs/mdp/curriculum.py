@@ -60,8 +60,10 @@ def penalties_when_walking(env, env_mask: torch.Tensor, terms: list[str], reward
         for t in terms:
             rm.weights[t] = 0.0
     if not isinstance(state["enabled"], torch.Tensor):  # built, or loaded from a checkpoint: a flag on the device
-        state["enabled"] = torch.tensor(bool(state["enabled"]), device=env.device)
-    # a new tensor, not in place: the flag may have been made under inference mode (rsl-rl's rollouts)
-    enabled = state["enabled"] = state["enabled"] | (rm.episode_fraction(reward_term, env_mask) > threshold)
+        with torch.inference_mode(False):  # a normal tensor even in rsl-rl's rollouts: updated in place below
+            state["enabled"] = torch.tensor(bool(state["enabled"]), device=env.device)
+    # in place: a step replayed from a captured graph reads the flag where the capture read it (envs/env_graph.py)
+    enabled = state["enabled"]
+    enabled |= rm.episode_fraction(reward_term, env_mask) > threshold
     rm.weights.switch(state["targets"], enabled)
     return enabled.float()

@@ -1,0 +1,315 @@
+"""One captured graph per env step (``envs/env_graph.py``, ``scene.cuda_graph``).
+
+The CUDA graph itself needs a GPU; what it needs of the step is checked here. :class:`EmulatedCapture` does to the
+Python-visible state what a replay does (reads at the capture's tensors, writes into the capture's outputs, no
+Python), so an env stepped through it on ``warp-cpu`` gives the eager env's steps bit for bit only if the step keeps
+its state in place. The first tests show the emulation on toy steps (a stale read it exposes, the Python numbers and
+the replaced places it refuses), then :class:`EnvGraph`'s bookkeeping on a stand-in env, then the env itself.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import warnings
+from types import SimpleNamespace
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from dls_quadruped.envs.config import ConfigError, load_task
+from dls_quadruped.envs.env import LocomotionEnv
+from dls_quadruped.envs.env_graph import EmulatedCapture, EnvGraph, GraphMismatch
+
+
+# ---------------------------------------------------------------------------------------------- the emulation
+def _run(step, root: dict, calls: int, emulate: bool) -> list[float]:
+    """``root["x"]`` after each of ``calls`` calls of ``step(root)``, eagerly or through the emulated graph."""
+    if not emulate:
+        out = []
+        for _ in range(calls):
+            step(root)
+            out.append(float(root["x"].sum()))
+        return out
+    cap = EmulatedCapture(root)
+    cap.capture(lambda _stream: step(root))
+    out = [float(root["x"].sum())]
+    for _ in range(calls - 1):
+        cap.replay()
+        out.append(float(root["x"].sum()))
+    return out
+
+
+def test_a_replaced_state_is_read_where_the_capture_read_it():
+    """``x = x + 1`` each step: eagerly 1, 2, 3; replayed, the graph reads the tensor the capture read (still 0)
+    and writes the one the capture made: 1, 1, 1 -- the bug a CUDA graph would have, shown on the CPU."""
+    def step(root):
+        root["x"] = root["x"] + 1
+
+    assert _run(step, {"x": torch.zeros(())}, 3, emulate=False) == [1.0, 2.0, 3.0]
+    assert _run(step, {"x": torch.zeros(())}, 3, emulate=True) == [1.0, 1.0, 1.0]
+
+
+def test_in_place_state_and_replaced_outputs_replay_as_eagerly():
+    """``x += 1`` in place, ``y = 2 x`` replaced but only written: the replay gives the eager values, and ``y`` is the
+    capture's tensor every time (where a graph writes)."""
+    def step(root):
+        root["x"].add_(1)
+        root["y"] = root["x"] * 2
+
+    root = {"x": torch.zeros(2), "y": None}
+    assert _run(step, {"x": torch.zeros(2), "y": None}, 4, emulate=False) == _run(step, root, 4, emulate=True)
+    cap = EmulatedCapture(root)
+    cap.capture(lambda _s: step(root))
+    y = root["y"]
+    cap.replay()
+    assert root["y"] is y and torch.equal(y, torch.full((2,), 12.0))  # 4 + 1 + 1 = 6 steps of x, times 2
+
+
+def test_python_numbers_changed_by_the_step_are_refused():
+    def step(root):
+        root["x"].add_(1)
+        root["n"] += 1
+
+    with pytest.raises(GraphMismatch, match=r"Python numbers \[\"env\['n'\]\"\]"):
+        EmulatedCapture(root := {"x": torch.zeros(()), "n": 0}).capture(lambda _s: step(root))
+
+
+def test_a_replay_that_replaces_other_places_than_the_capture_is_refused():
+    """A step whose Python branches differ between calls (here on a counter outside the state): a graph replays
+    the capture's branch only."""
+    calls = {"n": 0}
+
+    def step(root):
+        calls["n"] += 1
+        if calls["n"] == 1:
+            root["a"] = root["x"] + 1
+        else:
+            root["b"] = root["x"] + 1
+
+    root = {"x": torch.zeros(()), "a": None, "b": None}
+    cap = EmulatedCapture(root)
+    cap.capture(lambda _s: step(root))
+    with pytest.raises(GraphMismatch, match=r"replaced \[\"env\['b'\]\"\] and not \[\"env\['a'\]\"\]"):
+        cap.replay()
+
+
+# ---------------------------------------------------------------------------------------------- the bookkeeping
+class _Sim:
+    def __init__(self):
+        self.after = 0
+        self.in_body = False
+        self.graph_generation = 0
+
+    @contextlib.contextmanager
+    def graph_body(self, stream):
+        self.in_body = True
+        try:
+            yield
+        finally:
+            self.in_body = False
+
+    def after_graph_step(self):
+        self.after += 1
+
+
+class _Env:
+    """A stand-in: the state accumulates the actions; a step's outputs are new tensors, as the env's."""
+
+    def __init__(self):
+        self.device = torch.device("cpu")
+        self.scene = SimpleNamespace(sim=_Sim())
+        self.generation = 0
+        self.state = torch.zeros(2, 3)
+        self.bodies_in_graph = 0
+        self.obs_buf = self.extras = None
+
+    def graph_generation(self):
+        return self.generation, self.scene.sim.graph_generation
+
+    def step_body(self, actions):
+        self.bodies_in_graph += self.scene.sim.in_body
+        self.state += actions
+        obs = TensorDict({"policy": self.state * 1.0}, batch_size=[2])
+        return obs, self.state.sum(1), (self.state.sum(1) > 10).long(), {"time_outs": self.state[:, 0] > 5}
+
+
+class _Replays:
+    """A capture whose replay runs the body again and copies its outputs into the captured ones (as a graph
+    writes them), or that fails when asked to."""
+
+    def __init__(self, fail: bool = False):
+        self.fail, self.body, self.outputs = fail, None, None
+
+    def reset(self):
+        self.body = None
+
+    def capture(self, body):
+        if self.fail:
+            raise RuntimeError("operation not permitted when stream is capturing")
+        self.body, self.outputs = body, body(None)
+        return self.outputs
+
+    def replay(self):
+        out = self.body(None)
+        for dst, src in zip(self.outputs, out):
+            (dst.update_(src) if isinstance(dst, TensorDict) else dst.copy_(src))
+
+
+def test_warm_up_capture_replay_and_copies_of_the_outputs():
+    env = _Env()
+    graph = EnvGraph(env, capture=_Replays(), warmup=2)
+    outs = [graph.step(torch.ones(2, 3)) for _ in range(5)]
+    assert (graph.eager_steps, graph.captures, graph.replays) == (2, 1, 2)
+    assert env.scene.sim.after == 3  # the captured and replayed steps: the backend's count done around the graph
+    assert env.bodies_in_graph == 3  # captured and replayed steps ran inside graph_body
+    # every step's outputs kept their values (copies: the next replay overwrites the graph's own)
+    assert [float(o[1][0]) for o in outs] == [3.0, 6.0, 9.0, 12.0, 15.0]
+    assert [int(o[2][0]) for o in outs] == [0, 0, 0, 1, 1]
+    assert env.obs_buf is outs[-1][0] and torch.equal(env.obs_buf["policy"], torch.full((2, 3), 5.0))
+
+
+def test_captured_again_after_a_replaced_array_a_reset_or_a_mode_change():
+    env = _Env()
+    graph = EnvGraph(env, capture=_Replays(), warmup=1)
+    act = torch.ones(2, 3)
+    for _ in range(3):
+        graph.step(act)
+    assert graph.captures == 1
+    env.scene.sim.graph_generation += 1  # a model array replaced: captured again at once, no new warm-up
+    graph.step(act)
+    env.generation += 1  # env.reset / load_state_dict
+    graph.step(act)
+    assert (graph.captures, graph.eager_steps) == (3, 1)
+    with torch.inference_mode():  # another mode: compiled functions compile again, so warm up first
+        graph.step(act)
+        graph.step(act)
+    assert (graph.captures, graph.eager_steps) == (4, 2)
+    assert torch.equal(env.state, torch.full((2, 3), 7.0))  # every step ran once
+
+
+def test_a_capture_that_fails_warns_once_and_the_env_steps_eagerly():
+    env = _Env()
+    graph = EnvGraph(env, capture=_Replays(fail=True), warmup=1)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for _ in range(4):
+            graph.step(torch.ones(2, 3))
+    msgs = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert len(msgs) == 1 and "RuntimeError: operation not permitted when stream is capturing" in msgs[0]
+    assert graph.error and graph.eager_steps == 4 and torch.equal(env.state, torch.full((2, 3), 4.0))
+
+
+def test_cuda_graph_needs_a_warp_backend():
+    task = load_task("base", overrides={"scene": {"backend": "cpu", "num_workers": 0, "cuda_graph": True}})
+    with pytest.raises(ConfigError, match=r"scene.cuda_graph.*needs a Warp backend.*not 'cpu'"):
+        LocomotionEnv(task, num_envs=2, verbose=False)
+
+
+# ---------------------------------------------------------------------------------------------- the env
+SMALL = {"terrain": {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0}}
+EVENTFUL = {"env": {"episode_length_s": 0.2},
+            "commands": {"base_velocity": {"resampling_time_s": [0.05, 0.1]}},
+            "events": {"push": {"func": "push_robot", "mode": "interval", "interval_s": [0.04, 0.08],
+                                "params": {"velocity_range": [-0.5, 0.5]}}}}
+"""Episodes of 10 steps, commands resampled and robots pushed every few steps."""
+SWITCHING = {"curriculum": {"penalties": {"params": {"threshold": 0.0}}}}
+"""base's penalties switch on at the first reset with any tracking reward: a flag kept across steps."""
+
+
+@pytest.fixture(scope="module")
+def warp():
+    return pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
+
+
+def _env(task: str, overrides: dict, graph: bool, compile: bool = False) -> LocomotionEnv:
+    scene = {"backend": "warp-cpu", "num_workers": 0, "compile": compile, "cuda_graph": graph}
+    return LocomotionEnv(load_task(task, overrides={**SMALL, **overrides, "scene": scene}), num_envs=4, seed=0,
+                         verbose=False)
+
+
+def _same_steps(task: str, overrides: dict, steps: int, compile: bool = False) -> tuple[LocomotionEnv, int]:
+    """Step an eager and a graphed env alike; assert every output and the published state equal bit for bit;
+    returns the graphed env (open) and the number of robot resets."""
+    eager, graphed = _env(task, overrides, False, compile), _env(task, overrides, True, compile)
+    g = torch.Generator().manual_seed(0)
+    resets = 0
+    try:
+        for i in range(steps):
+            act = torch.randn(4, eager.num_actions, generator=g) * 2
+            if i == 6:
+                act[1, 3] = float("nan")
+            a, b = eager.step(act), graphed.step(act)
+            for k in a[0].keys():  # noqa: SIM118 - a TensorDict iterates over its batch
+                assert torch.equal(a[0][k], b[0][k]), (i, k)
+            assert torch.equal(a[1], b[1]) and torch.equal(a[2], b[2]), i
+            assert torch.equal(a[3]["time_outs"], b[3]["time_outs"]), i
+            resets += int(a[2].sum())
+        for f in dataclasses.fields(eager.state):
+            assert torch.equal(getattr(eager.state, f.name), getattr(graphed.state, f.name)), f.name
+        assert eager.episode_log.read() == graphed.episode_log.read()
+        assert eager.curriculum_manager.values_as_floats() == graphed.curriculum_manager.values_as_floats()
+    finally:
+        eager.close()
+    return graphed, resets
+
+
+def test_a_graphed_env_steps_bit_for_bit_as_the_eager_one(warp):
+    env, resets = _same_steps("base", {**EVENTFUL, **SWITCHING}, steps=30)
+    try:
+        assert resets > 6  # short episodes, random actions, a non-finite one
+        assert env.curriculum_manager.values_as_floats()["penalties"] == 1.0  # the flag switched during replays
+        assert (env.graph.captures, env.graph.replays, env.graph.error) == (1, 30 - 1 - env.graph.warmup, None)
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", ["base", "rough"])
+def test_a_graphed_compiled_env_steps_bit_for_bit_as_the_eager_one(warp, task):
+    """What runs on CUDA (scene.compile), on Warp's CPU device: rough's terrain curriculum moves rows too."""
+    env, resets = _same_steps(task, EVENTFUL, steps=16, compile=True)
+    try:
+        assert resets > 2 and env.graph.captures == 1 and env.graph.error is None
+    finally:
+        env.close()
+
+
+def test_reset_and_a_new_per_robot_field_capture_again(warp):
+    env = _env("base", EVENTFUL, True)
+    try:
+        act = torch.zeros(4, env.num_actions)
+        for _ in range(5):
+            env.step(act)
+        assert env.graph.captures == 1
+        env.reset()
+        env.step(act)
+        assert env.graph.captures == 2
+        env.scene.sim.set_model_field("body_mass", torch.ones(4, dtype=torch.bool),
+                                      torch.as_tensor(env.scene.model.body_mass).repeat(4, 1) * 1.1)
+        env.step(act)
+        assert env.graph.captures == 3 and env.graph.error is None
+    finally:
+        env.close()
+
+
+def test_a_replayed_step_reads_nothing_back(warp):
+    """Around the graph only Python runs (counters, copies of the outputs): no host read or upload per replayed
+    step, the backend's once-per-``check_every`` checks aside."""
+    from dls_quadruped.core.sync_probe import sync_probe
+
+    env = _env("base", EVENTFUL, True)
+    try:
+        g = torch.Generator().manual_seed(1)
+        acts = [torch.randn(4, env.num_actions, generator=g) for _ in range(16)]
+        for a in acts[:5]:  # warm-up and capture
+            env.step(a)
+        with sync_probe() as report:
+            for a in acts[5:]:
+                env.step(a)
+        assert env.graph.replays == 16 - 3 - 1  # the eager warm-up, the capture
+        backend = {f"dls_quadruped/sim/warp_backend.py:{f}" for f in ("_check_overflow", "check_inputs")}
+        assert report.outside(backend) == {}, report.by_site()
+    finally:
+        env.close()
