@@ -4,7 +4,7 @@
 # carried), then, each within its own time box and writing into $OUT:
 #   mpc    the sampling MPC's warp kernel over M and B (bench/mpc_warp.py)         MPC_S   (default 150 s)
 #   scaling  solve time against M x B, the cost-against-work grid (bench/mpc_scaling.py)  SCALING_S (default 150 s)
-#   check  `make gpu-check`'s env sections: syncs, launches, env, gpu_busy, rough  CHECK_S (default 0: skipped)
+#   check  `make gpu-check`'s env sections: graph, syncs, launches, faults, env, gpu_busy, rough  CHECK_S (default 0: skipped)
 #   train  base at 4 096 robots, continued from TRAIN_FROM, for TRAIN_S seconds     TRAIN_S (default: what is left)
 # and pack the compile caches it filled for the next node. LEASE_S (default 600) is the whole command's budget;
 # SECTIONS (default "mpc train") chooses and orders the sections. Every section's output lands in $OUT even when a
