@@ -104,10 +104,13 @@ class EmulatedCapture:
 
     Args:
         root: the env.
+        skip: objects whose insides are not walked (e.g. the ``cpu`` backend, whose host state no graph holds, when
+            the managers' state is what is checked).
     """
 
-    def __init__(self, root: Any):
+    def __init__(self, root: Any, skip: tuple = ()):
         self.root = root
+        self.skip = frozenset(map(id, skip))
         self.body: Callable[[Any], Any] | None = None
         self.outputs: Any = None
         self.moved: dict[Path, tuple[Any, Any]] = {}
@@ -118,9 +121,9 @@ class EmulatedCapture:
         self.moved = {}
 
     def capture(self, body: Callable[[Any], Any]) -> Any:
-        before = object_tree(self.root)
+        before = object_tree(self.root, self.skip)
         out = body(None)
-        after = object_tree(self.root)
+        after = object_tree(self.root, self.skip)
         _refuse_scalar_changes(before, after, "the captured step")
         self.moved = {p: (before.get(p, _MISSING), after[p]) for p in replaced(before, after)}
         self.body, self.outputs = body, out
@@ -130,9 +133,9 @@ class EmulatedCapture:
         for path, (first, _) in self.moved.items():
             if first is not _MISSING:
                 _set(self.root, path, first)
-        before = object_tree(self.root)
+        before = object_tree(self.root, self.skip)
         out = self.body(None)
-        after = object_tree(self.root)
+        after = object_tree(self.root, self.skip)
         _refuse_scalar_changes(before, after, "a replayed step")
         now = set(replaced(before, after))
         if now != set(self.moved):
@@ -159,11 +162,12 @@ def _children(obj: Any) -> list[tuple[tuple[str, Any], Any]]:
     return []
 
 
-def object_tree(root: Any) -> dict[Path, Any]:
+def object_tree(root: Any, skip: frozenset[int] = frozenset()) -> dict[Path, Any]:
     """Every object reachable from ``root`` (breadth first, each object at its first path) by its path; Python
-    numbers, strings and None as values (their identity means nothing)."""
+    numbers, strings and None as values (their identity means nothing); the objects whose ids are in ``skip`` are
+    leaves."""
     out: dict[Path, Any] = {}
-    seen: set[int] = set()
+    seen: set[int] = set(skip)
     queue: deque[tuple[Any, Path]] = deque([(root, ())])
     while queue:
         obj, path = queue.popleft()

@@ -36,7 +36,8 @@ def test_a_failing_section_is_recorded_and_the_next_one_runs(tmp_path: Path, mon
     monkeypatch.setattr(G, "compile_times", boom)
     monkeypatch.setattr(G, "trajectories", lambda backend: {"standing": {"ok": True}})
     (tmp_path / "report.json").write_text(json.dumps({"sections": {}}))
-    G.main(["--device", "cpu", "--out", str(tmp_path), "--skip", "graph,syncs,launches,faults,env,gpu_busy,mpc,rough,train"])
+    G.main(["--device", "cpu", "--out", str(tmp_path),
+            "--skip", "graph,syncs,launches,faults,env,gpu_busy,mpc,rough,train"])
     rep = json.loads((tmp_path / "report.json").read_text())
     assert seen == ["versions", "compile"]
     assert rep["device"] == "cpu" and rep["backend"] == "warp-cpu"

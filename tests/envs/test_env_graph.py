@@ -207,7 +207,7 @@ def test_cuda_graph_needs_a_warp_backend():
         LocomotionEnv(task, num_envs=2, verbose=False)
 
 
-# ---------------------------------------------------------------------------------------------- the env
+# ---------------------------------------------------------------------------------------------- the managers
 SMALL = {"terrain": {"num_rows": 3, "tile_size": 4.0, "border": 1.0, "platform": 1.0}}
 EVENTFUL = {"env": {"episode_length_s": 0.2},
             "commands": {"base_velocity": {"resampling_time_s": [0.05, 0.1]}},
@@ -218,6 +218,45 @@ SWITCHING = {"curriculum": {"penalties": {"params": {"threshold": 0.0}}}}
 """base's penalties switch on at the first reset with any tracking reward: a flag kept across steps."""
 
 
+@pytest.mark.parametrize("task", ["base", "rough", "speed", "climb"])
+def test_every_task_keeps_its_state_in_place_for_a_graph(task):
+    """The managers, curricula and events of every task, replayed as a graph would replay them (the ``cpu``
+    backend's host state left out of the walk: no graph holds it; needs no MuJoCo Warp, so CI runs it): the step
+    replayed 20 times gives the eager env's outputs bit for bit, with resets, pushes and curricula that decide
+    (thresholds lowered: the penalties and the speed range switch, terrain rows move)."""
+    curriculum = {"penalties": {"params": {"threshold": 0.0}}}
+    if task == "speed":
+        curriculum["speed"] = {"params": {"threshold": -1.0}}
+    overrides = {**SMALL, **EVENTFUL, "curriculum": curriculum, "scene": {"backend": "cpu", "num_workers": 0}}
+    envs = [LocomotionEnv(load_task(task, overrides=overrides), num_envs=4, seed=0, verbose=False) for _ in "ab"]
+    eager, graphed = envs
+    g = torch.Generator().manual_seed(0)
+    actions = torch.zeros(4, eager.num_actions)  # the graph's input
+    cap = EmulatedCapture(graphed, skip=(graphed.scene.sim,))
+    try:
+        for i in range(24):
+            act = torch.randn(4, eager.num_actions, generator=g) * 2
+            a = eager.step(act)
+            actions.copy_(act)
+            if i < 3:
+                b = graphed.step(act)
+            elif i == 3:
+                b = cap.capture(lambda _s: graphed.step_body(actions))
+            else:
+                cap.replay()
+                b = cap.outputs
+            for k in a[0].keys():  # noqa: SIM118 - a TensorDict iterates over its batch
+                assert torch.equal(a[0][k], b[0][k]), (i, k)
+            assert torch.equal(a[1], b[1]) and torch.equal(a[2], b[2]), i
+        values = eager.curriculum_manager.values_as_floats()
+        assert values == graphed.curriculum_manager.values_as_floats()
+        assert values["penalties"] == 1.0 and values.get("speed", 1.1) > 1.0  # decided during the replays
+    finally:
+        for env in envs:
+            env.close()
+
+
+# ---------------------------------------------------------------------------------------------- the env
 @pytest.fixture(scope="module")
 def warp():
     return pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (optional [gpu] extra)")
