@@ -352,3 +352,23 @@ def test_a_replayed_step_reads_nothing_back(warp):
         assert report.outside(backend) == {}, report.by_site()
     finally:
         env.close()
+
+
+def test_training_through_the_graph_learns_the_same_weights(warp, tmp_path, monkeypatch):
+    """rsl-rl's rollouts (inference mode; it keeps the observations it acted on until the step returns, hence the
+    copies) and the PPO update, with the env step replayed: two iterations give the eager run's actor bit for bit."""
+    from dls_quadruped.learning import train
+
+    replays = []
+    replay = EmulatedCapture.replay
+    monkeypatch.setattr(EmulatedCapture, "replay", lambda self: replays.append(1) or replay(self))
+    actors = []
+    for graph in (False, True):
+        run_dir = train.main(["--task", "base", "--num-envs", "4", "--iterations", "2", "--backend", "warp-cpu",
+                              "--num-workers", "0", "--seed", "3", "--log-root", str(tmp_path / str(graph)),
+                              "--set", f"scene.cuda_graph={str(graph).lower()}", "--set", "scene.compile=false"])
+        actors.append(torch.load(next(run_dir.glob("model_*.pt")), weights_only=False)["actor_state_dict"])
+    assert len(replays) == 2 * 24 - 3 - 1  # two iterations of 24 steps: all but the warm-up and the capture replayed
+    assert actors[0].keys() == actors[1].keys()
+    for k in actors[0]:
+        assert torch.equal(actors[0][k], actors[1][k]), k
