@@ -194,13 +194,13 @@ def mpc_rows(device: torch.device, sizes: tuple[int, ...], solves: int, report: 
 
 
 def train(device: torch.device, backend: str, num_envs: int, seconds: float, out: Path,
-          iterations: int = 100000) -> dict:
+          iterations: int = 100000, cuda_graph: bool = False) -> dict:
     """PPO on base for about ``seconds`` or ``iterations`` (SIGTERM at the time: the trainer saves at the end of
-    its iteration)."""
+    its iteration); ``cuda_graph``: each env step replayed from one graph (``scene.cuda_graph``)."""
     run_dir = Path(os.environ.get("TMPDIR", "/tmp")) / f"gpu_check_train_{os.getpid()}"
     cmd = [sys.executable, "-m", "dls_quadruped.learning.train", "--task", "base", "--num-envs", str(num_envs),
            "--iterations", str(iterations), "--device", str(device), "--backend", backend, "--seed", "0",
-           "--run-dir", str(run_dir), "--save-every-min", "1"]
+           "--run-dir", str(run_dir), "--save-every-min", "1", "--set", f"scene.cuda_graph={str(cuda_graph).lower()}"]
     tic = time.perf_counter()
     with open(out / "train.log", "w") as log:
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
@@ -212,8 +212,8 @@ def train(device: torch.device, backend: str, num_envs: int, seconds: float, out
                 proc.wait(timeout=90)
             except subprocess.TimeoutExpired:
                 proc.kill()
-    result = {"num_envs": num_envs, "wall_s": time.perf_counter() - tic, "returncode": proc.returncode,
-              "run_dir": str(run_dir)}
+    result = {"num_envs": num_envs, "cuda_graph": cuda_graph, "wall_s": time.perf_counter() - tic,
+              "returncode": proc.returncode, "run_dir": str(run_dir)}
     ckpts = sorted(run_dir.glob("model_*.pt"), key=lambda p: int(p.stem.split("_")[1])) if run_dir.exists() else []
     if ckpts:
         shutil.copy(ckpts[-1], out / "train_checkpoint.pt")
@@ -254,6 +254,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--skip", default="", help=f"comma-separated sections to skip, of {', '.join(SECTIONS)}")
     p.add_argument("--train-envs", type=int, default=None, help="robots of the training run (4096 on a GPU)")
     p.add_argument("--env-steps", type=int, default=None, help="timed env steps per throughput row")
+    p.add_argument("--train-graph", action="store_true",
+                   help="train with each env step replayed from one CUDA graph (scene.cuda_graph)")
     args = p.parse_args(argv)
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     if device.type not in ("cuda", "cpu"):
@@ -297,14 +299,16 @@ def main(argv: list[str] | None = None) -> None:
         ("faults", lambda: faults(backend, device, 64 if gpu else 8)),
         ("env", lambda: {"rows": env_throughput(backend, device, big, steps, report,
                                                  reserve_s=0.35 * args.budget_s, warmup=warmup)}),
-        ("gpu_busy", lambda: gpu_busy(backend, device, 4096, 10, warmup)),
+        ("gpu_busy", lambda: {"eager_step": gpu_busy(backend, device, 4096, 10, warmup),
+                              "graph_step": gpu_busy(backend, device, 4096, 10, warmup, cuda_graph=True)}),
         ("mpc", lambda: mpc_rows(device, (10000, 100000) if gpu else (500,), 20 if gpu else 2, report)),
         ("rough", lambda: {"compile": compile_times(backend, device, ("rough",))["rough"],
                            "rows": env_throughput(backend, device, [("rough", rough_n, True, None)], steps, report,
                                                   reserve_s=0.2 * args.budget_s, section="rough",
                                                   warmup=warmup)}),
         ("train", lambda: train(device, backend, args.train_envs or (4096 if gpu else 8),
-                                report.left() - 100 if gpu else 900.0, args.out, 100000 if gpu else 1)),
+                                report.left() - 100 if gpu else 900.0, args.out, 100000 if gpu else 1,
+                                cuda_graph=args.train_graph)),
     ]
     for name, run in plan:
         if name in skip:

@@ -195,10 +195,11 @@ def launches(backend: str, device: torch.device, num_envs: int, steps: int, comp
             "steps_with_resets": len(reset)}
 
 
-def gpu_busy(backend: str, device: torch.device, num_envs: int, steps: int, warmup: int = WARMUP_STEPS) -> dict:
+def gpu_busy(backend: str, device: torch.device, num_envs: int, steps: int, warmup: int = WARMUP_STEPS,
+             cuda_graph: bool = False) -> dict:
     """GPU kernel time over wall time per env step, each from its own window after ``warmup`` steps: wall time
     without the profiler (which slows the host several-fold), kernel time from the profiler (CUPTI sees Warp's
-    kernels too) over the same number of steps."""
+    kernels too) over the same number of steps. ``cuda_graph``: the step replayed from one graph."""
     from torch.profiler import ProfilerActivity, profile
 
     from dls_quadruped.envs.config import load_task
@@ -206,8 +207,9 @@ def gpu_busy(backend: str, device: torch.device, num_envs: int, steps: int, warm
 
     if device.type != "cuda":
         return {"skipped": "needs CUDA"}
-    env = LocomotionEnv(load_task("base", overrides={"scene": {"backend": backend, "num_workers": 0}}),
-                        num_envs=num_envs, device=str(device), seed=0, verbose=False)
+    scene = {"backend": backend, "num_workers": 0, "cuda_graph": cuda_graph}
+    env = LocomotionEnv(load_task("base", overrides={"scene": scene}), num_envs=num_envs, device=str(device), seed=0,
+                        verbose=False)
     try:
         g = torch.Generator(device=device).manual_seed(0)
         actions = lambda: torch.randn(num_envs, env.num_actions, generator=g, device=device)
@@ -227,7 +229,9 @@ def gpu_busy(backend: str, device: torch.device, num_envs: int, steps: int, warm
         kernel_s = sum(e.device_time for e in kernels) * 1e-6
     finally:
         env.close()
-    return {"num_envs": num_envs, "steps": steps, "warmup": warmup, "wall_s_per_step": wall / steps,
+    graph = None if env.graph is None else {"captures": env.graph.captures, "error": env.graph.error}
+    return {"num_envs": num_envs, "cuda_graph": cuda_graph, "step_graph": graph, "steps": steps, "warmup": warmup,
+            "wall_s_per_step": wall / steps,
             "kernel_s_per_step": kernel_s / steps, "busy_fraction": kernel_s / wall,
             "kernels_per_step": len(kernels) / steps,
             "note": "wall time from an unprofiled window, kernel time from a profiled one of as many steps"}

@@ -6,6 +6,7 @@
 #   scaling  solve time against M x B, the cost-against-work grid (bench/mpc_scaling.py)  SCALING_S (default 150 s)
 #   check  `make gpu-check`'s env sections: graph, syncs, launches, faults, env, gpu_busy, rough  CHECK_S (default 0: skipped)
 #   train  base at 4 096 robots, continued from TRAIN_FROM, for TRAIN_S seconds     TRAIN_S (default: what is left)
+#          (TRAIN_ARGS: more train arguments, e.g. "--set scene.cuda_graph=true": the step as one CUDA graph)
 # and pack the compile caches it filled for the next node. LEASE_S (default 600) is the whole command's budget;
 # SECTIONS (default "mpc train") chooses and orders the sections. Every section's output lands in $OUT even when a
 # later one fails.
@@ -60,7 +61,7 @@ for section in $SECTIONS; do
         run=/tmp/lease_run_$$
         timeout $(( budget + 60 )) python -m dls_quadruped.learning.train --task base --device cuda --backend cuda \
             --num-envs 4096 --iterations 100000 --resume-from "$TRAIN_FROM" --time-limit "$budget" --run-dir "$run" \
-            --save-every-min 3 > "$OUT/train.log" 2>&1
+            --save-every-min 3 ${TRAIN_ARGS:-} > "$OUT/train.log" 2>&1
         echo "train: rc $? after $(( $(date +%s) - T0 )) s"
         grep -E "time limit|Traceback|Error" "$OUT/train.log" | head -5
         python - "$run" "$OUT" <<'PY'

@@ -150,3 +150,26 @@ def test_fault_trials_need_more_robots_than_faults():
 
     with pytest.raises(ValueError, match="num_envs must be > 4, got 4"):
         faults("cpu", torch.device("cpu"), num_envs=4)
+
+
+def test_train_section_passes_the_graph_setting_to_the_trainer(tmp_path: Path, monkeypatch):
+    """``--train-graph``: the training run steps its env from one CUDA graph (``scene.cuda_graph``); without it the
+    setting is passed off explicitly, so a report says which it measured."""
+    import torch
+
+    cmds = []
+
+    class _Proc:
+        returncode = 0
+
+        def __init__(self, cmd, **_):
+            cmds.append(cmd)
+
+        def wait(self, timeout=None):
+            return 0
+
+    monkeypatch.setattr(G.subprocess, "Popen", _Proc)
+    for graph in (True, False):
+        got = G.train(torch.device("cpu"), "warp-cpu", 8, 1.0, tmp_path, 1, cuda_graph=graph)
+        assert got["cuda_graph"] is graph and got["returncode"] == 0
+    assert [c[c.index("--set") + 1] for c in cmds] == ["scene.cuda_graph=true", "scene.cuda_graph=false"]
