@@ -17,8 +17,9 @@ Warp's kernels of the four physics steps -- it is one ``torch.cuda.CUDAGraph.rep
   rsl-rl keeps the observations it acted on until the step returns).
 * **Captured again** when the grad/inference mode changes, when an array the graph reads was replaced (a model
   field made per-robot for the first time: ``WarpWorlds.generation``), and after ``env.reset`` or
-  ``env.load_state_dict`` (they may replace what the step reads). A capture that fails warns once, with the
-  reason, and the env steps eagerly from then on.
+  ``env.load_state_dict`` (they may replace what the step reads). A capture that fails is tried once more after
+  another warm-up (a late recompile inside it, say); a second failure warns once, with both reasons, and the env
+  steps eagerly from then on.
 
 **What a graph needs of the step**, and how it is checked on a CPU: a replay re-runs the kernels on the addresses
 they had at capture, and no Python. So state kept from one step to the next must be written in place: an attribute
@@ -42,6 +43,9 @@ import torch
 GRAPH_WARMUP = 3
 """Eager env steps (per grad/inference mode) before the capture: compiled functions compile on their first or
 second call (``core/compile.py`` ``eager_first``)."""
+
+CAPTURE_TRIES = 2
+"""Captures tried (each after :data:`GRAPH_WARMUP` eager steps) before the env steps eagerly for good."""
 
 Path = tuple[tuple[str, Any], ...]
 _MISSING = object()
@@ -257,7 +261,11 @@ class EnvGraph:
         warmup: eager steps per grad/inference mode before the capture.
 
     Attributes:
-        captures, replays, eager_steps: counts; ``error``: why capturing failed (the env then steps eagerly).
+        captures: graphs captured so far.
+        replays: steps replayed from a graph.
+        eager_steps: steps run without one (warm-up, after a failed capture).
+        failures: why each failed capture failed.
+        error: set after :data:`CAPTURE_TRIES` failures (each after its own warm-up); the env then steps eagerly.
     """
 
     def __init__(self, env: Any, capture: CudaCapture | EmulatedCapture | None = None, warmup: int = GRAPH_WARMUP):
@@ -273,6 +281,7 @@ class EnvGraph:
         self.warm = 0
         self.captures = self.replays = self.eager_steps = 0
         self.error: str | None = None
+        self.failures: list[str] = []  # the reasons of the failed captures so far
 
     def _key(self) -> tuple:
         return torch.is_grad_enabled(), torch.is_inference_mode_enabled(), self.env.graph_generation()
@@ -312,11 +321,16 @@ class EnvGraph:
         try:
             self.outputs = self.impl.capture(self._body)
         except Exception as err:  # noqa: BLE001 - a capture that fails must not stop a run
-            self.error = f"{type(err).__name__}: {err}"
             self.outputs = None
             self.impl.reset()
-            warnings.warn(f"capturing the env step as one CUDA graph failed ({self.error}); the env steps without "
-                          "it from now on (scene.cuda_graph, docs/gpu.md)", RuntimeWarning, stacklevel=3)
+            self.failures.append(f"{type(err).__name__}: {err}")
+            if len(self.failures) < CAPTURE_TRIES:  # e.g. a late recompile inside the capture: warm up, try again
+                self.warm = 0
+            else:
+                self.error = "; then ".join(self.failures)
+                warnings.warn(f"capturing the env step as one CUDA graph failed {len(self.failures)} times "
+                              f"({self.error}); the env steps without it from now on (scene.cuda_graph, "
+                              "docs/gpu.md)", RuntimeWarning, stacklevel=3)
             return self._eager(actions)  # the capture ran nothing: this step runs now
         self.captures += 1
         self.sim.after_graph_step()

@@ -189,16 +189,32 @@ def test_captured_again_after_a_replaced_array_a_reset_or_a_mode_change():
     assert torch.equal(env.state, torch.full((2, 3), 7.0))  # every step ran once
 
 
-def test_a_capture_that_fails_warns_once_and_the_env_steps_eagerly():
+def test_a_capture_that_fails_twice_warns_once_and_the_env_steps_eagerly():
+    """The first failure warms up again and tries once more; the second warns once, naming both reasons."""
     env = _Env()
     graph = EnvGraph(env, capture=_Replays(fail=True), warmup=1)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        for _ in range(4):
+        for _ in range(6):
             graph.step(torch.ones(2, 3))
     msgs = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
-    assert len(msgs) == 1 and "RuntimeError: operation not permitted when stream is capturing" in msgs[0]
-    assert graph.error and graph.eager_steps == 4 and torch.equal(env.state, torch.full((2, 3), 4.0))
+    assert len(msgs) == 1 and "failed 2 times" in msgs[0]
+    assert msgs[0].count("RuntimeError: operation not permitted when stream is capturing") == 2
+    # steps 1 and 3 warmed up, 2 and 4 tried to capture (and ran eagerly), 5 and 6 eager
+    assert graph.captures == 0 and graph.eager_steps == 6 and torch.equal(env.state, torch.full((2, 3), 6.0))
+
+
+def test_a_capture_that_fails_once_is_tried_again_after_a_warm_up():
+    env = _Env()
+    replays = _Replays(fail=True)
+    graph = EnvGraph(env, capture=replays, warmup=1)
+    graph.step(torch.ones(2, 3))
+    graph.step(torch.ones(2, 3))  # the capture fails: eager
+    replays.fail = False
+    for _ in range(4):
+        graph.step(torch.ones(2, 3))  # a warm-up step, the capture, two replays
+    assert (graph.eager_steps, graph.captures, graph.replays, graph.error) == (3, 1, 2, None)
+    assert len(graph.failures) == 1 and torch.equal(env.state, torch.full((2, 3), 6.0))
 
 
 def test_cuda_graph_needs_a_warp_backend():
