@@ -388,3 +388,61 @@ def test_training_through_the_graph_learns_the_same_weights(warp, tmp_path, monk
     assert actors[0].keys() == actors[1].keys()
     for k in actors[0]:
         assert torch.equal(actors[0][k], actors[1][k]), k
+
+
+def test_the_cuda_capture_registers_warp_on_the_stream_it_hands_the_step(monkeypatch):
+    """``CudaCapture`` without a GPU, its CUDA and Warp calls recorded by stand-ins: Warp's external capture begins
+    on the very ``wp.Stream`` object the step gets (Warp finds a capture by that object: MuJoCo Warp's solver loop
+    becomes a conditional node only then), inside torch's capture on the matching torch stream; it ends even when
+    the step raises; the graph is replayed once after the capture (which ran nothing)."""
+    import sys
+
+    from dls_quadruped.envs.env_graph import CudaCapture
+
+    calls = []
+
+    class _Ctx:
+        def __init__(self, name, *args, **kwargs):
+            self.name, self.args, self.kwargs = name, args, kwargs
+
+        def __enter__(self):
+            calls.append(("enter", self.name, self.args, self.kwargs))
+
+        def __exit__(self, *exc):
+            calls.append(("exit", self.name))
+
+    class _Graph:
+        def replay(self):
+            calls.append(("replay",))
+
+    torch_stream = SimpleNamespace(wait_stream=lambda other: calls.append(("wait", other)))
+    wstream = SimpleNamespace(name="warp view of the capture stream")
+    fake_wp = SimpleNamespace(
+        stream_from_torch=lambda s: wstream if s is torch_stream else None,
+        device_from_torch=lambda d: f"wp:{d}",
+        ScopedDevice=lambda d: _Ctx("wp.ScopedDevice", d),
+        ScopedStream=lambda s: _Ctx("wp.ScopedStream", s),
+        capture_begin=lambda **k: calls.append(("capture_begin", k)),
+        capture_end=lambda **k: calls.append(("capture_end", k)))
+    monkeypatch.setitem(sys.modules, "warp", fake_wp)
+    monkeypatch.setattr(torch.cuda, "CUDAGraph", _Graph)
+    monkeypatch.setattr(torch.cuda, "Stream", lambda device: torch_stream)
+    monkeypatch.setattr(torch.cuda, "current_stream", lambda device: "the current stream")
+    monkeypatch.setattr(torch.cuda, "graph", lambda g, stream: _Ctx("torch.cuda.graph", stream=stream))
+
+    got = []
+    cap = CudaCapture(torch.device("cuda:0"))
+    out = cap.capture(lambda stream: got.append(stream) or "outputs")
+    assert out == "outputs" and got == [wstream]
+    assert calls[0] == ("wait", "the current stream")  # the capture stream starts after the queued work
+    assert ("enter", "wp.ScopedStream", (wstream,), {}) in calls
+    assert ("enter", "torch.cuda.graph", (), {"stream": torch_stream}) in calls
+    begin = calls.index(("capture_begin", {"stream": wstream, "force_module_load": False, "external": True}))
+    end = calls.index(("capture_end", {"stream": wstream}))
+    assert calls.index(("enter", "torch.cuda.graph", (), {"stream": torch_stream})) < begin < end
+    assert end < calls.index(("exit", "torch.cuda.graph")) < calls.index(("replay",)) == len(calls) - 1
+
+    calls.clear()
+    with pytest.raises(RuntimeError, match="inside the step"):
+        cap.capture(lambda stream: (_ for _ in ()).throw(RuntimeError("inside the step")))
+    assert ("capture_end", {"stream": wstream}) in calls and ("replay",) not in calls
