@@ -99,11 +99,18 @@ class LocomotionVectorEnv(gymnasium.vector.VectorEnv):
                  final_obs: str = "truncated", episode_statistics: bool = True, env=None):
         if final_obs not in FINAL_OBS_MODES:
             raise ValueError(f"final_obs must be one of {list(FINAL_OBS_MODES)}, got {final_obs!r}")
-        if env is None:
+        built = env is None
+        if built:
             from dls_quadruped.envs.env import LocomotionEnv
 
             env = LocomotionEnv(_task_config(task, num_workers, overrides), num_envs=num_envs, device=device,
                                 seed=seed, verbose=False)
+        if final_obs != "none" and getattr(env, "graph", None) is not None:  # a graph runs no Python: not this one
+            if built:
+                env.close()
+            raise ValueError(f"final_obs={final_obs!r} observes the robots inside the env step, which "
+                             "scene.cuda_graph replays from a graph without running Python; use final_obs='none' "
+                             "or scene.cuda_graph: false")
         self.env = env
         self.num_envs = env.num_envs
         self.device = env.device

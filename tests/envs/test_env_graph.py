@@ -446,3 +446,29 @@ def test_the_cuda_capture_registers_warp_on_the_stream_it_hands_the_step(monkeyp
     with pytest.raises(RuntimeError, match="inside the step"):
         cap.capture(lambda stream: (_ for _ in ()).throw(RuntimeError("inside the step")))
     assert ("capture_end", {"stream": wstream}) in calls and ("replay",) not in calls
+
+
+def test_the_gymnasium_view_of_a_graphed_env(warp):
+    """Its final observations are taken inside the step by Python a graph does not replay: refused with
+    ``final_obs`` on, naming the way out; with ``final_obs="none"`` the view steps as the eager one."""
+    from dls_quadruped.envs.gym_env import LocomotionVectorEnv
+
+    overrides = {**SMALL, **EVENTFUL}
+    with pytest.raises(ValueError, match=r"final_obs='truncated'.*use final_obs='none' or scene.cuda_graph: false"):
+        LocomotionVectorEnv(4, overrides={**overrides, "scene": {"backend": "warp-cpu", "cuda_graph": True}})
+    views = [LocomotionVectorEnv(4, seed=0, final_obs="none", overrides={
+        **overrides, "scene": {"backend": "warp-cpu", "num_workers": 0, "cuda_graph": graph}})
+        for graph in (False, True)]
+    try:
+        g = torch.Generator().manual_seed(0)
+        ended = 0
+        for _ in range(12):
+            act = torch.randn(4, 28, generator=g) * 2
+            (oa, ra, ta, ua, _), (ob, rb, tb, ub, _) = (v.step(act) for v in views)
+            assert all(torch.equal(oa[k], ob[k]) for k in oa) and torch.equal(ra, rb)
+            assert torch.equal(ta, tb) and torch.equal(ua, ub)
+            ended += int((ta | ua).sum())
+        assert ended > 0 and views[1].env.graph.replays == 12 - 3 - 1
+    finally:
+        for v in views:
+            v.close()
