@@ -13,7 +13,7 @@ Warp's kernels of the four physics steps -- it is one ``torch.cuda.CUDAGraph.rep
   once right after.
 * **Replay.** Later steps copy the actions into the graph's input and replay. What a graph cannot do is done
   around it, on the host: the step counters, the backend's checks every ``check_every`` calls
-  (``WarpSim.after_graph_step``), and copies of the outputs (the graph overwrites its own at the next replay;
+  (``WarpSim.count_step``), and copies of the outputs (the graph overwrites its own at the next replay;
   rsl-rl keeps the observations it acted on until the step returns).
 * **Captured again** when the grad/inference mode changes, when an array the graph reads was replaced (a model
   field made per-robot for the first time: ``WarpWorlds.generation``), and after ``env.reset`` or
@@ -236,12 +236,14 @@ def _set(root: Any, path: Path, value: Any) -> None:
 
 def copy_into(dst: Any, src: Any, where: str) -> None:
     """Copy the tensors of ``src`` into those of ``dst`` in place (same structure; Python numbers must be equal)."""
+    if dst is src:
+        return
     if isinstance(dst, torch.Tensor):
         if not isinstance(src, torch.Tensor) or src.shape != dst.shape or src.dtype != dst.dtype:
             raise GraphMismatch(f"{where}: a tensor {tuple(dst.shape)} {dst.dtype} at capture, now {src!r:.80}")
         dst.copy_(src)
         return
-    if _is_number(dst) or dst is None or isinstance(dst, str) or not _children(dst) and dst is src:
+    if _is_value(dst):
         if dst != src:
             raise GraphMismatch(f"{where}: {dst!r} at capture, now {src!r}")
         return
@@ -304,7 +306,7 @@ class EnvGraph:
         self.actions.copy_(actions)
         self.impl.replay()
         self.replays += 1
-        self.sim.after_graph_step()
+        self.sim.count_step()
         return self._publish()
 
     def _eager(self, actions: torch.Tensor) -> tuple:
@@ -333,7 +335,7 @@ class EnvGraph:
                               "docs/gpu.md)", RuntimeWarning, stacklevel=3)
             return self._eager(actions)  # the capture ran nothing: this step runs now
         self.captures += 1
-        self.sim.after_graph_step()
+        self.sim.count_step()
         return self._publish()
 
     def _publish(self) -> tuple:

@@ -115,7 +115,7 @@ class WarpSim:
         self.inputs = DeviceInputs(n, dev)
         self.check_every = CHECK_EVERY
         self._step_calls = 0
-        self._in_graph_body = False  # inside an outer capture (graph_body): the host reads wait for after_graph_step
+        self._in_graph_body = False  # inside an outer capture (graph_body): the host reads wait for count_step
         self.tau = torch.zeros(n, 12, dtype=f64, device=dev)
         self.buf = {k: torch.zeros((n, *s), dtype=torch.float32, device=dev)
                     for k, s in STATE_SPECS.items() if k not in _BOOL_FIELDS}
@@ -183,14 +183,7 @@ class WarpSim:
         Raises:
             ValueError: naming each invalid input.
         """
-        keys, flags = self.inputs.flags()
-        if bool(flags.any()):
-            names = [k for k, bad in zip(keys, flags.tolist()) if bad]
-            self.inputs.clear()
-            what = [f"{k} out of [0, {self.num_envs})" if k == "env_ids" else f"non-finite {k}" for k in names]
-            raise ValueError(f"invalid inputs within the last {self.check_every} step calls: {', '.join(what)} "
-                             "(robots with non-finite references diverged and were frozen; out-of-range ids were "
-                             "clamped)")
+        self.inputs.raise_flagged(f"within the last {self.check_every} step calls")
 
     def step(self, num_physics_steps: int = 1) -> RobotState:
         """Advance every robot by ``num_physics_steps`` physics steps, low-level control at each (module doc)."""
@@ -207,12 +200,12 @@ class WarpSim:
                 self._step1(torch_stream)
             self._terms = rate.terms()
         if not self._in_graph_body:
-            self.after_graph_step()
+            self.count_step()
         return self._publish()
 
-    def after_graph_step(self) -> None:
-        """Count a ``step`` call; every :attr:`check_every` calls the host reads (overflow, inputs). Inside
-        :meth:`graph_body` the caller calls it after each replay (a graph runs no Python)."""
+    def count_step(self) -> None:
+        """Count a ``step`` call; every :attr:`check_every` calls the host reads (overflow, inputs). ``step`` calls
+        it, except inside :meth:`graph_body`, where the caller does after each replay (a graph runs no Python)."""
         self._step_calls += 1
         if self._step_calls % self.check_every == 0:
             self._check_overflow()
@@ -222,7 +215,7 @@ class WarpSim:
     def graph_body(self, stream: Any = None) -> Iterator[None]:
         """Code run inside is captured whole (``envs/env_graph.py``): MuJoCo Warp's phases launch their kernels on
         ``stream`` (the ``wp.Stream`` of Warp's external capture; None on Warp's CPU device) instead of replaying
-        their own graphs, and ``step`` leaves its bookkeeping to :meth:`after_graph_step`."""
+        their own graphs, and ``step`` leaves its bookkeeping to :meth:`count_step`."""
         self._check_open()
         self.worlds.launch_directly(stream)
         self._in_graph_body = True

@@ -100,3 +100,18 @@ class DeviceInputs:
         self.bad_refs.zero_()
         for flag in self.bad_inputs.values():
             flag.zero_()
+
+    def raise_flagged(self, when: str) -> None:
+        """Raise if a flag is up (one host read), naming each input, and lower them all.
+
+        Raises:
+            ValueError: e.g. "invalid inputs within the last 24 step calls: non-finite F_w".
+        """
+        keys, flags = self.flags()
+        if not bool(flags.any()):
+            return
+        names = [k for k, bad in zip(keys, flags.tolist()) if bad]
+        self.clear()
+        what = [f"{k} out of [0, {self.num_envs})" if k == "env_ids" else f"non-finite {k}" for k in names]
+        raise ValueError(f"invalid inputs {when}: {', '.join(what)} (robots with non-finite references diverged and "
+                         "were frozen; out-of-range ids were clamped)")

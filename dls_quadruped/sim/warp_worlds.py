@@ -143,6 +143,11 @@ class WarpWorlds:
     def capture(self, enabled: bool) -> None:
         for graph in self.graphs:
             graph.enabled = bool(enabled)
+        self._invalidate()
+
+    def _invalidate(self) -> None:
+        """Every phase captures again at its next call, and so does an outer capture (:attr:`generation`)."""
+        for graph in self.graphs:
             graph.invalidate()
         self.generation += 1
 
@@ -197,9 +202,7 @@ class WarpWorlds:
                 with self.scope():
                     arr = wp.array(tiled, dtype=arr.dtype, device=self.wp_device)
                 setattr(self.m, name, arr)
-                for graph in self.graphs:  # they hold the replaced array's address
-                    graph.invalidate()
-                self.generation += 1
+                self._invalidate()  # the graphs hold the replaced array's address
             self.batched.add(name)
         return wp.to_torch(arr)
 

@@ -22,7 +22,7 @@ from dls_quadruped.mpc.config import SamplerConfig
 
 pytest.importorskip("warp")
 
-WARP_BACKEND = {"dls_quadruped/sim/warp_backend.py:_check_overflow", "dls_quadruped/sim/warp_backend.py:check_inputs"}
+WARP_BACKEND = {"dls_quadruped/sim/warp_backend.py:_check_overflow", "dls_quadruped/sim/warp_inputs.py:raise_flagged"}
 """The Warp backend's own reads, once every ``check_every`` (24) step calls (``tests/envs/test_host_sync.py``)."""
 READ_BACK = {"dls_quadruped/envs/recorder.py:record", "dls_quadruped/envs/recorder.py:<dictcomp>"}
 """The recorder's read-back of its buffers when its loop ends (and its last step's look at the episodes' ends)."""

@@ -44,7 +44,7 @@ WARP_BACKEND = {
     # sim/warp_backend.py checks device inputs on the device and reads the flags (and its contact overflow) once
     # every check_every (24) step calls: one PPO iteration
     "dls_quadruped/sim/warp_backend.py:_check_overflow",
-    "dls_quadruped/sim/warp_backend.py:check_inputs",
+    "dls_quadruped/sim/warp_inputs.py:raise_flagged",
 }
 """The Warp backend's own reads: once per check_every step calls."""
 

@@ -90,7 +90,6 @@ def test_torchrun_two_cpu_ranks_end_with_identical_weights(tmp_path):
     # a second launch onto the same, now non-empty, --run-dir: the ranks refuse with one line each, nothing in the
     # directory changes, and no rank is left waiting for the others (the timeout). torchrun stops the other rank as
     # soon as one fails, so whether the slower rank got to print its line is a race: one or two lines
-    # (2026-11-29: one line in 1 of 3 runs)
     before = sorted((p.name, p.stat().st_mtime_ns) for p in run_dir.rglob("*"))
     proc = subprocess.run(cmd, check=False, env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode != 0
