@@ -17,7 +17,7 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install install-gpu install-offline wheelhouse gpu-pack gpu-caches gpu-check test test-gpu-path test-all docs demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
+.PHONY: install install-gpu install-offline wheelhouse gpu-pack gpu-caches gpu-aot gpu-check test test-gpu-path test-all docs demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
 
 # One stamp per (TORCH_SPEC, TORCH_INDEX): changing either re-installs torch (--force-reinstall: pip would keep a
 # 2.13.0+cpu build for a cu128 index's torch==2.13.0, the same version to it).
@@ -71,6 +71,12 @@ gpu-caches:
 	$(strip $(if $(wildcard $(STAMP)),$(PY),$(PYTHON)) -m dls_quadruped.tools.gpu_pack --caches $(GPU_CACHES) \
 		--out $(GPU_PACK) --part-mb $(GPU_PACK_PART_MB) --where $(GPU_PACK))
 
+# Warp's CUDA kernels of MuJoCo Warp (base, rough) and the MPC compiled here, without a GPU (Warp's NVRTC), into
+# GPU_CACHES/warp for a node of architecture GPU_ARCH (90: H100, H200); then `make gpu-caches` packs them
+GPU_ARCH ?= 90
+gpu-aot: install-gpu
+	$(PY) -m dls_quadruped.tools.warp_aot --cache $(GPU_CACHES)/warp --arch $(GPU_ARCH)
+
 install-offline:
 	test -d "$(WHEELHOUSE)" || { echo "install-offline: WHEELHOUSE=$(WHEELHOUSE) is not a folder (make wheelhouse)"; exit 2; }
 	test -x $(PY) || $(PYTHON) -m venv --system-site-packages $(VENV)
@@ -97,7 +103,7 @@ test: $(STAMP)
 GPU_PATH_TESTS ?= tests/sim/test_warp_backend.py tests/sim/test_warp_graph.py tests/sim/test_warp_collision.py \
 	tests/sim/test_warp_control.py tests/envs/test_host_sync.py tests/envs/test_compile_guards.py \
 	tests/bench/test_gpu_check.py tests/core/test_compile.py tests/mpc/test_warp_solve.py tests/closed_loop/test_device_loop.py \
-	tests/bench/test_device_loop_bench.py tests/envs/test_env_graph.py
+	tests/bench/test_device_loop_bench.py tests/envs/test_env_graph.py tests/tools/test_warp_aot.py
 test-gpu-path: install-gpu
 	$(strip $(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile -m "slow or not slow" $(GPU_PATH_TESTS))
 

@@ -7,7 +7,8 @@
 #   check  `make gpu-check`'s env sections: graph, syncs, launches, faults, env, gpu_busy, rough  CHECK_S (default 0: skipped)
 #   train  base at 4 096 robots, continued from TRAIN_FROM, for TRAIN_S seconds     TRAIN_S (default: what is left)
 #          (TRAIN_ARGS: more train arguments, e.g. "--set scene.cuda_graph=true": the step as one CUDA graph)
-# and pack the compile caches it filled for the next node. LEASE_S (default 600) is the whole command's budget;
+# and pack the compile caches it filled for the next node (carried caches, e.g. `make gpu-aot` + `make gpu-caches`,
+# are unpacked first; cache_sizes.txt lists the Warp modules the node still compiled). LEASE_S (default 600) is the whole command's budget;
 # SECTIONS (default "mpc train") chooses and orders the sections. Every section's output lands in $OUT even when a
 # later one fails.
 set -u
@@ -33,6 +34,7 @@ caches=$(ls "$PACK"/gpu_caches.tar.xz.part* 2>/dev/null)
 [ -n "$caches" ] && mkdir -p "$CACHES" && cat $caches | xz -d -T0 | tar -x -C "$CACHES"
 export PYTHONPATH=$PWD:$SITE:${PYTHONPATH:-}
 echo "unpacked after $(( $(date +%s) - T0 )) s"
+touch /tmp/lease_t0_$$  # Warp kernels newer than this were compiled on the node, not loaded from the carried cache
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$OUT/machine.txt"
 python -c "import sys, torch, warp; print(sys.version.split()[0], torch.__version__, warp.__version__)" 2>&1 \
     | tail -1 | tee -a "$OUT/machine.txt"
@@ -80,10 +82,13 @@ PY
     esac
 done
 du -sb "$CACHES"/* 2>/dev/null | tee "$OUT/cache_sizes.txt"
+echo "warp modules compiled on the node: $(find "$CACHES/warp" -name '*.sm*' -newer /tmp/lease_t0_$$ | wc -l)," \
+    "carried: $(find "$CACHES/warp" -name '*.sm*' ! -newer /tmp/lease_t0_$$ | wc -l)" | tee -a "$OUT/cache_sizes.txt"
+find "$CACHES/warp" -name '*.sm*' -newer /tmp/lease_t0_$$ -printf '%f\n' 2>/dev/null | sort >> "$OUT/cache_sizes.txt"
 # at most 8 files of <= 16 MB come back: the small results in one tar, the checkpoint, the caches in 15 MB parts
 (cd "$OUT" && tar -cf results.tar --exclude=results.tar --exclude='*.pt' --exclude='gpu_caches*' . \
     && find . -maxdepth 1 -type f ! -name results.tar ! -name '*.pt' -delete)
-(cd "$CACHES" && tar -cf - . | xz -1 -T0 > /tmp/gpu_caches.tar.xz) && [ "$(left)" -gt 5 ] && \
+(cd "$CACHES" && tar -cf - --exclude='./warp/*.cu' --exclude='./warp/*/lto' . | xz -1 -T0 > /tmp/gpu_caches.tar.xz) && [ "$(left)" -gt 5 ] && \
     split -b 15M -a 1 /tmp/gpu_caches.tar.xz "$OUT/gpu_caches.tar.xz.part"
 ls -la "$OUT"
 echo "gpu_lease: done after $(( $(date +%s) - T0 )) s"

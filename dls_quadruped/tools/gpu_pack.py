@@ -14,7 +14,9 @@ The working tree runs from its checkout (``PYTHONPATH=.``), so the package's own
 ``--caches DIR`` packs a compile-cache folder instead (``make gpu-caches``): run the node's jobs with
 ``WARP_CACHE_PATH=DIR/warp TORCHINDUCTOR_CACHE_DIR=DIR/inductor``, bring ``DIR`` back packed, and the next node
 unpacks it (``unpack_caches.sh``, into ``$CACHES``, default ``/tmp/gpu_caches``) before its first build, so
-Warp's kernels and inductor's Triton code are not compiled again (docs/gpu.md "Cold start").
+Warp's kernels and inductor's Triton code are not compiled again (docs/gpu.md "Cold start"); Warp's CUDA sources and
+MathDx link-time objects are left out (:func:`warp_cache_member`). ``make gpu-aot`` (``tools/warp_aot.py``) fills
+``DIR/warp`` without a GPU.
 """
 
 from __future__ import annotations
@@ -50,13 +52,24 @@ def unpack(wheels: Path, site: Path, leave_out: tuple[str, ...] = LEAVE_OUT) -> 
     return done
 
 
-def pack(site: Path, out: Path, part_mb: float, name: str = "gpu_site", preset: int = 9 | lzma.PRESET_EXTREME
-         ) -> list[Path]:
-    """``site`` as a tar.xz split into parts ``<name>.tar.xz.part<k>`` of at most ``part_mb`` MB each."""
+def warp_cache_member(info: tarfile.TarInfo) -> tarfile.TarInfo | None:
+    """A compile cache's member as packed: Warp's CUDA sources (``warp/**/*.cu``; its cache lookup reads only a
+    module's binary and ``.meta``) and MathDx's link-time objects (``warp/*/lto/``; needed only to compile a tile
+    module again) are left out."""
+    name = info.name
+    if name.startswith("./warp/") and (name.endswith(".cu") or "/lto/" in name + "/"):
+        return None
+    return info
+
+
+def pack(site: Path, out: Path, part_mb: float, name: str = "gpu_site", preset: int = 9 | lzma.PRESET_EXTREME,
+         member=None) -> list[Path]:
+    """``site`` as a tar.xz split into parts ``<name>.tar.xz.part<k>`` of at most ``part_mb`` MB each;
+    ``member``: a tar filter (None leaves a member out)."""
     out.mkdir(parents=True, exist_ok=True)
     archive = out / f"{name}.tar.xz"
     with lzma.open(archive, "wb", preset=preset) as xz, tarfile.open(fileobj=xz, mode="w") as tar:
-        tar.add(site, arcname=".")
+        tar.add(site, arcname=".", filter=member)
     size = int(part_mb * 1e6)
     parts = []
     with open(archive, "rb") as f:
@@ -91,7 +104,7 @@ def main(argv: list[str] | None = None) -> None:
             p.error(f"--caches {args.caches} is not a folder")
         for old in args.out.glob("gpu_caches.tar.xz.part*") if args.out.exists() else ():
             old.unlink()
-        parts = pack(args.caches, args.out, args.part_mb, "gpu_caches", preset=1)  # caches change: pack fast
+        parts = pack(args.caches, args.out, args.part_mb, "gpu_caches", preset=6, member=warp_cache_member)
         line = unpack_line(parts, args.where, "CACHES", "/tmp/gpu_caches")
         (args.out / "unpack_caches.sh").write_text(line + "\n")
         print(f"{args.caches} -> {sum(q.stat().st_size for q in parts) / 1e6:.1f} MB xz in {len(parts)} part(s) in "

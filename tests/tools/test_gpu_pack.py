@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+import tarfile
 import zipfile
 from pathlib import Path
 
@@ -56,13 +57,58 @@ def test_a_cache_folder_round_trips(tmp_path):
     caches = tmp_path / "caches"
     (caches / "warp" / "k1").mkdir(parents=True)
     (caches / "warp" / "k1" / "module.cubin").write_bytes(os.urandom(9000))
+    (caches / "warp" / "k1" / "module.cu").write_text("// the source: left out")
+    (caches / "warp" / "1.19.0" / "lto").mkdir(parents=True)
+    (caches / "warp" / "1.19.0" / "lto" / "a.lto").write_bytes(b"mathdx: left out")
     (caches / "inductor").mkdir()
     (caches / "inductor" / "fx.bin").write_bytes(b"graph")
+    (caches / "inductor" / "kernel.cu").write_text("// not Warp's: kept")
     out = tmp_path / "pack"
     gpu_pack.main(["--caches", str(caches), "--out", str(out), "--part-mb", "0.004", "--where", str(out)])
     line = (out / "unpack_caches.sh").read_text().strip()
     assert line.startswith("CACHES=${CACHES:-/tmp/gpu_caches}")
     back = tmp_path / "back"
     subprocess.run(["bash", "-c", line], env={**os.environ, "CACHES": str(back)}, check=True)
-    for rel in ("warp/k1/module.cubin", "inductor/fx.bin"):
+    for rel in ("warp/k1/module.cubin", "inductor/fx.bin", "inductor/kernel.cu"):
         assert (back / rel).read_bytes() == (caches / rel).read_bytes()
+    assert not (back / "warp/k1/module.cu").exists() and not (back / "warp/1.19.0/lto").exists()
+
+
+def test_the_lease_script_unpacks_carried_caches_and_says_which_kernels_the_node_compiled(tmp_path):
+    """``tools/gpu_lease.sh`` with no sections (nothing needs a GPU): the carried caches (``make gpu-caches``) are
+    unpacked before anything runs, a Warp module written during the lease counts as compiled on the node, the
+    carried one as carried, and the caches go back in parts."""
+    repo = Path(__file__).resolve().parents[2]
+    caches = tmp_path / "carried"
+    old = caches / "warp" / "1.19.0" / "wp_a_1234567"
+    old.mkdir(parents=True)
+    (old / "wp_a_1234567.sm90.cubin").write_bytes(os.urandom(3000))
+    pack = tmp_path / "pack"
+    gpu_pack.main(["--caches", str(caches), "--out", str(pack), "--part-mb", "0.002", "--where", str(pack)])
+    assert len(list(pack.glob("gpu_caches.tar.xz.part*"))) >= 2
+    site, node, out = tmp_path / "site", tmp_path / "node", tmp_path / "out"
+    (site / "warp").mkdir(parents=True)  # the wheels already unpacked: the script skips them
+    out.mkdir()
+    # a stand-in `python` on PATH that "compiles" one more module whenever the script runs Python
+    bin_ = tmp_path / "bin"
+    bin_.mkdir()
+    new = node / "warp" / "1.19.0" / "wp_b_7654321"
+    (bin_ / "python").write_text(f"#!/bin/sh\nmkdir -p {new} && touch {new}/wp_b_7654321.sm90.cubin "
+                                 f"{new}/wp_b_7654321.cu\n")
+    (bin_ / "python").chmod(0o755)
+    env = {**os.environ, "OUT": str(out), "PACK": str(pack), "SITE": str(site), "CACHES": str(node),
+           "SECTIONS": "", "LEASE_S": "60", "PATH": f"{bin_}:{os.environ['PATH']}"}
+    run = subprocess.run(["bash", str(repo / "dls_quadruped/tools/gpu_lease.sh")], cwd=repo, env=env,
+                         capture_output=True, text=True, timeout=120, check=False)
+    assert run.returncode == 0, run.stdout + run.stderr
+    with tarfile.open(out / "results.tar") as tar:  # the small results come back in one tar
+        sizes = tar.extractfile("./cache_sizes.txt").read().decode()
+    assert "compiled on the node: 1, carried: 1" in sizes and "wp_b_7654321.sm90.cubin" in sizes, sizes
+    assert (node / "warp/1.19.0/wp_a_1234567/wp_a_1234567.sm90.cubin").read_bytes() == \
+        (old / "wp_a_1234567.sm90.cubin").read_bytes()
+    parts = sorted(out.glob("gpu_caches.tar.xz.part*"))
+    names = subprocess.run(f"cat {' '.join(map(str, parts))} | xz -d | tar -t", shell=True, check=True,
+                           capture_output=True, text=True).stdout.split()
+    assert "./warp/1.19.0/wp_b_7654321/wp_b_7654321.sm90.cubin" in names, names
+    assert "./warp/1.19.0/wp_a_1234567/wp_a_1234567.sm90.cubin" in names
+    assert not [n for n in names if n.endswith(".cu")]  # Warp's sources stay behind
