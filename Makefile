@@ -17,7 +17,7 @@ NUM_ENVS ?= 64
 SECONDS_PER_PHASE ?= 5
 OUT ?= results
 
-.PHONY: install install-gpu install-offline wheelhouse gpu-pack gpu-caches gpu-aot gpu-check test test-gpu-path test-all docs demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
+.PHONY: install install-gpu install-offline wheelhouse gpu-pack gpu-caches gpu-aot gpu-plan gpu-check test test-gpu-path test-all docs demo demo-balance bench bench-env bench-terrain bench-mpc bench-rl bench-ppo bench-closed-loop bench-gym bench-device lint clean
 
 # One stamp per (TORCH_SPEC, TORCH_INDEX): changing either re-installs torch (--force-reinstall: pip would keep a
 # 2.13.0+cpu build for a cu128 index's torch==2.13.0, the same version to it).
@@ -76,6 +76,11 @@ gpu-caches:
 GPU_ARCH ?= 90
 gpu-aot: install-gpu
 	$(PY) -m dls_quadruped.tools.warp_aot --cache $(GPU_CACHES)/warp --arch $(GPU_ARCH)
+
+# the calls of one lease: the tree (docs/ left behind but for what the lease reads) and the parts in GPU_PACK, each
+# call's size against the 64 MiB a call carries, and the git lines that leave docs/ behind and restore it
+gpu-plan:
+	$(strip $(if $(wildcard $(STAMP)),$(PY),$(PYTHON)) -m dls_quadruped.tools.gpu_pack --plan --out $(GPU_PACK))
 
 install-offline:
 	test -d "$(WHEELHOUSE)" || { echo "install-offline: WHEELHOUSE=$(WHEELHOUSE) is not a folder (make wheelhouse)"; exit 2; }

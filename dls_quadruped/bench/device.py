@@ -174,13 +174,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--device", type=torch_device, default="cuda" if torch.cuda.is_available() else "cpu",
                    help="torch device of the env and the MPC (default: cuda if available)")
     p.add_argument("--backend", default=None, help="simulator backend (default: cuda on a GPU, else cpu)")
-    p.add_argument("--tasks", nargs="+", default=["base", "rough"])
+    p.add_argument("--tasks", nargs="*", default=["base", "rough"], help="tasks of the env rows (none: skip them)")
     p.add_argument("--sizes", nargs="+", type=int, default=None,
                    help=f"robots per env (default {list(GPU_SIZES)} on a GPU, {list(CPU_SIZES)} on the CPU)")
     p.add_argument("--steps", type=int, default=60, help="measured env steps per size (60: 1.2 s, resets and pushes "
                                                          "included)")
     p.add_argument("--warmup", type=int, default=3, help="env steps before timing (Warp compiles on the first)")
-    p.add_argument("--samples", nargs="+", type=int, default=[10000, 100000], help="MPC samples M")
+    p.add_argument("--samples", nargs="*", type=int, default=[10000, 100000],
+                   help="MPC samples M of the solve rows (none: skip them)")
     p.add_argument("--horizon", type=int, default=10)
     p.add_argument("--kernel", default=None, help="MPC kernel (default: warp on a GPU, cpp on the CPU)")
     p.add_argument("--solves", type=int, default=30)

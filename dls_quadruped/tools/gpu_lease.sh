@@ -5,6 +5,7 @@
 #   mpc    the sampling MPC's warp kernel over M and B (bench/mpc_warp.py)         MPC_S   (default 150 s)
 #   scaling  solve time against M x B, the cost-against-work grid (bench/mpc_scaling.py)  SCALING_S (default 150 s)
 #   check  `make gpu-check`'s env sections: graph, syncs, launches, faults, env, gpu_busy, rough  CHECK_S (default 0: skipped)
+#   loop   the closed loop on the device, naive-warm-start MPC, B = LOOP_B robots (bench/device.py)  LOOP_S (default 150 s)
 #   train  base at 4 096 robots, continued from TRAIN_FROM, for TRAIN_S seconds     TRAIN_S (default: what is left)
 #          (TRAIN_ARGS: more train arguments, e.g. "--set scene.cuda_graph=true": the step as one CUDA graph)
 # and pack the compile caches it filled for the next node (carried caches, e.g. `make gpu-aot` + `make gpu-caches`,
@@ -58,6 +59,12 @@ for section in $SECTIONS; do
             --budget-s "$budget" --skip compile,trajectories,mpc,train > "$OUT/gpu_check.log" 2>&1
         cp "$OUT/check/report.json" "$OUT/gpu_check.json" 2>/dev/null; rm -rf "$OUT/check"
         echo "check: after $(( $(date +%s) - T0 )) s" ;;
+    loop)
+        budget=$(( ${LOOP_S:-150} < $(left) - 60 ? ${LOOP_S:-150} : $(left) - 60 ))
+        timeout "$budget" python -m dls_quadruped.bench.device --device cuda --backend cuda --tasks --samples \
+            --closed-loop-robots ${LOOP_B:-1024} --out "$OUT/loop" 2>&1 | tail -12
+        echo "loop: rc ${PIPESTATUS[0]} after $(( $(date +%s) - T0 )) s"
+        cp "$OUT/loop/device.json" "$OUT/device_loop_cuda.json" 2>/dev/null; rm -rf "$OUT/loop" ;;
     train)
         budget=${TRAIN_S:-$(( $(left) - 45 ))}
         run=/tmp/lease_run_$$
@@ -78,7 +85,7 @@ PY
         python -m dls_quadruped.viz.learning_curve "$run" --csv "$OUT/learning_curve.csv" \
             --png "$OUT/learning_curve.png" 2>&1 | tail -1
         cp "$run/exported/policy.pt2" "$OUT/base_gpu_actor.pt2" 2>/dev/null ;;
-    *) echo "gpu_lease: unknown section $section (allowed: mpc check train)"; exit 2 ;;
+    *) echo "gpu_lease: unknown section $section (allowed: mpc scaling check loop train)"; exit 2 ;;
     esac
 done
 du -sb "$CACHES"/* 2>/dev/null | tee "$OUT/cache_sizes.txt"

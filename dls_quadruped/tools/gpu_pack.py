@@ -27,7 +27,7 @@ import tempfile
 import zipfile
 from pathlib import Path
 
-from dls_quadruped.cli import ArgumentParser, positive_float, run_cli
+from dls_quadruped.cli import ArgumentParser, UserError, positive_float, run_cli
 from dls_quadruped.tools import wheelhouse
 
 NODE_HAS = ("torch,numpy,pyyaml,tqdm,absl-py,etils,cloudpickle,packaging,matplotlib,tensorboard,onnx,"
@@ -87,6 +87,60 @@ def unpack_line(parts: list[Path], where: str, var: str = "SITE", default: str =
     return f'{var}=${{{var}:-{default}}}; mkdir -p "${var}" && cat {names} | xz -d -T0 | tar -x -C "${var}"'
 
 
+LEASE_READS = ("docs/policies/gpu/base_h200_resume.pt",)
+"""The files under ``docs/`` a lease reads (``tools/gpu_lease.sh``'s default ``TRAIN_FROM``); the rest of ``docs/``
+(curves, figures, policies, experiment records) stays behind."""
+
+CALL_LIMIT_MB = 64 * 2**20 / 1e6
+"""What one call to the nodes this project is lent carries, working tree included: 64 MiB."""
+
+
+def lease_tree(repo: Path) -> list[Path]:
+    """The tracked files a lease carries: everything outside ``docs/``, and :data:`LEASE_READS`."""
+    import subprocess
+
+    out = subprocess.run(["git", "ls-files", "-z"], cwd=repo, capture_output=True, check=True).stdout
+    files = [f for f in out.decode().split("\0") if f and (not f.startswith("docs/") or f in LEASE_READS)]
+    return [repo / f for f in files if (repo / f).is_file()]
+
+
+def plan_calls(pack_dir: Path, tree_bytes: int, limit_mb: float = CALL_LIMIT_MB) -> list[dict]:
+    """The calls of one lease: each carries the tree and one part of the wheels, the last one also the caches'
+    parts (``make gpu-caches``); raises :class:`UserError` when a call would exceed ``limit_mb`` or no wheels
+    are packed."""
+    def parts(name: str) -> list[Path]:
+        return sorted(pack_dir.glob(f"{name}.tar.xz.part*"), key=lambda q: int(q.name.rsplit("part", 1)[1]))
+
+    site, caches = parts("gpu_site"), parts("gpu_caches")
+    if not site:
+        raise UserError(f"no gpu_site.tar.xz.part* in {pack_dir}: run `make gpu-pack` first")
+    calls = [[q] for q in site[:-1]] + [[site[-1], *caches]]
+    rows = [{"carry": [str(q) for q in call], "mb": (tree_bytes + sum(q.stat().st_size for q in call)) / 1e6}
+            for call in calls]
+    over = [r for r in rows if r["mb"] > limit_mb]
+    if over:
+        raise UserError(f"a call would carry {over[0]['mb']:.1f} MB (limit {limit_mb:.1f} MB): "
+                        f"{', '.join(over[0]['carry'])} with a {tree_bytes / 1e6:.1f} MB tree; pack smaller parts "
+                        "(--part-mb) or carry less")
+    return rows
+
+
+def print_plan(repo: Path, pack_dir: Path, limit_mb: float) -> list[dict]:
+    """Print the lease's calls, their sizes and how to leave ``docs/`` behind (git's index) and restore it."""
+    tree = lease_tree(repo)
+    tree_bytes = sum(f.stat().st_size for f in tree)
+    rows = plan_calls(pack_dir, tree_bytes, limit_mb)
+    print(f"the tree a lease carries: {len(tree)} tracked files, {tree_bytes / 1e6:.1f} MB (outside docs/, and "
+          f"{', '.join(LEASE_READS)}); calls, each at most {limit_mb:.1f} MB:")
+    for k, r in enumerate(rows, 1):
+        how = "moves its part to /root" if k < len(rows) else "runs tools/gpu_lease.sh"
+        print(f"  call {k}: {r['mb']:.1f} MB, carries {' '.join(r['carry'])}; {how}")
+    keep = " ".join(LEASE_READS)
+    print(f"leave docs/ behind:  git rm -r -q --cached docs && git add -f {keep} && echo /docs/ >> .git/info/exclude\n"
+          "restore after:       sed -i '\\#^/docs/$#d' .git/info/exclude && git reset -q")
+    return rows
+
+
 def main(argv: list[str] | None = None) -> None:
     p = ArgumentParser(prog="dls_quadruped.tools.gpu_pack", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=Path(".gpu_pack"), help="folder for the parts (created)")
@@ -98,7 +152,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--where", default=".gpu_pack", help="where unpack.sh looks for the parts on the node")
     p.add_argument("--caches", type=Path, default=None, metavar="DIR",
                    help="pack this compile-cache folder (warp/, inductor/) instead of the wheels")
+    p.add_argument("--plan", action="store_true",
+                   help="print the calls of a lease (the tree and the parts in --out, each call's size) and stop")
+    p.add_argument("--limit-mb", type=positive_float, default=CALL_LIMIT_MB,
+                   help=f"what one call carries (default {CALL_LIMIT_MB:.1f} MB = 64 MiB)")
     args = p.parse_args(argv)
+    if args.plan:
+        print_plan(Path(__file__).resolve().parents[2], args.out, args.limit_mb)
+        return
     if args.caches is not None:
         if not args.caches.is_dir():
             p.error(f"--caches {args.caches} is not a folder")

@@ -28,6 +28,16 @@ def test_device_bench_writes_env_mpc_and_closed_loop_rows(tmp_path: Path) -> Non
     assert loop["robots"] == 2 and loop["robot_seconds_per_second"] > 0 and 0 < loop["kernel_share"] < 1
 
 
+def test_the_closed_loop_rows_alone(tmp_path: Path) -> None:
+    """``--tasks`` and ``--samples`` given no value skip the env and solve rows (the GPU lease's ``loop``)."""
+    D.main(["--device", "cpu", "--backend", "cpu", "--tasks", "--samples", "--closed-loop-robots", "2",
+            "--closed-loop-seconds", "0.1", "--closed-loop-samples", "300", "--out", str(tmp_path)])
+    res = json.loads((tmp_path / "device.json").read_text())
+    assert res["env"] == [] and res["mpc"] == []
+    (loop,) = res["closed_loop"]
+    assert loop["robots"] == 2 and loop["samples"] == 300 and loop["robot_seconds_per_second"] > 0
+
+
 def test_unknown_backend_is_a_usage_error(capsys) -> None:
     with pytest.raises(SystemExit) as err:
         D.main(["--device", "cpu", "--backend", "warp-typo", "--out", "/nonexistent"])

@@ -112,3 +112,48 @@ def test_the_lease_script_unpacks_carried_caches_and_says_which_kernels_the_node
     assert "./warp/1.19.0/wp_b_7654321/wp_b_7654321.sm90.cubin" in names, names
     assert "./warp/1.19.0/wp_a_1234567/wp_a_1234567.sm90.cubin" in names
     assert not [n for n in names if n.endswith(".cu")]  # Warp's sources stay behind
+
+
+def _parts(folder: Path, name: str, sizes: list[int]) -> None:
+    folder.mkdir(exist_ok=True)
+    for k, size in enumerate(sizes, 1):
+        (folder / f"{name}.tar.xz.part{k}").write_bytes(b"x" * size)
+
+
+def test_a_lease_carries_one_wheel_part_per_call_and_the_caches_with_the_last(tmp_path):
+    _parts(tmp_path, "gpu_site", [1000, 1000, 700])
+    _parts(tmp_path, "gpu_caches", [200])
+    rows = gpu_pack.plan_calls(tmp_path, tree_bytes=500, limit_mb=0.0015)
+    assert [[Path(c).name for c in r["carry"]] for r in rows] == [
+        ["gpu_site.tar.xz.part1"], ["gpu_site.tar.xz.part2"], ["gpu_site.tar.xz.part3", "gpu_caches.tar.xz.part1"]]
+    assert [r["mb"] for r in rows] == [0.0015, 0.0015, 0.0014]
+
+
+def test_a_call_over_the_limit_or_no_wheels_is_refused(tmp_path):
+    _parts(tmp_path, "gpu_site", [1_000_000, 900_000])
+    _parts(tmp_path, "gpu_caches", [200_000])
+    assert len(gpu_pack.plan_calls(tmp_path, tree_bytes=400_000, limit_mb=1.5)) == 2
+    with pytest.raises(gpu_pack.UserError, match=r"a call would carry 1.6 MB \(limit 1.5 MB\): .*part2"):
+        gpu_pack.plan_calls(tmp_path, tree_bytes=500_000, limit_mb=1.5)
+    with pytest.raises(gpu_pack.UserError, match="make gpu-pack"):
+        gpu_pack.plan_calls(tmp_path / "empty", tree_bytes=0)
+
+
+def test_the_tree_a_lease_carries_is_the_code_and_what_the_lease_reads_under_8_mb():
+    """Issue 52 item 6: what a GPU job needs of the tracked tree stays under 8 MB (the checkpoint it continues from
+    aside); docs/ stays behind but for the files the lease reads."""
+    repo = Path(__file__).resolve().parents[2]
+    tree = {str(f.relative_to(repo)) for f in gpu_pack.lease_tree(repo)}
+    assert {"Makefile", "dls_quadruped/tools/gpu_lease.sh", "tasks/base.yaml", *gpu_pack.LEASE_READS} <= tree
+    assert not [f for f in tree if f.startswith("docs/") and f not in gpu_pack.LEASE_READS]
+    code = sum((repo / f).stat().st_size for f in tree if f not in gpu_pack.LEASE_READS)
+    assert code < 8e6, f"{code / 1e6:.1f} MB"
+
+
+def test_the_plan_prints_each_call_and_how_to_leave_docs_behind(tmp_path, capsys):
+    _parts(tmp_path, "gpu_site", [1000, 900])
+    gpu_pack.main(["--plan", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert "call 1: " in out and "moves its part to /root" in out and "call 2: " in out
+    assert "git rm -r -q --cached docs && git add -f docs/policies/gpu/base_h200_resume.pt" in out
+    assert "git reset -q" in out
