@@ -64,6 +64,7 @@ def figure(results: dict, path: Path) -> None:
     for ax, key, title in ((axes[0], "initial_cost", "Fig. 26: initial (state) cost"),
                            (axes[1], "rollout_cost", "Fig. 27: rollout cost (state-only)")):
         for off, ctrl, color in ((-0.2, "rl_warm_start", "C0"), (0.2, "naive_warm_start", "C1")):
+            label = ctrl  # on the controller's first plotted encoding, whichever it is
             for i, (p, F) in enumerate(ENCODINGS):
                 s = results.get(f"{ctrl}_{p}-{F}", {})
                 m = s.get(key)
@@ -71,11 +72,13 @@ def figure(results: dict, path: Path) -> None:
                     continue
                 lo, hi = m.get("ci95", [m["q1"], m["q3"]])
                 ax.errorbar(i + off, m["median"], yerr=[[m["median"] - lo], [hi - m["median"]]], fmt="o",
-                            color=color, capsize=3, label=ctrl if i == 0 else None)
+                            color=color, capsize=3, label=label)
+                label = None
         ax.set_xticks(range(len(labels)), labels, rotation=30)
         ax.set_yscale("log")
         ax.set_title(title + " (median, 95 % CI)", fontsize=9)
-        ax.legend(fontsize=8)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
     save(fig, path)
 
 
