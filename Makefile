@@ -108,7 +108,8 @@ test: $(STAMP)
 GPU_PATH_TESTS ?= tests/sim/test_warp_backend.py tests/sim/test_warp_graph.py tests/sim/test_warp_collision.py \
 	tests/sim/test_warp_control.py tests/envs/test_host_sync.py tests/envs/test_compile_guards.py \
 	tests/bench/test_gpu_check.py tests/core/test_compile.py tests/mpc/test_warp_solve.py tests/closed_loop/test_device_loop.py \
-	tests/bench/test_device_loop_bench.py tests/envs/test_env_graph.py tests/tools/test_warp_aot.py
+	tests/bench/test_device_loop_bench.py tests/envs/test_env_graph.py tests/tools/test_warp_aot.py \
+	tests/tools/test_gpu_lease.py
 test-gpu-path: install-gpu
 	$(strip $(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile -m "slow or not slow" $(GPU_PATH_TESTS))
 

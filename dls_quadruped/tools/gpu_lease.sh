@@ -2,16 +2,17 @@
 # One short GPU lease, run from the checkout's root on a node with torch + CUDA but no network (docs/gpu.md
 # "A short GPU lease"): unpack the [gpu] wheels packed by `make gpu-pack` (and the caches of `make gpu-caches`, if
 # carried), then, each within its own time box and writing into $OUT:
-#   mpc    the sampling MPC's warp kernel over M and B (bench/mpc_warp.py)         MPC_S   (default 150 s)
-#   scaling  solve time against M x B, the cost-against-work grid (bench/mpc_scaling.py)  SCALING_S (default 150 s)
-#   check  `make gpu-check`'s env sections: graph, syncs, launches, faults, env, gpu_busy, rough  CHECK_S (default 0: skipped)
-#   loop   the closed loop on the device, naive-warm-start MPC, B = LOOP_B robots (bench/device.py)  LOOP_S (default 150 s)
-#   train  base at 4 096 robots, continued from TRAIN_FROM, for TRAIN_S seconds     TRAIN_S (default: what is left)
-#          (TRAIN_ARGS: more train arguments, e.g. "--set scene.cuda_graph=true": the step as one CUDA graph)
+#   mpc      the sampling MPC's warp kernel over M and B (bench/mpc_warp.py)                      MPC_S (default 150 s)
+#   scaling  solve time against M x B, the cost-against-work grid (bench/mpc_scaling.py)          SCALING_S (150 s)
+#   check    `make gpu-check`'s env sections: graph, syncs, launches, faults, env, gpu_busy, rough  CHECK_S (0: skipped)
+#   loop     the closed loop on the device, naive-warm-start MPC, LOOP_B robots (bench/device.py)  LOOP_S (150 s)
+#   train    base at TRAIN_ENVS (4 096) robots, continued from TRAIN_FROM                         TRAIN_S (what is left)
+#            (TRAIN_ARGS: more train arguments, e.g. "--set scene.cuda_graph=true": the step as one CUDA graph)
 # and pack the compile caches it filled for the next node (carried caches, e.g. `make gpu-aot` + `make gpu-caches`,
-# are unpacked first; cache_sizes.txt lists the Warp modules the node still compiled). LEASE_S (default 600) is the whole command's budget;
-# SECTIONS (default "mpc train") chooses and orders the sections. Every section's output lands in $OUT even when a
-# later one fails.
+# are unpacked first; cache_sizes.txt lists the Warp modules the node still compiled). LEASE_S (default 600) is the
+# whole command's budget; SECTIONS (default "mpc train") chooses and orders the sections. Every section's output
+# lands in $OUT even when a later one fails. LEASE_DEVICE=cpu runs the same sections on Warp's CPU device (backend
+# warp-cpu): a dry run of the lease's commands on a machine without a GPU (tests/tools/test_gpu_pack.py).
 set -u
 T0=$(date +%s)
 OUT=${OUT:?set OUT to the folder the results go to}
@@ -22,6 +23,12 @@ TRAIN_FROM=${TRAIN_FROM:-docs/policies/gpu/base_h200_resume.pt}
 export PYTHONUNBUFFERED=1 SITE=${SITE:-/tmp/gpu_site} CACHES=${CACHES:-/tmp/gpu_caches}
 export WARP_CACHE_PATH=$CACHES/warp TORCHINDUCTOR_CACHE_DIR=$CACHES/inductor
 left() { echo $(( LEASE_S - ($(date +%s) - T0) )); }
+DEVICE=${LEASE_DEVICE:-cuda}
+case $DEVICE in
+    cuda) BACKEND=cuda ;;
+    cpu) BACKEND=warp-cpu ;;
+    *) echo "gpu_lease: LEASE_DEVICE=$DEVICE (allowed: cuda, cpu)"; exit 2 ;;
+esac
 
 if [ ! -d "$SITE/warp" ]; then
     # the first call of a lease may have moved part 1 to /root (a call carries at most 64 MiB): look in both
@@ -45,31 +52,32 @@ for section in $SECTIONS; do
     case $section in
     mpc)
         budget=$(( ${MPC_S:-150} < $(left) - 60 ? ${MPC_S:-150} : $(left) - 60 ))
-        timeout $(( budget + 30 )) python -m dls_quadruped.bench.mpc_warp --device cuda --budget-s "$budget" \
-            --out "$OUT/mpc_warp.json" 2>&1 | tail -40
+        timeout $(( budget + 30 )) python -m dls_quadruped.bench.mpc_warp --device "$DEVICE" --budget-s "$budget" \
+            --out "$OUT/mpc_warp.json" ${MPC_ARGS:-} 2>&1 | tail -40
         echo "mpc: rc ${PIPESTATUS[0]} after $(( $(date +%s) - T0 )) s" ;;
     scaling)
         budget=$(( ${SCALING_S:-150} < $(left) - 60 ? ${SCALING_S:-150} : $(left) - 60 ))
-        timeout $(( budget + 30 )) python -m dls_quadruped.bench.mpc_scaling --device cuda --budget-s "$budget" \
-            --out "$OUT" 2>&1 | tail -30
+        timeout $(( budget + 30 )) python -m dls_quadruped.bench.mpc_scaling --device "$DEVICE" --budget-s "$budget" \
+            --out "$OUT" ${SCALING_ARGS:-} 2>&1 | tail -30
         echo "scaling: rc ${PIPESTATUS[0]} after $(( $(date +%s) - T0 )) s" ;;
     check)
         budget=${CHECK_S:-0}
         [ "$budget" -gt 0 ] && timeout $(( budget + 60 )) python -m dls_quadruped.bench.gpu_check --out "$OUT/check" \
-            --budget-s "$budget" --skip compile,trajectories,mpc,train > "$OUT/gpu_check.log" 2>&1
+            --device "$DEVICE" --budget-s "$budget" --skip compile,trajectories,mpc,train ${CHECK_ARGS:-} \
+            > "$OUT/gpu_check.log" 2>&1
         cp "$OUT/check/report.json" "$OUT/gpu_check.json" 2>/dev/null; rm -rf "$OUT/check"
         echo "check: after $(( $(date +%s) - T0 )) s" ;;
     loop)
         budget=$(( ${LOOP_S:-150} < $(left) - 60 ? ${LOOP_S:-150} : $(left) - 60 ))
-        timeout "$budget" python -m dls_quadruped.bench.device --device cuda --backend cuda --tasks --samples \
-            --closed-loop-robots ${LOOP_B:-1024} --out "$OUT/loop" 2>&1 | tail -12
+        timeout "$budget" python -m dls_quadruped.bench.device --device "$DEVICE" --backend "$BACKEND" --tasks --samples \
+            --closed-loop-robots "${LOOP_B:-1024}" --out "$OUT/loop" ${LOOP_ARGS:-} 2>&1 | tail -12
         echo "loop: rc ${PIPESTATUS[0]} after $(( $(date +%s) - T0 )) s"
-        cp "$OUT/loop/device.json" "$OUT/device_loop_cuda.json" 2>/dev/null; rm -rf "$OUT/loop" ;;
+        cp "$OUT/loop/device.json" "$OUT/closed_loop_$DEVICE.json" 2>/dev/null; rm -rf "$OUT/loop" ;;
     train)
         budget=${TRAIN_S:-$(( $(left) - 45 ))}
         run=/tmp/lease_run_$$
-        timeout $(( budget + 60 )) python -m dls_quadruped.learning.train --task base --device cuda --backend cuda \
-            --num-envs 4096 --iterations 100000 --resume-from "$TRAIN_FROM" --time-limit "$budget" --run-dir "$run" \
+        timeout $(( budget + 60 )) python -m dls_quadruped.learning.train --task base --device "$DEVICE" --backend "$BACKEND" \
+            --num-envs "${TRAIN_ENVS:-4096}" --iterations 100000 --resume-from "$TRAIN_FROM" --time-limit "$budget" --run-dir "$run" \
             --save-every-min 3 ${TRAIN_ARGS:-} > "$OUT/train.log" 2>&1
         echo "train: rc $? after $(( $(date +%s) - T0 )) s"
         grep -E "time limit|Traceback|Error" "$OUT/train.log" | head -5
