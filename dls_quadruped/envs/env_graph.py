@@ -7,7 +7,8 @@ Warp's kernels of the four physics steps -- it is one ``torch.cuda.CUDAGraph.rep
 * **Warm-up.** The first :data:`GRAPH_WARMUP` steps (in each grad/inference mode) run eagerly: ``torch.compile``
   compiles, Warp loads its kernels, the managers build their caches.
 * **Capture.** The next step is captured on a side stream (``torch.cuda.graph``); Warp is told the capture is
-  external (``wp.capture_begin(external=True)`` on the same stream, the pattern of Warp's own torch tests), so
+  external (``wp.capture_begin(external=True)`` on the same stream, the pattern of Warp's own torch tests; both in
+  thread-local capture mode, since Warp must be told the mode torch opened the capture in), so
   MuJoCo Warp's solver loop becomes a conditional node of this graph, and its phases launch their kernels into it
   instead of replaying their own graphs (``WarpSim.graph_body``). A capture runs nothing: the graph is replayed
   once right after.
@@ -79,9 +80,11 @@ class CudaCapture:
         stream.wait_stream(torch.cuda.current_stream(self.device))
         wstream = wp.stream_from_torch(stream)  # Warp finds its capture by this object: the backend uses it
         self._streams = (stream, wstream)
+        # Warp is told the mode torch opened the capture in (its contract for an external capture): thread-local
         with (wp.ScopedDevice(wp.device_from_torch(self.device)), wp.ScopedStream(wstream),
-              torch.cuda.graph(graph, stream=stream)):
-            wp.capture_begin(stream=wstream, force_module_load=False, external=True)
+              torch.cuda.graph(graph, stream=stream, capture_error_mode="thread_local")):
+            wp.capture_begin(stream=wstream, force_module_load=False, external=True,
+                             capture_mode=wp.CaptureMode.THREAD_LOCAL)
             try:
                 out = body(wstream)
             finally:

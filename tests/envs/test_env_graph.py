@@ -423,13 +423,15 @@ def test_the_cuda_capture_registers_warp_on_the_stream_it_hands_the_step(monkeyp
         device_from_torch=lambda d: f"wp:{d}",
         ScopedDevice=lambda d: _Ctx("wp.ScopedDevice", d),
         ScopedStream=lambda s: _Ctx("wp.ScopedStream", s),
+        CaptureMode=SimpleNamespace(THREAD_LOCAL="thread-local mode"),
         capture_begin=lambda **k: calls.append(("capture_begin", k)),
         capture_end=lambda **k: calls.append(("capture_end", k)))
     monkeypatch.setitem(sys.modules, "warp", fake_wp)
     monkeypatch.setattr(torch.cuda, "CUDAGraph", _Graph)
     monkeypatch.setattr(torch.cuda, "Stream", lambda device: torch_stream)
     monkeypatch.setattr(torch.cuda, "current_stream", lambda device: "the current stream")
-    monkeypatch.setattr(torch.cuda, "graph", lambda g, stream: _Ctx("torch.cuda.graph", stream=stream))
+    monkeypatch.setattr(torch.cuda, "graph", lambda g, stream, capture_error_mode: _Ctx(
+        "torch.cuda.graph", stream=stream, capture_error_mode=capture_error_mode))
 
     got = []
     cap = CudaCapture(torch.device("cuda:0"))
@@ -437,10 +439,13 @@ def test_the_cuda_capture_registers_warp_on_the_stream_it_hands_the_step(monkeyp
     assert out == "outputs" and got == [wstream]
     assert calls[0] == ("wait", "the current stream")  # the capture stream starts after the queued work
     assert ("enter", "wp.ScopedStream", (wstream,), {}) in calls
-    assert ("enter", "torch.cuda.graph", (), {"stream": torch_stream}) in calls
-    begin = calls.index(("capture_begin", {"stream": wstream, "force_module_load": False, "external": True}))
+    opened = ("enter", "torch.cuda.graph", (), {"stream": torch_stream, "capture_error_mode": "thread_local"})
+    assert opened in calls
+    # Warp is told the capture is external and opened thread-local, as torch opened it
+    begin = calls.index(("capture_begin", {"stream": wstream, "force_module_load": False, "external": True,
+                                           "capture_mode": "thread-local mode"}))
     end = calls.index(("capture_end", {"stream": wstream}))
-    assert calls.index(("enter", "torch.cuda.graph", (), {"stream": torch_stream})) < begin < end
+    assert calls.index(opened) < begin < end
     assert end < calls.index(("exit", "torch.cuda.graph")) < calls.index(("replay",)) == len(calls) - 1
 
     calls.clear()
