@@ -100,7 +100,8 @@ du -sb "$CACHES"/* 2>/dev/null | tee "$OUT/cache_sizes.txt"
 echo "warp modules compiled on the node: $(find "$CACHES/warp" -name '*.sm*' -newer /tmp/lease_t0_$$ | wc -l)," \
     "carried: $(find "$CACHES/warp" -name '*.sm*' ! -newer /tmp/lease_t0_$$ | wc -l)" | tee -a "$OUT/cache_sizes.txt"
 find "$CACHES/warp" -name '*.sm*' -newer /tmp/lease_t0_$$ -printf '%f\n' 2>/dev/null | sort >> "$OUT/cache_sizes.txt"
-# at most 8 files of <= 16 MB come back: the small results in one tar, the checkpoint, the caches in 15 MB parts
+# at most 8 files of <= 16 MB come back (caches without Warp's sources and LTO, as gpu_pack.warp_cache_member;
+# xz -T0 here, fast on the node's cores): the small results in one tar, the checkpoint, the caches in 15 MB parts
 (cd "$OUT" && tar -cf results.tar --exclude=results.tar --exclude='*.pt' --exclude='gpu_caches*' . \
     && find . -maxdepth 1 -type f ! -name results.tar ! -name '*.pt' -delete)
 (cd "$CACHES" && tar -cf - --exclude='./warp/*.cu' --exclude='./warp/*/lto' . | xz -1 -T0 > /tmp/gpu_caches.tar.xz) && [ "$(left)" -gt 5 ] && \

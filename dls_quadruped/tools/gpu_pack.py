@@ -22,6 +22,7 @@ MathDx link-time objects are left out (:func:`warp_cache_member`). ``make gpu-ao
 from __future__ import annotations
 
 import lzma
+import subprocess
 import tarfile
 import tempfile
 import zipfile
@@ -97,8 +98,6 @@ CALL_LIMIT_MB = 64 * 2**20 / 1e6
 
 def lease_tree(repo: Path) -> list[Path]:
     """The tracked files a lease carries: everything outside ``docs/``, and :data:`LEASE_READS`."""
-    import subprocess
-
     out = subprocess.run(["git", "ls-files", "-z"], cwd=repo, capture_output=True, check=True).stdout
     files = [f for f in out.decode().split("\0") if f and (not f.startswith("docs/") or f in LEASE_READS)]
     return [repo / f for f in files if (repo / f).is_file()]

@@ -140,7 +140,7 @@ def test_a_call_over_the_limit_or_no_wheels_is_refused(tmp_path):
 
 
 def test_the_tree_a_lease_carries_is_the_code_and_what_the_lease_reads_under_8_mb():
-    """Issue 52 item 6: what a GPU job needs of the tracked tree stays under 8 MB (the checkpoint it continues from
+    """What a GPU job needs of the tracked tree stays under 8 MB (the checkpoint it continues from
     aside); docs/ stays behind but for the files the lease reads."""
     repo = Path(__file__).resolve().parents[2]
     tree = {str(f.relative_to(repo)) for f in gpu_pack.lease_tree(repo)}
